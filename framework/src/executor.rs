@@ -1,0 +1,376 @@
+//! The scheduler's two executors, running the same module code (seed 000, 6.3; seed 004,
+//! "Periodic_Thread").
+//!
+//! - [`LockstepExecutor`]: simulated time, one thread, deterministic. Each [`LockstepExecutor::tick`]
+//!   advances the [`SimClock`] by the base period, then runs the modules that are due in a fixed
+//!   order: by kind (sensor, resource, coordination, actuator, external), then registration order.
+//!   A periodic module is due when the time is a multiple of its period; an aperiodic module when
+//!   messages wait for it. Emergency messages are handled at the next tick by every module, due or
+//!   not. Overruns compare the simulated cost a module declares ([`crate::Ctx::charge`]) with its
+//!   deadline, so they are deterministic too; wall-clock execution time is measured for statistics.
+//! - [`RealtimeExecutor`]: wall-clock time, one thread per module (periodic ones sleep until their
+//!   next release, waking early for emergency messages; aperiodic ones wait for messages), skipped
+//!   cycles counted when a module is late by whole periods, overruns measured on the wall clock, and a
+//!   watchdog thread that isolates a module whose step stays busy past its hang timeout.
+
+use crate::clock::{Clock, ClockDriver, SimClock, WallClock};
+use crate::config::Schedule;
+use crate::lifecycle::Lifecycle;
+use crate::message::{AckStatus, MessageId, ModuleId};
+use crate::module::{OverrunBasis, Runner, StepMode};
+use crate::system::{Core, Endpoint, ModuleReport, StartupError, SystemBuilder, SystemError, SystemManager};
+use crate::time::{Duration, Time};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::thread::JoinHandle;
+
+/// What both executors offer to whoever drives a system (runner, console, tests).
+pub trait Executor {
+    /// The shared core (blackboard, post office, events, status).
+    fn core(&self) -> &Arc<Core>;
+    /// The system's lifecycle state.
+    fn system_state(&self) -> Lifecycle;
+    /// Moves the whole system one legal step (e.g. Standby -> Hold).
+    fn transition(&mut self, to: Lifecycle) -> Result<(), SystemError>;
+    /// Moves one module (e.g. Safe -> Standby after analysis).
+    fn module_transition(&mut self, module: &str, to: Lifecycle) -> Result<(), SystemError>;
+    /// Lets time pass: simulated time under lockstep, wall time under the real-time executor.
+    fn advance(&mut self, d: Duration);
+
+    /// Walks the system through legal steps to `to` (e.g. Config -> Standby -> Hold -> Run).
+    fn walk_to(&mut self, to: Lifecycle) -> Result<(), SystemError> {
+        let from = self.system_state();
+        let path = from.path_to(to).ok_or_else(|| {
+            SystemError::Transition(crate::lifecycle::TransitionError {
+                from,
+                to,
+                reason: "no legal path".to_string(),
+            })
+        })?;
+        for s in path {
+            self.transition(s)?;
+        }
+        Ok(())
+    }
+    /// An endpoint registered on the builder, to send commands from.
+    fn endpoint(&self, name: &str) -> Result<Endpoint, SystemError> {
+        Endpoint::new(self.core().clone(), name)
+    }
+    /// Snapshots of every module.
+    fn reports(&self) -> Vec<ModuleReport> {
+        crate::system::module_reports(self.core())
+    }
+    /// Current time of the executor's clock.
+    fn now(&self) -> Time {
+        self.core().now()
+    }
+}
+
+/// Deterministic executor on simulated time.
+pub struct LockstepExecutor {
+    core: Arc<Core>,
+    driver: ClockDriver,
+    base: Duration,
+    runners: Vec<Box<dyn Runner>>,
+    manager: SystemManager,
+}
+
+impl LockstepExecutor {
+    /// Checks the system, builds it on a simulated clock with base period `base`, and moves it to
+    /// Config. Every module period must be a multiple of `base`.
+    pub fn new(builder: SystemBuilder, base: Duration) -> Result<Self, StartupError> {
+        if base.is_zero_or_negative() {
+            return Err(StartupError { problems: vec![format!("base period must be positive, got {base}")] });
+        }
+        let (clock, driver) = SimClock::new();
+        let a = builder.assemble(Arc::new(clock), Some(base))?;
+        let mut runners = a.runners;
+        runners.sort_by_key(|r| r.info().kind); // stable: registration order within a kind
+        let mut ex = LockstepExecutor { core: a.core, driver, base, runners, manager: a.manager };
+        ex.transition(Lifecycle::Config).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
+        Ok(ex)
+    }
+
+    /// The base period.
+    pub fn base_period(&self) -> Duration {
+        self.base
+    }
+
+    /// Module names in execution order.
+    pub fn execution_order(&self) -> Vec<String> {
+        self.runners.iter().map(|r| r.info().name.clone()).collect()
+    }
+
+    /// Advances one base period and runs every module that is due. Returns the new time.
+    pub fn tick(&mut self) -> Time {
+        let t = self.driver.advance_by(self.base);
+        let core = &*self.core;
+        for r in &mut self.runners {
+            let inbox = core.post.inbox(r.info().id);
+            let due = match r.schedule() {
+                Schedule::Periodic(p) => t.as_nanos() % p.as_nanos() == 0,
+                Schedule::Aperiodic => !inbox.is_empty(),
+            };
+            if due {
+                r.step(core, t, StepMode::Cycle, OverrunBasis::Charged);
+            } else if inbox.emergencies() > 0 {
+                r.step(core, t, StepMode::EmergencyOnly, OverrunBasis::Charged);
+            }
+        }
+        t
+    }
+
+    /// Runs ticks until at least `d` of simulated time has passed.
+    pub fn run_for(&mut self, d: Duration) -> Time {
+        let end = self.now() + d;
+        self.run_until(end)
+    }
+
+    /// Runs ticks until the clock reaches `t`.
+    pub fn run_until(&mut self, t: Time) -> Time {
+        while self.now() < t {
+            self.tick();
+        }
+        self.now()
+    }
+
+    /// Handles waiting emergency messages of every module now, without advancing time.
+    pub fn process_emergencies(&mut self) {
+        let now = self.now();
+        let core = &*self.core;
+        for r in &mut self.runners {
+            if core.post.inbox(r.info().id).emergencies() > 0 {
+                r.step(core, now, StepMode::EmergencyOnly, OverrunBasis::Charged);
+            }
+        }
+    }
+
+    fn module_ack(&mut self, id: MessageId) -> Option<AckStatus> {
+        self.process_emergencies();
+        self.manager.ack(id)
+    }
+}
+
+impl Executor for LockstepExecutor {
+    fn core(&self) -> &Arc<Core> {
+        &self.core
+    }
+    fn system_state(&self) -> Lifecycle {
+        self.manager.state()
+    }
+    fn transition(&mut self, to: Lifecycle) -> Result<(), SystemError> {
+        let sent = self.manager.begin(to)?;
+        self.process_emergencies();
+        self.manager.finish(to, &sent)
+    }
+    fn module_transition(&mut self, module: &str, to: Lifecycle) -> Result<(), SystemError> {
+        if !self.core.modules().iter().any(|m| m.name == module) {
+            return Err(SystemError::UnknownModule(module.to_string()));
+        }
+        let id = self.manager.send_lifecycle(module, to)?;
+        match self.module_ack(id) {
+            Some(AckStatus::Completed(_)) => Ok(()),
+            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused { to, refusals: vec![r] }),
+            _ => Err(SystemError::Timeout(module.to_string())),
+        }
+    }
+    fn advance(&mut self, d: Duration) {
+        self.run_for(d);
+    }
+}
+
+/// Executor on the wall clock, one thread per module.
+pub struct RealtimeExecutor {
+    core: Arc<Core>,
+    manager: SystemManager,
+    threads: Vec<(ModuleId, JoinHandle<Box<dyn Runner>>)>,
+    stop: Arc<AtomicBool>,
+    watchdog: Option<JoinHandle<Vec<ModuleId>>>,
+    ack_timeout: std::time::Duration,
+}
+
+impl RealtimeExecutor {
+    /// Checks the system, moves it to Config, and starts one thread per module and the watchdog.
+    pub fn new(builder: SystemBuilder) -> Result<Self, StartupError> {
+        let wall = WallClock::new();
+        let a = builder.assemble(Arc::new(wall.clone()), None)?;
+        let core = a.core;
+        let mut manager = a.manager;
+        let mut runners = a.runners;
+        // Startup -> Config before any thread exists, on this thread.
+        let sent = manager.begin(Lifecycle::Config).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
+        for r in &mut runners {
+            r.step(&core, core.now(), StepMode::EmergencyOnly, OverrunBasis::Wall);
+        }
+        manager.finish(Lifecycle::Config, &sent).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
+
+        let stop = Arc::new(AtomicBool::new(false));
+        let hang: Vec<(ModuleId, String, Duration)> =
+            runners.iter().map(|r| (r.info().id, r.info().name.clone(), r.hang_timeout())).collect();
+        let mut threads = Vec::new();
+        for runner in runners {
+            let (core, stop, wall) = (core.clone(), stop.clone(), wall.clone());
+            let id = runner.info().id;
+            let name = runner.info().name.clone();
+            let h = std::thread::Builder::new()
+                .name(name)
+                .spawn(move || module_thread(runner, &core, &stop, &wall))
+                .expect("spawn module thread");
+            threads.push((id, h));
+        }
+        let watchdog = {
+            let (core, stop) = (core.clone(), stop.clone());
+            std::thread::Builder::new()
+                .name("watchdog".into())
+                .spawn(move || watchdog_thread(&core, &stop, &hang))
+                .expect("spawn watchdog thread")
+        };
+        Ok(RealtimeExecutor {
+            core,
+            manager,
+            threads,
+            stop,
+            watchdog: Some(watchdog),
+            ack_timeout: std::time::Duration::from_secs(5),
+        })
+    }
+
+    /// Stops every thread and returns the final module reports. Threads of hung modules are left
+    /// behind (they cannot be joined); everything else is joined.
+    pub fn stop(mut self) -> Vec<ModuleReport> {
+        self.shutdown_threads();
+        crate::system::module_reports(&self.core)
+    }
+
+    fn shutdown_threads(&mut self) {
+        self.stop.store(true, Ordering::Release);
+        for m in self.core.modules() {
+            self.core.post.inbox(m.id).wake();
+        }
+        let hung = self.watchdog.take().map(|w| w.join().unwrap_or_default()).unwrap_or_default();
+        for (id, h) in self.threads.drain(..) {
+            if !hung.contains(&id) {
+                let _ = h.join();
+            }
+        }
+    }
+}
+
+impl Drop for RealtimeExecutor {
+    fn drop(&mut self) {
+        if !self.threads.is_empty() {
+            self.shutdown_threads();
+        }
+    }
+}
+
+#[allow(clippy::disallowed_methods)] // the real-time executor sleeps on the OS clock
+fn module_thread(mut runner: Box<dyn Runner>, core: &Core, stop: &AtomicBool, wall: &WallClock) -> Box<dyn Runner> {
+    let id = runner.info().id;
+    let inbox = core.post.inbox(id);
+    match runner.schedule() {
+        Schedule::Periodic(period) => {
+            let mut next = wall.now() + period;
+            while !stop.load(Ordering::Acquire) {
+                // Sleep until the next release, handling emergency messages as they come.
+                loop {
+                    let now = wall.now();
+                    if now >= next || stop.load(Ordering::Acquire) {
+                        break;
+                    }
+                    if inbox.wait_emergency_until(wall.instant_at(next)) {
+                        runner.step(core, wall.now(), StepMode::EmergencyOnly, OverrunBasis::Wall);
+                    }
+                }
+                if stop.load(Ordering::Acquire) {
+                    break;
+                }
+                let now = wall.now();
+                let late = now - next;
+                if late >= period {
+                    let skipped = late.as_nanos() / period.as_nanos();
+                    runner.add_skipped(skipped as u64);
+                    next += period * skipped;
+                }
+                runner.step(core, now, StepMode::Cycle, OverrunBasis::Wall);
+                next += period;
+            }
+        }
+        Schedule::Aperiodic => {
+            while !stop.load(Ordering::Acquire) {
+                let wake_by = std::time::Instant::now() + std::time::Duration::from_millis(50);
+                if inbox.wait_until(wake_by) && !stop.load(Ordering::Acquire) {
+                    runner.step(core, wall.now(), StepMode::Cycle, OverrunBasis::Wall);
+                }
+            }
+        }
+    }
+    runner
+}
+
+/// Isolates modules whose step stays busy past their hang timeout. Returns the hung modules.
+fn watchdog_thread(core: &Core, stop: &AtomicBool, modules: &[(ModuleId, String, Duration)]) -> Vec<ModuleId> {
+    let mut hung = Vec::new();
+    let poll = modules
+        .iter()
+        .map(|(_, _, t)| *t / 4)
+        .min()
+        .unwrap_or(Duration::from_millis(50))
+        .max(Duration::from_millis(1))
+        .min(Duration::from_millis(50));
+    while !stop.load(Ordering::Acquire) {
+        std::thread::sleep(poll.to_std());
+        let now = core.wall_now();
+        for (id, name, timeout) in modules {
+            let status = core.status(*id);
+            let since = status.busy_since_ns();
+            if since >= 0 && !status.is_isolated() && now - since > timeout.as_nanos() {
+                let busy = Duration::from_nanos(now - since);
+                let info = crate::module::ModuleInfo {
+                    id: *id,
+                    name: name.clone(),
+                    kind: core.modules().iter().find(|m| m.id == *id).map(|m| m.kind).unwrap_or(crate::ModuleKind::External),
+                };
+                crate::system::isolate(
+                    core,
+                    &info,
+                    status.lifecycle(),
+                    crate::events::Fault::Hang { busy_s: busy.as_secs_f64() },
+                    core.now(),
+                );
+                hung.push(*id);
+            }
+        }
+    }
+    hung
+}
+
+impl Executor for RealtimeExecutor {
+    fn core(&self) -> &Arc<Core> {
+        &self.core
+    }
+    fn system_state(&self) -> Lifecycle {
+        self.manager.state()
+    }
+    fn transition(&mut self, to: Lifecycle) -> Result<(), SystemError> {
+        let sent = self.manager.begin(to)?;
+        for (_, id) in &sent {
+            self.manager.endpoint().wait_final(*id, self.ack_timeout);
+        }
+        self.manager.finish(to, &sent)
+    }
+    fn module_transition(&mut self, module: &str, to: Lifecycle) -> Result<(), SystemError> {
+        if !self.core.modules().iter().any(|m| m.name == module) {
+            return Err(SystemError::UnknownModule(module.to_string()));
+        }
+        let id = self.manager.send_lifecycle(module, to)?;
+        match self.manager.endpoint().wait_final(id, self.ack_timeout) {
+            Some(AckStatus::Completed(_)) => Ok(()),
+            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused { to, refusals: vec![r] }),
+            _ => Err(SystemError::Timeout(module.to_string())),
+        }
+    }
+    fn advance(&mut self, d: Duration) {
+        std::thread::sleep(d.to_std());
+    }
+}

@@ -1,0 +1,534 @@
+//! The System Manager (seed 000, 4.3): registration, start-up checks, lifecycle, resources.
+//!
+//! Modules are registered on a [`SystemBuilder`] (the Startup state): each one's configuration file is
+//! loaded and its declarations collected. Building checks the whole module graph at once and reports
+//! every problem with the module it concerns: duplicate names, two writers of one slot, slots read but
+//! written by nobody, commands sent to unknown modules, periods the executor cannot honour. Then the
+//! system moves to Config and an executor takes over.
+//!
+//! Lifecycle transitions are commands like any other: the manager sends a `lifecycle` command on the
+//! emergency queue to every module and collects the acknowledgements, so the same mechanism works for
+//! modules on other threads or, later, other hosts.
+
+use crate::blackboard::BlackBoard;
+use crate::clock::{Clock, WallClock};
+use crate::config::ConfigSource;
+use crate::events::{EventKind, EventLog};
+use crate::exec_context::ExecContext;
+use crate::lifecycle::{Lifecycle, TransitionError};
+use crate::message::{Ack, AckStatus, AckTracker, Body, Command, MessageId, ModuleId, PostOffice, Queue, SendError};
+use crate::module::{Cell, Module, ModuleInfo, Runner};
+use crate::resources::Resources;
+use crate::stats::TaskStats;
+use crate::time::{Duration, Time};
+use parking_lot::Mutex;
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicI64, AtomicU8, Ordering};
+
+/// Shared, thread-safe status of one participant, readable from any thread.
+#[derive(Debug, Default)]
+pub struct ModuleStatus {
+    lifecycle: AtomicU8,
+    isolated: AtomicBool,
+    busy_since_ns: AtomicI64,
+    stats: Mutex<TaskStats>,
+    state: Mutex<String>,
+    context: Mutex<ExecContext>,
+}
+
+impl ModuleStatus {
+    fn new() -> Self {
+        let s = ModuleStatus::default();
+        s.busy_since_ns.store(-1, Ordering::Relaxed);
+        s
+    }
+    /// Lifecycle state.
+    pub fn lifecycle(&self) -> Lifecycle {
+        Lifecycle::ALL[self.lifecycle.load(Ordering::Acquire) as usize]
+    }
+    pub(crate) fn set_lifecycle(&self, l: Lifecycle) {
+        let i = Lifecycle::ALL.iter().position(|x| *x == l).unwrap_or(0);
+        self.lifecycle.store(i as u8, Ordering::Release);
+    }
+    /// True when the watchdog isolated the module.
+    pub fn is_isolated(&self) -> bool {
+        self.isolated.load(Ordering::Acquire)
+    }
+    pub(crate) fn set_isolated(&self, v: bool) {
+        self.isolated.store(v, Ordering::Release);
+    }
+    /// Wall time (ns on the system's wall clock) at which the current step began, or -1 when idle.
+    pub fn busy_since_ns(&self) -> i64 {
+        self.busy_since_ns.load(Ordering::Acquire)
+    }
+    pub(crate) fn set_busy_since(&self, ns: i64) {
+        self.busy_since_ns.store(ns, Ordering::Release);
+    }
+    /// Statistics so far.
+    pub fn stats(&self) -> TaskStats {
+        self.stats.lock().clone()
+    }
+    pub(crate) fn store_stats(&self, s: &TaskStats) {
+        self.stats.lock().clone_from(s);
+    }
+    /// Current state of the module's own machine.
+    pub fn state(&self) -> String {
+        self.state.lock().clone()
+    }
+    pub(crate) fn set_state(&self, s: &str) {
+        let mut g = self.state.lock();
+        g.clear();
+        g.push_str(s);
+    }
+    /// Current execution context.
+    pub fn context(&self) -> ExecContext {
+        *self.context.lock()
+    }
+    pub(crate) fn set_context(&self, c: ExecContext) {
+        *self.context.lock() = c;
+    }
+}
+
+/// Everything shared by the modules of one system, whichever executor runs them.
+pub struct Core {
+    /// The executor's clock.
+    pub clock: Arc<dyn Clock>,
+    /// The post office (inboxes of every participant).
+    pub post: PostOffice,
+    /// The blackboard.
+    pub board: BlackBoard,
+    /// Shared devices and their reservations.
+    pub resources: Resources,
+    /// The event log.
+    pub events: EventLog,
+    status: Vec<ModuleStatus>,
+    wall: WallClock,
+    modules: Vec<ModuleInfo>,
+}
+
+impl Core {
+    /// Status of a participant.
+    pub fn status(&self, id: ModuleId) -> &ModuleStatus {
+        &self.status[id.0 as usize]
+    }
+    /// Registered modules (not endpoints), in registration order.
+    pub fn modules(&self) -> &[ModuleInfo] {
+        &self.modules
+    }
+    /// Nanoseconds on the system's wall clock (for hang detection only).
+    pub(crate) fn wall_now(&self) -> i64 {
+        self.wall.now().as_nanos()
+    }
+    /// Current time of the executor's clock.
+    pub fn now(&self) -> Time {
+        self.clock.now()
+    }
+}
+
+/// Problems found at start-up; the system does not start while there is any.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("system start-up failed:\n{}", problems.iter().map(|p| format!("  - {p}")).collect::<Vec<_>>().join("\n"))]
+pub struct StartupError {
+    /// Every problem, each naming its module, slot or file.
+    pub problems: Vec<String>,
+}
+
+/// Errors of system-level operations.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SystemError {
+    /// The system cannot make that transition.
+    #[error(transparent)]
+    Transition(#[from] TransitionError),
+    /// Some modules refused or failed the transition.
+    #[error("transition to {to} incomplete: {}", refusals.join("; "))]
+    Refused {
+        /// The requested state.
+        to: Lifecycle,
+        /// One line per refusing module.
+        refusals: Vec<String>,
+    },
+    /// No module of that name.
+    #[error("no module named '{0}'")]
+    UnknownModule(String),
+    /// A message could not be sent.
+    #[error(transparent)]
+    Send(#[from] SendError),
+    /// Acknowledgements did not arrive in time (real-time executor).
+    #[error("no acknowledgement from {0} within the timeout")]
+    Timeout(String),
+}
+
+enum Entry {
+    Module(Box<dyn Runner>),
+    Endpoint,
+}
+
+/// Registers modules and endpoints, then builds an executor (the Startup state).
+pub struct SystemBuilder {
+    board: BlackBoard,
+    resources: Resources,
+    entries: Vec<Entry>,
+    names: Vec<String>,
+    problems: Vec<String>,
+    trace_messages: bool,
+}
+
+/// Name of the system manager's own endpoint.
+pub const SYSTEM: &str = "system";
+
+impl Default for SystemBuilder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl SystemBuilder {
+    /// A builder with the system manager's endpoint registered.
+    pub fn new() -> Self {
+        let mut b = SystemBuilder {
+            board: BlackBoard::new(),
+            resources: Resources::new(),
+            entries: Vec::new(),
+            names: Vec::new(),
+            problems: Vec::new(),
+            trace_messages: false,
+        };
+        b.endpoint(SYSTEM);
+        b
+    }
+
+    fn next_id(&mut self, name: &str) -> Option<ModuleId> {
+        if self.names.iter().any(|n| n == name) {
+            self.problems.push(format!("'{name}' is registered twice"));
+            return None;
+        }
+        if name.is_empty() || name.contains(char::is_whitespace) {
+            self.problems.push(format!("'{name}' is not a valid module name (empty or with spaces)"));
+            return None;
+        }
+        self.names.push(name.to_string());
+        Some(ModuleId(self.names.len() as u32 - 1))
+    }
+
+    /// Registers a module with its configuration. Problems are reported by the build.
+    pub fn add<M: Module>(&mut self, name: &str, module: M, config: ConfigSource) -> &mut Self {
+        let Some(id) = self.next_id(name) else { return self };
+        match Cell::new(id, name, module, config, &self.board) {
+            Ok(cell) => {
+                for p in &cell_problems(&cell) {
+                    self.problems.push(format!("module '{name}': {p}"));
+                }
+                self.entries.push(Entry::Module(Box::new(cell)));
+            }
+            Err(e) => {
+                self.problems.push(e.to_string());
+                // Keep ids aligned with names: the slot stays, as an endpoint nobody uses.
+                self.entries.push(Entry::Endpoint);
+            }
+        }
+        self
+    }
+
+    /// Registers a module whose configuration is given as TOML text (tests, demos, generated setups).
+    pub fn add_inline<M: Module>(&mut self, name: &str, module: M, toml: &str) -> &mut Self {
+        self.add(name, module, ConfigSource::inline(format!("<inline config of module '{name}'>"), toml))
+    }
+
+    /// Registers an external endpoint: a participant without a module (an operator console, a script,
+    /// a ground station) that sends commands and receives their acknowledgements.
+    pub fn endpoint(&mut self, name: &str) -> &mut Self {
+        if self.next_id(name).is_some() {
+            self.entries.push(Entry::Endpoint);
+        }
+        self
+    }
+
+    /// Registers a shared device managed by reservation tokens.
+    pub fn device(&mut self, name: &str) -> &mut Self {
+        self.resources.register(name);
+        self
+    }
+
+    /// Records every posted message for inspection (off by default).
+    pub fn trace_messages(&mut self, on: bool) -> &mut Self {
+        self.trace_messages = on;
+        self
+    }
+
+    /// The blackboard being declared (for tools that read it).
+    pub fn board(&self) -> &BlackBoard {
+        &self.board
+    }
+
+    /// Runs the start-up checks and moves every module to Config.
+    pub(crate) fn assemble(self, clock: Arc<dyn Clock>, base_period: Option<Duration>) -> Result<Assembled, StartupError> {
+        let mut problems = self.problems;
+        let mut runners = Vec::new();
+        for e in self.entries {
+            if let Entry::Module(r) = e {
+                runners.push(r);
+            }
+        }
+        // Recipients must exist.
+        for r in &runners {
+            for to in &r.declarations().recipients {
+                if !self.names.iter().any(|n| n == to) {
+                    problems.push(format!("module '{}' sends to unknown module '{to}'", r.info().name));
+                }
+            }
+        }
+        // Slots: exactly one writer; every read slot written by someone.
+        let name_of = |id: ModuleId| self.names.get(id.0 as usize).cloned().unwrap_or_default();
+        for (slot, d) in self.board.declarations() {
+            if d.writers.len() > 1 {
+                let w: Vec<_> = d.writers.iter().map(|w| format!("'{}'", name_of(*w))).collect();
+                problems.push(format!("slot '{slot}' has several writers: {}", w.join(", ")));
+            }
+            if d.writers.is_empty() {
+                let r: Vec<_> = d.readers.iter().map(|w| format!("'{}'", name_of(*w))).collect();
+                problems.push(format!("slot '{slot}' is read by {} but no module writes it", r.join(", ")));
+            }
+        }
+        // Periods must be whole multiples of the lockstep base period.
+        if let Some(base) = base_period {
+            for r in &runners {
+                if let crate::config::Schedule::Periodic(p) = r.schedule()
+                    && p.as_nanos() % base.as_nanos() != 0
+                {
+                    problems.push(format!(
+                        "module '{}': period {p} is not a multiple of the base period {base}",
+                        r.info().name
+                    ));
+                }
+            }
+        }
+        if !problems.is_empty() {
+            return Err(StartupError { problems });
+        }
+        let modules: Vec<ModuleInfo> = runners.iter().map(|r| r.info().clone()).collect();
+        let core = Arc::new(Core {
+            clock,
+            post: PostOffice::new(self.names.clone(), self.trace_messages),
+            board: self.board,
+            resources: self.resources,
+            events: EventLog::default(),
+            status: self.names.iter().map(|_| ModuleStatus::new()).collect(),
+            wall: WallClock::new(),
+            modules,
+        });
+        for r in &runners {
+            r.publish_status(&core);
+        }
+        let manager = SystemManager::new(core.clone());
+        Ok(Assembled { core, runners, manager })
+    }
+}
+
+/// Puts a module in Safe and isolates it: its state functions stop, its messages are refused, its
+/// reservations are freed, and an event says why. Used by the module's own cell (panic, error,
+/// overrun) and by the watchdog thread (hang).
+pub(crate) fn isolate(core: &Core, info: &ModuleInfo, from: Lifecycle, fault: crate::events::Fault, now: Time) {
+    let status = core.status(info.id);
+    status.set_isolated(true);
+    status.set_lifecycle(Lifecycle::Safe);
+    core.resources.release_all_of(info.id);
+    tracing::warn!(module = %info.name, ?fault, "watchdog isolated module");
+    core.events.raise(now, EventKind::ModuleIsolated { module: info.name.clone(), fault });
+    if from != Lifecycle::Safe {
+        core.events.raise(now, EventKind::ModuleLifecycle { module: info.name.clone(), from, to: Lifecycle::Safe });
+    }
+}
+
+fn cell_problems(r: &dyn Runner) -> Vec<String> {
+    r.declarations().problems.clone()
+}
+
+pub(crate) struct Assembled {
+    pub core: Arc<Core>,
+    pub runners: Vec<Box<dyn Runner>>,
+    pub manager: SystemManager,
+}
+
+/// An external participant: sends commands and collects their acknowledgements. Thread-safe.
+#[derive(Clone)]
+pub struct Endpoint {
+    core: Arc<Core>,
+    id: ModuleId,
+    tracker: Arc<Mutex<AckTracker>>,
+}
+
+impl Endpoint {
+    pub(crate) fn new(core: Arc<Core>, name: &str) -> Result<Self, SystemError> {
+        let id = core.post.id(name).ok_or_else(|| SystemError::UnknownModule(name.to_string()))?;
+        Ok(Endpoint { core, id, tracker: Arc::default() })
+    }
+    /// This endpoint's id.
+    pub fn id(&self) -> ModuleId {
+        self.id
+    }
+    /// Sends a command stamped with the current clock time.
+    pub fn send(&self, cmd: Command) -> Result<MessageId, SendError> {
+        let name = cmd.name.clone();
+        let m = self.core.post.compose(self.id, self.core.now(), cmd)?;
+        let id = m.id;
+        self.tracker.lock().sent(id, &name);
+        self.core.post.post(m);
+        Ok(id)
+    }
+    /// Takes the acknowledgements that arrived, updating the tracker.
+    pub fn poll(&self) -> Vec<Ack> {
+        let mut acks = Vec::new();
+        let inbox = self.core.post.inbox(self.id);
+        while let Some(m) = inbox.pop() {
+            if let Body::Ack(a) = m.body {
+                self.tracker.lock().update(&a);
+                acks.push(a);
+            }
+        }
+        acks
+    }
+    /// Latest known status of a command sent from here (polls first).
+    pub fn status(&self, id: MessageId) -> Option<AckStatus> {
+        self.poll();
+        self.tracker.lock().status(id)
+    }
+    /// Blocks (real time) until `id` has a final status or the timeout passes.
+    #[allow(clippy::disallowed_methods)] // waiting for other threads is measured on the OS clock
+    pub fn wait_final(&self, id: MessageId, timeout: std::time::Duration) -> Option<AckStatus> {
+        let deadline = std::time::Instant::now() + timeout;
+        loop {
+            if let Some(s) = self.status(id)
+                && s.is_final()
+            {
+                return Some(s);
+            }
+            if !self.core.post.inbox(self.id).wait_until(deadline) {
+                return self.status(id);
+            }
+        }
+    }
+}
+
+/// The system manager: the system's lifecycle state and the transitions of its modules.
+pub struct SystemManager {
+    core: Arc<Core>,
+    state: Lifecycle,
+    endpoint: Endpoint,
+}
+
+impl SystemManager {
+    fn new(core: Arc<Core>) -> Self {
+        let endpoint = Endpoint::new(core.clone(), SYSTEM).expect("system endpoint is registered first");
+        SystemManager { core, state: Lifecycle::Startup, endpoint }
+    }
+    /// The system's lifecycle state.
+    pub fn state(&self) -> Lifecycle {
+        self.state
+    }
+    /// The shared core.
+    pub fn core(&self) -> &Arc<Core> {
+        &self.core
+    }
+
+    /// Sends the lifecycle command for a system transition to every module that takes part (all but
+    /// those in Safe, unless the target is Safe itself or Shutdown). Returns the commands sent.
+    pub(crate) fn begin(&mut self, to: Lifecycle) -> Result<Vec<(String, MessageId)>, SystemError> {
+        self.state.check_transition(to)?;
+        let mut sent = Vec::new();
+        for m in self.core.modules() {
+            let l = self.core.status(m.id).lifecycle();
+            let takes_part = match to {
+                Lifecycle::Safe => l != Lifecycle::Safe,
+                Lifecycle::Shutdown => l != Lifecycle::Shutdown,
+                Lifecycle::Standby if self.state == Lifecycle::Safe => true,
+                _ => l != Lifecycle::Safe,
+            };
+            if takes_part {
+                sent.push((m.name.clone(), self.send_lifecycle(&m.name, to)?));
+            }
+        }
+        Ok(sent)
+    }
+
+    /// Sends one module a lifecycle command.
+    pub(crate) fn send_lifecycle(&self, module: &str, to: Lifecycle) -> Result<MessageId, SystemError> {
+        Ok(self.endpoint.send(Command::new(module, "lifecycle").on(Queue::Emergency).json(serde_json::json!({ "to": to })))?)
+    }
+
+    /// Collects the acknowledgements of a transition and updates the system state.
+    pub(crate) fn finish(&mut self, to: Lifecycle, sent: &[(String, MessageId)]) -> Result<(), SystemError> {
+        let mut refusals = Vec::new();
+        for (name, id) in sent {
+            match self.endpoint.status(*id) {
+                Some(AckStatus::Completed(_)) => {}
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => refusals.push(r),
+                other => refusals.push(format!("module '{name}' did not complete ({other:?})")),
+            }
+        }
+        // A move to Safe or Shutdown happens whatever individual modules say.
+        if refusals.is_empty() || matches!(to, Lifecycle::Safe | Lifecycle::Shutdown) {
+            let from = std::mem::replace(&mut self.state, to);
+            self.core.events.raise(self.core.now(), EventKind::SystemState { from, to });
+        }
+        if refusals.is_empty() { Ok(()) } else { Err(SystemError::Refused { to, refusals }) }
+    }
+
+    /// Status of the last command sent by the manager with this id.
+    pub(crate) fn ack(&self, id: MessageId) -> Option<AckStatus> {
+        self.endpoint.status(id)
+    }
+
+    /// The endpoint the manager sends from.
+    pub fn endpoint(&self) -> &Endpoint {
+        &self.endpoint
+    }
+}
+
+/// A snapshot of one module for consoles and reports.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ModuleReport {
+    /// Name.
+    pub name: String,
+    /// Kind.
+    pub kind: crate::module::ModuleKind,
+    /// Lifecycle state.
+    pub lifecycle: Lifecycle,
+    /// Own state-machine state.
+    pub state: String,
+    /// Execution context.
+    pub context: String,
+    /// Isolated by the watchdog.
+    pub isolated: bool,
+    /// Statistics.
+    pub stats: TaskStats,
+}
+
+/// Snapshots of every module.
+pub fn module_reports(core: &Core) -> Vec<ModuleReport> {
+    core.modules()
+        .iter()
+        .map(|m| {
+            let s = core.status(m.id);
+            ModuleReport {
+                name: m.name.clone(),
+                kind: m.kind,
+                lifecycle: s.lifecycle(),
+                state: s.state(),
+                context: s.context().to_string(),
+                isolated: s.is_isolated(),
+                stats: s.stats(),
+            }
+        })
+        .collect()
+}
+
+/// Statistics of every module by name.
+pub fn stats_by_module(core: &Core) -> BTreeMap<String, TaskStats> {
+    core.modules().iter().map(|m| (m.name.clone(), core.status(m.id).stats())).collect()
+}
+
+/// Map of module names to ids.
+pub fn module_ids(core: &Core) -> HashMap<String, ModuleId> {
+    core.modules().iter().map(|m| (m.name.clone(), m.id)).collect()
+}

@@ -79,9 +79,20 @@ impl<'a> Source<'a> {
     }
 
     /// An error at a byte span.
-    pub fn error_at(&self, span: Option<Range<usize>>, key: Option<String>, message: impl Into<String>) -> ConfigError {
+    pub fn error_at(
+        &self,
+        span: Option<Range<usize>>,
+        key: Option<String>,
+        message: impl Into<String>,
+    ) -> ConfigError {
         let (line, col) = span.map(|s| self.line_col(s.start)).unwrap_or((1, 1));
-        ConfigError { file: self.origin.to_string(), line, col, key, message: message.into() }
+        ConfigError {
+            file: self.origin.to_string(),
+            line,
+            col,
+            key,
+            message: message.into(),
+        }
     }
 
     /// An error at a dotted key path (`framework.period_s`), located in the text if the key is present.
@@ -92,13 +103,15 @@ impl<'a> Source<'a> {
 
     /// Deserializes the whole text as TOML into `T`, with located, keyed errors.
     pub fn parse<T: DeserializeOwned>(&self) -> Result<T, ConfigError> {
-        let de = toml::de::Deserializer::parse(self.text).map_err(|e| self.error_at(e.span(), None, e.message()))?;
+        let de = toml::de::Deserializer::parse(self.text)
+            .map_err(|e| self.error_at(e.span(), None, e.message()))?;
         serde_path_to_error::deserialize(de).map_err(|e| {
             let key = e.path().to_string();
             let key = (key != "." && !key.is_empty()).then_some(key);
             let inner = e.into_inner();
             let span = inner.span().or_else(|| {
-                key.as_deref().and_then(|k| locate_key(self.text, &k.split('.').collect::<Vec<_>>()))
+                key.as_deref()
+                    .and_then(|k| locate_key(self.text, &k.split('.').collect::<Vec<_>>()))
             });
             self.error_at(span, key, inner.message())
         })
@@ -257,7 +270,10 @@ impl ConfigSource {
     }
     /// An inline source.
     pub fn inline(origin: impl Into<String>, text: impl Into<String>) -> Self {
-        ConfigSource::Inline { origin: origin.into(), text: text.into() }
+        ConfigSource::Inline {
+            origin: origin.into(),
+            text: text.into(),
+        }
     }
     /// Name for error messages.
     pub fn origin(&self) -> String {
@@ -305,7 +321,10 @@ mod tests {
     fn good_file_loads() {
         let c = load("[framework]\nperiod_s = 0.02\ncontext = { mode = \"dry-run\", purpose = \"debug\" }\n[params]\ngain = 2.5\n")
             .unwrap();
-        assert_eq!(c.framework.schedule(), Schedule::Periodic(Duration::from_millis(20)));
+        assert_eq!(
+            c.framework.schedule(),
+            Schedule::Periodic(Duration::from_millis(20))
+        );
         assert_eq!(c.framework.context, ExecContext::DRY_RUN_DEBUG);
         assert_eq!(c.params.gain, 2.5);
         assert_eq!(load("").unwrap().framework.schedule(), Schedule::Aperiodic);
@@ -340,7 +359,10 @@ mod tests {
     #[test]
     fn missing_file_is_named() {
         let e = ConfigSource::file("/nonexistent/x.toml").load::<P>().unwrap_err();
-        assert!(e.to_string().starts_with("/nonexistent/x.toml: cannot read file"), "{e}");
+        assert!(
+            e.to_string().starts_with("/nonexistent/x.toml: cannot read file"),
+            "{e}"
+        );
     }
 
     #[test]

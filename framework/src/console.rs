@@ -65,7 +65,11 @@ fn state_arg(word: Option<&str>, verb: &str) -> Result<Lifecycle, ConsoleError> 
     Lifecycle::parse(w).ok_or_else(|| {
         ConsoleError(format!(
             "unknown lifecycle state '{w}' (states: {})",
-            Lifecycle::ALL.iter().map(|l| l.name()).collect::<Vec<_>>().join(", ")
+            Lifecycle::ALL
+                .iter()
+                .map(|l| l.name())
+                .collect::<Vec<_>>()
+                .join(", ")
         ))
     })
 }
@@ -86,7 +90,9 @@ pub fn parse(line: &str) -> Result<Option<ConsoleCommand>, ConsoleError> {
             while let Some(first) = rest.first().copied() {
                 match first {
                     "--queue" => {
-                        let q = rest.get(1).ok_or_else(|| ConsoleError("--queue needs a value".into()))?;
+                        let q = rest
+                            .get(1)
+                            .ok_or_else(|| ConsoleError("--queue needs a value".into()))?;
                         queue = match *q {
                             "emergency" => Queue::Emergency,
                             "debug" => Queue::Debug,
@@ -100,7 +106,9 @@ pub fn parse(line: &str) -> Result<Option<ConsoleCommand>, ConsoleError> {
                         rest.drain(..2);
                     }
                     "--via" => {
-                        let v = rest.get(1).ok_or_else(|| ConsoleError("--via needs module names".into()))?;
+                        let v = rest
+                            .get(1)
+                            .ok_or_else(|| ConsoleError("--via needs module names".into()))?;
                         via = v.split(',').map(str::to_string).collect();
                         rest.drain(..2);
                     }
@@ -108,38 +116,56 @@ pub fn parse(line: &str) -> Result<Option<ConsoleCommand>, ConsoleError> {
                 }
             }
             let (Some(to), Some(name)) = (rest.first(), rest.get(1)) else {
-                return Err(ConsoleError("usage: send [--queue q] [--via a,b] <module> <command> [json-args]".into()));
+                return Err(ConsoleError(
+                    "usage: send [--queue q] [--via a,b] <module> <command> [json-args]".into(),
+                ));
             };
             let json = rest[2..].join(" ");
             let args = if json.is_empty() {
                 serde_json::Value::Null
             } else {
-                serde_json::from_str(&json).map_err(|e| ConsoleError(format!("arguments are not valid JSON: {e}")))?
+                serde_json::from_str(&json)
+                    .map_err(|e| ConsoleError(format!("arguments are not valid JSON: {e}")))?
             };
             ConsoleCommand::Send(Command::new(*to, *name).json(args).on(queue).via(via))
         }
         "system" => ConsoleCommand::System(state_arg(words.next(), verb)?),
         "walk" => ConsoleCommand::Walk(state_arg(words.next(), verb)?),
         "module" => {
-            let m = words.next().ok_or_else(|| ConsoleError("usage: module <name> <state>".into()))?;
+            let m = words
+                .next()
+                .ok_or_else(|| ConsoleError("usage: module <name> <state>".into()))?;
             ConsoleCommand::Module(m.to_string(), state_arg(words.next(), verb)?)
         }
         "state" => ConsoleCommand::State(words.next().map(str::to_string)),
         "stats" => ConsoleCommand::Stats,
         "slots" => ConsoleCommand::Slots,
-        "read" => ConsoleCommand::Read(words.next().ok_or_else(|| ConsoleError("usage: read <slot>".into()))?.to_string()),
+        "read" => ConsoleCommand::Read(
+            words
+                .next()
+                .ok_or_else(|| ConsoleError("usage: read <slot>".into()))?
+                .to_string(),
+        ),
         "events" => ConsoleCommand::Events,
         "acks" => ConsoleCommand::Acks,
         "advance" => {
-            let s = words.next().ok_or_else(|| ConsoleError("usage: advance <seconds>".into()))?;
-            let secs: f64 = s.parse().map_err(|_| ConsoleError(format!("'{s}' is not a number of seconds")))?;
+            let s = words
+                .next()
+                .ok_or_else(|| ConsoleError("usage: advance <seconds>".into()))?;
+            let secs: f64 = s
+                .parse()
+                .map_err(|_| ConsoleError(format!("'{s}' is not a number of seconds")))?;
             if !(secs.is_finite() && secs >= 0.0) {
                 return Err(ConsoleError(format!("cannot advance by {secs} s")));
             }
             ConsoleCommand::Advance(Duration::from_secs_f64(secs))
         }
         "help" => ConsoleCommand::Help,
-        other => return Err(ConsoleError(format!("unknown console command '{other}' (known: {VERBS})"))),
+        other => {
+            return Err(ConsoleError(format!(
+                "unknown console command '{other}' (known: {VERBS})"
+            )));
+        }
     };
     if let Some(extra) = words.next()
         && !matches!(cmd, ConsoleCommand::Send(_))
@@ -157,7 +183,9 @@ pub struct Console {
 impl Console {
     /// A console sending from the endpoint `name` (registered on the builder).
     pub fn new(exec: &dyn Executor, name: &str) -> Result<Self, SystemError> {
-        Ok(Console { endpoint: exec.endpoint(name)? })
+        Ok(Console {
+            endpoint: exec.endpoint(name)?,
+        })
     }
 
     /// Executes one command and returns its text output.
@@ -200,7 +228,10 @@ impl Console {
                 }
             }
             ConsoleCommand::State(Some(m)) => {
-                let id = self.endpoint.send(Command::new(m, "get_state")).map_err(|e| ConsoleError(e.to_string()))?;
+                let id = self
+                    .endpoint
+                    .send(Command::new(m, "get_state"))
+                    .map_err(|e| ConsoleError(e.to_string()))?;
                 let _ = write!(out, "asked for state as {id}; see 'acks' after time passes");
             }
             ConsoleCommand::Stats => {
@@ -233,7 +264,10 @@ impl Console {
                 }
             }
             ConsoleCommand::Read(slot) => {
-                let s = core.board.slot(&slot).ok_or_else(|| ConsoleError(format!("no slot named '{slot}'")))?;
+                let s = core
+                    .board
+                    .slot(&slot)
+                    .ok_or_else(|| ConsoleError(format!("no slot named '{slot}'")))?;
                 let v = s.to_json().unwrap_or(serde_json::Value::Null);
                 let _ = write!(out, "{v}");
             }
@@ -244,7 +278,14 @@ impl Console {
             }
             ConsoleCommand::Acks => {
                 for a in self.endpoint.poll() {
-                    let _ = writeln!(out, "{} {} by #{}: {}", a.of, a.command, a.by.0, serde_json::to_string(&a.status).unwrap_or_default());
+                    let _ = writeln!(
+                        out,
+                        "{} {} by #{}: {}",
+                        a.of,
+                        a.command,
+                        a.by.0,
+                        serde_json::to_string(&a.status).unwrap_or_default()
+                    );
                 }
             }
             ConsoleCommand::Advance(d) => {
@@ -257,7 +298,12 @@ impl Console {
     }
 
     /// Runs a script line by line; an error names the script and line.
-    pub fn run_script(&mut self, exec: &mut dyn Executor, origin: &str, text: &str) -> Result<Vec<String>, ConsoleError> {
+    pub fn run_script(
+        &mut self,
+        exec: &mut dyn Executor,
+        origin: &str,
+        text: &str,
+    ) -> Result<Vec<String>, ConsoleError> {
         let mut outputs = Vec::new();
         for (i, line) in text.lines().enumerate() {
             let at = |e: ConsoleError| ConsoleError(format!("{origin}:{}: {}", i + 1, e.0));
@@ -280,9 +326,14 @@ mod tests {
 
     #[test]
     fn parses_send_with_options_and_json() {
-        let c = parse("send --queue emergency --via relay gripper open {\"width\": 0.05}").unwrap().unwrap();
+        let c = parse("send --queue emergency --via relay gripper open {\"width\": 0.05}")
+            .unwrap()
+            .unwrap();
         let ConsoleCommand::Send(c) = c else { panic!() };
-        assert_eq!((c.to.as_str(), c.name.as_str(), c.queue), ("gripper", "open", Queue::Emergency));
+        assert_eq!(
+            (c.to.as_str(), c.name.as_str(), c.queue),
+            ("gripper", "open", Queue::Emergency)
+        );
         assert_eq!(c.via, vec!["relay".to_string()]);
         assert_eq!(c.args["width"], 0.05);
     }
@@ -290,11 +341,29 @@ mod tests {
     #[test]
     fn clear_errors() {
         assert!(parse("  # comment").unwrap().is_none());
-        assert!(parse("fly away").unwrap_err().0.contains("unknown console command 'fly'"));
-        assert!(parse("system flying").unwrap_err().0.contains("unknown lifecycle state 'flying'"));
+        assert!(
+            parse("fly away")
+                .unwrap_err()
+                .0
+                .contains("unknown console command 'fly'")
+        );
+        assert!(
+            parse("system flying")
+                .unwrap_err()
+                .0
+                .contains("unknown lifecycle state 'flying'")
+        );
         assert!(parse("send a b {bad").unwrap_err().0.contains("not valid JSON"));
-        assert!(parse("send --queue loud a b").unwrap_err().0.contains("unknown queue"));
+        assert!(
+            parse("send --queue loud a b")
+                .unwrap_err()
+                .0
+                .contains("unknown queue")
+        );
         assert!(parse("stats now").unwrap_err().0.contains("unexpected 'now'"));
-        assert_eq!(parse("advance 0.5").unwrap(), Some(ConsoleCommand::Advance(Duration::from_millis(500))));
+        assert_eq!(
+            parse("advance 0.5").unwrap(),
+            Some(ConsoleCommand::Advance(Duration::from_millis(500)))
+        );
     }
 }

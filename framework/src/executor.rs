@@ -80,14 +80,24 @@ impl LockstepExecutor {
     /// Config. Every module period must be a multiple of `base`.
     pub fn new(builder: SystemBuilder, base: Duration) -> Result<Self, StartupError> {
         if base.is_zero_or_negative() {
-            return Err(StartupError { problems: vec![format!("base period must be positive, got {base}")] });
+            return Err(StartupError {
+                problems: vec![format!("base period must be positive, got {base}")],
+            });
         }
         let (clock, driver) = SimClock::new();
         let a = builder.assemble(Arc::new(clock), Some(base))?;
         let mut runners = a.runners;
         runners.sort_by_key(|r| r.info().kind); // stable: registration order within a kind
-        let mut ex = LockstepExecutor { core: a.core, driver, base, runners, manager: a.manager };
-        ex.transition(Lifecycle::Config).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
+        let mut ex = LockstepExecutor {
+            core: a.core,
+            driver,
+            base,
+            runners,
+            manager: a.manager,
+        };
+        ex.transition(Lifecycle::Config).map_err(|e| StartupError {
+            problems: vec![e.to_string()],
+        })?;
         Ok(ex)
     }
 
@@ -170,7 +180,10 @@ impl Executor for LockstepExecutor {
         let id = self.manager.send_lifecycle(module, to)?;
         match self.module_ack(id) {
             Some(AckStatus::Completed(_)) => Ok(()),
-            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused { to, refusals: vec![r] }),
+            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused {
+                to,
+                refusals: vec![r],
+            }),
             _ => Err(SystemError::Timeout(module.to_string())),
         }
     }
@@ -198,15 +211,23 @@ impl RealtimeExecutor {
         let mut manager = a.manager;
         let mut runners = a.runners;
         // Startup -> Config before any thread exists, on this thread.
-        let sent = manager.begin(Lifecycle::Config).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
+        let sent = manager.begin(Lifecycle::Config).map_err(|e| StartupError {
+            problems: vec![e.to_string()],
+        })?;
         for r in &mut runners {
             r.step(&core, core.now(), StepMode::EmergencyOnly, OverrunBasis::Wall);
         }
-        manager.finish(Lifecycle::Config, &sent).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
+        manager
+            .finish(Lifecycle::Config, &sent)
+            .map_err(|e| StartupError {
+                problems: vec![e.to_string()],
+            })?;
 
         let stop = Arc::new(AtomicBool::new(false));
-        let hang: Vec<(ModuleId, String, Duration)> =
-            runners.iter().map(|r| (r.info().id, r.info().name.clone(), r.hang_timeout())).collect();
+        let hang: Vec<(ModuleId, String, Duration)> = runners
+            .iter()
+            .map(|r| (r.info().id, r.info().name.clone(), r.hang_timeout()))
+            .collect();
         let mut threads = Vec::new();
         for runner in runners {
             let (core, stop, wall) = (core.clone(), stop.clone(), wall.clone());
@@ -247,7 +268,11 @@ impl RealtimeExecutor {
         for m in self.core.modules() {
             self.core.post.inbox(m.id).wake();
         }
-        let hung = self.watchdog.take().map(|w| w.join().unwrap_or_default()).unwrap_or_default();
+        let hung = self
+            .watchdog
+            .take()
+            .map(|w| w.join().unwrap_or_default())
+            .unwrap_or_default();
         for (id, h) in self.threads.drain(..) {
             if !hung.contains(&id) {
                 let _ = h.join();
@@ -265,7 +290,12 @@ impl Drop for RealtimeExecutor {
 }
 
 #[allow(clippy::disallowed_methods)] // the real-time executor sleeps on the OS clock
-fn module_thread(mut runner: Box<dyn Runner>, core: &Core, stop: &AtomicBool, wall: &WallClock) -> Box<dyn Runner> {
+fn module_thread(
+    mut runner: Box<dyn Runner>,
+    core: &Core,
+    stop: &AtomicBool,
+    wall: &WallClock,
+) -> Box<dyn Runner> {
     let id = runner.info().id;
     let inbox = core.post.inbox(id);
     match runner.schedule() {
@@ -309,7 +339,11 @@ fn module_thread(mut runner: Box<dyn Runner>, core: &Core, stop: &AtomicBool, wa
 }
 
 /// Isolates modules whose step stays busy past their hang timeout. Returns the hung modules.
-fn watchdog_thread(core: &Core, stop: &AtomicBool, modules: &[(ModuleId, String, Duration)]) -> Vec<ModuleId> {
+fn watchdog_thread(
+    core: &Core,
+    stop: &AtomicBool,
+    modules: &[(ModuleId, String, Duration)],
+) -> Vec<ModuleId> {
     let mut hung = Vec::new();
     let poll = modules
         .iter()
@@ -329,13 +363,20 @@ fn watchdog_thread(core: &Core, stop: &AtomicBool, modules: &[(ModuleId, String,
                 let info = crate::module::ModuleInfo {
                     id: *id,
                     name: name.clone(),
-                    kind: core.modules().iter().find(|m| m.id == *id).map(|m| m.kind).unwrap_or(crate::ModuleKind::External),
+                    kind: core
+                        .modules()
+                        .iter()
+                        .find(|m| m.id == *id)
+                        .map(|m| m.kind)
+                        .unwrap_or(crate::ModuleKind::External),
                 };
                 crate::system::isolate(
                     core,
                     &info,
                     status.lifecycle(),
-                    crate::events::Fault::Hang { busy_s: busy.as_secs_f64() },
+                    crate::events::Fault::Hang {
+                        busy_s: busy.as_secs_f64(),
+                    },
                     core.now(),
                 );
                 hung.push(*id);
@@ -366,7 +407,10 @@ impl Executor for RealtimeExecutor {
         let id = self.manager.send_lifecycle(module, to)?;
         match self.manager.endpoint().wait_final(id, self.ack_timeout) {
             Some(AckStatus::Completed(_)) => Ok(()),
-            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused { to, refusals: vec![r] }),
+            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused {
+                to,
+                refusals: vec![r],
+            }),
             _ => Err(SystemError::Timeout(module.to_string())),
         }
     }

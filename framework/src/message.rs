@@ -107,7 +107,10 @@ pub enum AckStatus {
 impl AckStatus {
     /// True for the statuses that end a command's life (rejected, completed, failed).
     pub fn is_final(&self) -> bool {
-        matches!(self, AckStatus::Rejected(_) | AckStatus::Completed(_) | AckStatus::Failed(_))
+        matches!(
+            self,
+            AckStatus::Rejected(_) | AckStatus::Completed(_) | AckStatus::Failed(_)
+        )
     }
 }
 
@@ -328,7 +331,10 @@ impl Inbox {
     }
 
     fn next_id(&self, sender: ModuleId) -> MessageId {
-        MessageId { sender, seq: self.next_seq.fetch_add(1, Ordering::Relaxed) + 1 }
+        MessageId {
+            sender,
+            seq: self.next_seq.fetch_add(1, Ordering::Relaxed) + 1,
+        }
     }
 }
 
@@ -342,9 +348,18 @@ pub struct PostOffice {
 
 impl PostOffice {
     pub(crate) fn new(names: Vec<String>, trace: bool) -> Self {
-        let index = names.iter().enumerate().map(|(i, n)| (n.clone(), ModuleId(i as u32))).collect();
+        let index = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| (n.clone(), ModuleId(i as u32)))
+            .collect();
         let inboxes = names.iter().map(|_| Inbox::default()).collect();
-        PostOffice { names, index, inboxes, trace: trace.then(|| Mutex::new(Vec::new())) }
+        PostOffice {
+            names,
+            index,
+            inboxes,
+            trace: trace.then(|| Mutex::new(Vec::new())),
+        }
     }
 
     /// The id of a participant.
@@ -353,7 +368,10 @@ impl PostOffice {
     }
     /// The name of a participant.
     pub fn name(&self, id: ModuleId) -> &str {
-        self.names.get(id.0 as usize).map(String::as_str).unwrap_or("<unknown>")
+        self.names
+            .get(id.0 as usize)
+            .map(String::as_str)
+            .unwrap_or("<unknown>")
     }
     /// All participant names, indexed by id.
     pub fn names(&self) -> &[String] {
@@ -366,7 +384,9 @@ impl PostOffice {
 
     /// Builds a message from `sender` for `cmd`, stamped `now`, without posting it.
     pub fn compose(&self, sender: ModuleId, now: Time, cmd: Command) -> Result<Message, SendError> {
-        let recipient = self.id(&cmd.to).ok_or_else(|| SendError::UnknownRecipient(cmd.to.clone()))?;
+        let recipient = self
+            .id(&cmd.to)
+            .ok_or_else(|| SendError::UnknownRecipient(cmd.to.clone()))?;
         let route = cmd
             .via
             .iter()
@@ -380,7 +400,10 @@ impl PostOffice {
             route,
             path: Vec::new(),
             queue: cmd.queue,
-            body: Body::Command { name: cmd.name, args: cmd.args },
+            body: Body::Command {
+                name: cmd.name,
+                args: cmd.args,
+            },
         })
     }
 
@@ -395,7 +418,9 @@ impl PostOffice {
 
     /// Posts an acknowledgement of `original` back to its sender, along the reverse of its path.
     pub fn acknowledge(&self, original: &Message, by: ModuleId, now: Time, status: AckStatus) {
-        let Body::Command { name, .. } = &original.body else { return };
+        let Body::Command { name, .. } = &original.body else {
+            return;
+        };
         let ack = Message {
             id: self.inbox(by).next_id(by),
             stamp: now,
@@ -403,15 +428,27 @@ impl PostOffice {
             recipient: original.sender,
             route: original.path.iter().rev().copied().collect(),
             path: Vec::new(),
-            queue: if original.queue == Queue::Emergency { Queue::Emergency } else { Queue::Nominal },
-            body: Body::Ack(Ack { of: original.id, command: name.clone(), by, status }),
+            queue: if original.queue == Queue::Emergency {
+                Queue::Emergency
+            } else {
+                Queue::Nominal
+            },
+            body: Body::Ack(Ack {
+                of: original.id,
+                command: name.clone(),
+                by,
+                status,
+            }),
         };
         self.post(ack);
     }
 
     /// Takes the messages traced so far (when tracing is on).
     pub fn take_trace(&self) -> Vec<Message> {
-        self.trace.as_ref().map(|t| std::mem::take(&mut *t.lock())).unwrap_or_default()
+        self.trace
+            .as_ref()
+            .map(|t| std::mem::take(&mut *t.lock()))
+            .unwrap_or_default()
     }
 }
 
@@ -437,7 +474,8 @@ impl AckTracker {
             if self.finished.len() == FINISHED_KEPT {
                 self.finished.pop_front();
             }
-            self.finished.push_back((ack.of, ack.command.clone(), ack.status.clone()));
+            self.finished
+                .push_back((ack.of, ack.command.clone(), ack.status.clone()));
         } else if let Some(e) = self.pending.get_mut(&ack.of) {
             e.1 = ack.status.clone();
         }
@@ -447,7 +485,11 @@ impl AckTracker {
         if let Some((_, s)) = self.pending.get(&id) {
             return Some(s.clone());
         }
-        self.finished.iter().rev().find(|(i, _, _)| *i == id).map(|(_, _, s)| s.clone())
+        self.finished
+            .iter()
+            .rev()
+            .find(|(i, _, _)| *i == id)
+            .map(|(_, _, s)| s.clone())
     }
     /// Number of commands without a final acknowledgement.
     pub fn outstanding(&self) -> usize {
@@ -467,8 +509,15 @@ mod tests {
     fn emergency_overtakes_nominal_and_debug() {
         let po = office();
         let a = po.id("a").unwrap();
-        for (i, q) in [Queue::Nominal, Queue::Debug, Queue::Emergency].into_iter().enumerate() {
-            let m = po.compose(a, Time::from_nanos(i as i64), Command::new("b", format!("c{i}")).on(q));
+        for (i, q) in [Queue::Nominal, Queue::Debug, Queue::Emergency]
+            .into_iter()
+            .enumerate()
+        {
+            let m = po.compose(
+                a,
+                Time::from_nanos(i as i64),
+                Command::new("b", format!("c{i}")).on(q),
+            );
             po.post(m.unwrap());
         }
         let b = po.inbox(po.id("b").unwrap());
@@ -489,14 +538,19 @@ mod tests {
             po.compose(a, Time::ZERO, Command::new("zz", "x")).unwrap_err(),
             SendError::UnknownRecipient("zz".into())
         );
-        assert!(po.compose(a, Time::ZERO, Command::new("c", "x").via(["nope"])).is_err());
+        assert!(
+            po.compose(a, Time::ZERO, Command::new("c", "x").via(["nope"]))
+                .is_err()
+        );
     }
 
     #[test]
     fn ack_goes_back_along_the_reverse_path() {
         let po = office();
         let (a, b, c) = (po.id("a").unwrap(), po.id("b").unwrap(), po.id("c").unwrap());
-        let mut m = po.compose(a, Time::ZERO, Command::new("c", "x").via(["b"])).unwrap();
+        let mut m = po
+            .compose(a, Time::ZERO, Command::new("c", "x").via(["b"]))
+            .unwrap();
         assert_eq!(m.next_hop(), b);
         m.route.remove(0);
         m.path.push(b);
@@ -510,10 +564,18 @@ mod tests {
     #[test]
     fn tracker_keeps_latest_status() {
         let mut t = AckTracker::default();
-        let id = MessageId { sender: ModuleId(0), seq: 1 };
+        let id = MessageId {
+            sender: ModuleId(0),
+            seq: 1,
+        };
         t.sent(id, "go");
         assert_eq!(t.status(id), Some(AckStatus::Pending));
-        let mut ack = Ack { of: id, command: "go".into(), by: ModuleId(1), status: AckStatus::Accepted };
+        let mut ack = Ack {
+            of: id,
+            command: "go".into(),
+            by: ModuleId(1),
+            status: AckStatus::Accepted,
+        };
         t.update(&ack);
         assert_eq!(t.status(id), Some(AckStatus::Accepted));
         ack.status = AckStatus::Failed("stalled".into());

@@ -22,7 +22,9 @@ use crate::config::{ConfigError, ConfigSource, FrameworkKeys, ModuleConfigFile, 
 use crate::events::{EventKind, Fault};
 use crate::exec_context::ExecContext;
 use crate::lifecycle::Lifecycle;
-use crate::message::{Ack, AckStatus, AckTracker, Body, Command, Message, MessageId, ModuleId, Outcome, Queue, SendError};
+use crate::message::{
+    Ack, AckStatus, AckTracker, Body, Command, Message, MessageId, ModuleId, Outcome, Queue, SendError,
+};
 use crate::resources::{ReservationError, ReservationToken};
 use crate::stats::TaskStats;
 use crate::system::Core;
@@ -159,7 +161,12 @@ impl<M: Module> Declare<'_, M> {
             return;
         }
         self.fsm.index.insert(name.to_string(), self.fsm.states.len());
-        self.fsm.states.push(StateEntry { name: name.to_string(), impls, active: 0, meta });
+        self.fsm.states.push(StateEntry {
+            name: name.to_string(),
+            impls,
+            active: 0,
+            meta,
+        });
     }
 
     /// Declares a state of the module's own machine with its state function. The first state declared
@@ -173,7 +180,9 @@ impl<M: Module> Declare<'_, M> {
     /// being the default, switchable at runtime by the `set_meta` command.
     pub fn meta_state(&mut self, name: &str, impls: &[(&str, StateFn<M>)]) -> &mut Self {
         if impls.is_empty() {
-            self.decl.problems.push(format!("meta-state '{name}' has no implementation"));
+            self.decl
+                .problems
+                .push(format!("meta-state '{name}' has no implementation"));
             return self;
         }
         let impls = impls.iter().map(|(n, f)| (n.to_string(), *f)).collect();
@@ -214,7 +223,9 @@ impl<M: Module> Declare<'_, M> {
         handler: fn(&mut M, &mut Ctx<'_>, A) -> Outcome,
     ) -> &mut Self {
         if FRAMEWORK_COMMANDS.contains(&name) {
-            self.decl.problems.push(format!("command '{name}' is reserved by the framework"));
+            self.decl
+                .problems
+                .push(format!("command '{name}' is reserved by the framework"));
             return self;
         }
         if self.commands.contains_key(name) {
@@ -226,7 +237,11 @@ impl<M: Module> Declare<'_, M> {
             name.to_string(),
             Box::new(move |m, ctx, args| {
                 // A missing argument object is read as an empty one, so `()`-like structs work.
-                let args = if args.is_null() { serde_json::Value::Object(Default::default()) } else { args };
+                let args = if args.is_null() {
+                    serde_json::Value::Object(Default::default())
+                } else {
+                    args
+                };
                 match serde_json::from_value::<A>(args.clone()).or_else(|e| {
                     // Unit and unit-like argument types accept an empty object or null.
                     if args.as_object().is_some_and(|o| o.is_empty()) {
@@ -253,7 +268,9 @@ impl<M: Module> Declare<'_, M> {
             Ok(w) => w,
             Err(e) => {
                 self.decl.problems.push(e.to_string());
-                crate::blackboard::BlackBoard::new().declare_writer(slot, self.id).expect("fresh board")
+                crate::blackboard::BlackBoard::new()
+                    .declare_writer(slot, self.id)
+                    .expect("fresh board")
             }
         }
     }
@@ -264,7 +281,9 @@ impl<M: Module> Declare<'_, M> {
             Ok(r) => r,
             Err(e) => {
                 self.decl.problems.push(e.to_string());
-                crate::blackboard::BlackBoard::new().declare_reader(slot, self.id).expect("fresh board")
+                crate::blackboard::BlackBoard::new()
+                    .declare_reader(slot, self.id)
+                    .expect("fresh board")
             }
         }
     }
@@ -293,13 +312,19 @@ impl<M: Module> Declare<'_, M> {
                 (Some(&a), Some(&b)) => {
                     self.fsm.transitions.insert((a, b));
                 }
-                _ => self.decl.problems.push(format!("transition {from} -> {to} names an undeclared state")),
+                _ => self
+                    .decl
+                    .problems
+                    .push(format!("transition {from} -> {to} names an undeclared state")),
             }
         }
         if let Some(init) = self.initial.take() {
             match self.fsm.index.get(&init) {
                 Some(&i) => self.fsm.current = i,
-                None => self.decl.problems.push(format!("initial state '{init}' is not declared")),
+                None => self
+                    .decl
+                    .problems
+                    .push(format!("initial state '{init}' is not declared")),
             }
         }
     }
@@ -463,7 +488,9 @@ impl<'a> Ctx<'a> {
     }
     /// Reports the completion or failure of a command accepted earlier.
     pub fn reply(&mut self, request: &Request, outcome: Outcome) {
-        self.core.post.acknowledge(&request.message, self.id, self.now, outcome.into_status());
+        self.core
+            .post
+            .acknowledge(&request.message, self.id, self.now, outcome.into_status());
     }
     /// Declares simulated execution time spent in this cycle (the cost on the target computer). The
     /// lockstep executor compares it with the deadline to count overruns deterministically.
@@ -497,7 +524,13 @@ impl<'a> Ctx<'a> {
     }
     /// Raises a free-text event.
     pub fn note(&self, text: impl Into<String>) {
-        self.core.events.raise(self.now, EventKind::Note { module: self.name.to_string(), text: text.into() });
+        self.core.events.raise(
+            self.now,
+            EventKind::Note {
+                module: self.name.to_string(),
+                text: text.into(),
+            },
+        );
     }
 }
 
@@ -582,9 +615,15 @@ impl<M: Module> Cell<M> {
     ) -> Result<Self, ConfigError> {
         let (cfg, text) = source.load::<M::Params>()?;
         module.configure(&cfg.params).map_err(|e| {
-            Source::new(&source.origin(), &text).error_at_key("params", format!("rejected by module '{name}': {e}"))
+            Source::new(&source.origin(), &text)
+                .error_at_key("params", format!("rejected by module '{name}': {e}"))
         })?;
-        let mut fsm = Fsm { states: Vec::new(), index: HashMap::new(), transitions: HashSet::new(), current: 0 };
+        let mut fsm = Fsm {
+            states: Vec::new(),
+            index: HashMap::new(),
+            transitions: HashSet::new(),
+            current: 0,
+        };
         let mut lifecycle_fns = HashMap::new();
         let mut commands = BTreeMap::new();
         let mut on_ack = None;
@@ -621,7 +660,11 @@ impl<M: Module> Cell<M> {
             }
         }
         Ok(Cell {
-            info: ModuleInfo { id, name: name.to_string(), kind: M::KIND },
+            info: ModuleInfo {
+                id,
+                name: name.to_string(),
+                kind: M::KIND,
+            },
             module,
             fsm,
             lifecycle_fns,
@@ -706,7 +749,8 @@ impl<M: Module> Cell<M> {
             if self.isolated && matches!(m.body, Body::Command { .. }) {
                 let reason = format!("relay module '{}' is isolated in Safe", self.info.name);
                 m.path.pop();
-                core.post.acknowledge(&m, self.info.id, now, AckStatus::Rejected(reason));
+                core.post
+                    .acknowledge(&m, self.info.id, now, AckStatus::Rejected(reason));
             } else {
                 core.post.post(m);
             }
@@ -719,8 +763,15 @@ impl<M: Module> Cell<M> {
                     && !self.isolated
                 {
                     let ack = ack.clone();
-                    let mut ctx =
-                        Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
+                    let mut ctx = Self::ctx(
+                        core,
+                        &self.info,
+                        &self.fsm,
+                        &mut self.tracker,
+                        now,
+                        self.exec,
+                        self.lifecycle,
+                    );
                     let module = &mut self.module;
                     let r = catch_unwind(AssertUnwindSafe(|| f(module, &mut ctx, &ack)));
                     let goto = ctx.goto;
@@ -738,13 +789,25 @@ impl<M: Module> Cell<M> {
         if let Outcome::Rejected(reason) = &outcome {
             core.events.raise(
                 now,
-                EventKind::MessageRejected { module: self.info.name.clone(), command: name, reason: reason.clone() },
+                EventKind::MessageRejected {
+                    module: self.info.name.clone(),
+                    command: name,
+                    reason: reason.clone(),
+                },
             );
         }
-        core.post.acknowledge(&m, self.info.id, now, outcome.into_status());
+        core.post
+            .acknowledge(&m, self.info.id, now, outcome.into_status());
     }
 
-    fn dispatch(&mut self, core: &Core, now: Time, m: &Message, name: &str, args: serde_json::Value) -> Outcome {
+    fn dispatch(
+        &mut self,
+        core: &Core,
+        now: Time,
+        m: &Message,
+        name: &str,
+        args: serde_json::Value,
+    ) -> Outcome {
         if m.queue == Queue::Debug && !self.exec.debug_queue_active() {
             return Outcome::reject(format!(
                 "debug command '{name}' refused: module '{}' is in {} context; the debug queue is active only in Debug",
@@ -773,8 +836,24 @@ impl<M: Module> Cell<M> {
             ));
         }
         let handler = &self.commands[name];
-        let mut ctx = Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
-        ctx.request = Some(Request { message: Message { body: Body::Command { name: name.into(), args: serde_json::Value::Null }, ..m.clone() } });
+        let mut ctx = Self::ctx(
+            core,
+            &self.info,
+            &self.fsm,
+            &mut self.tracker,
+            now,
+            self.exec,
+            self.lifecycle,
+        );
+        ctx.request = Some(Request {
+            message: Message {
+                body: Body::Command {
+                    name: name.into(),
+                    args: serde_json::Value::Null,
+                },
+                ..m.clone()
+            },
+        });
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| handler(module, &mut ctx, args)));
         let goto = ctx.goto;
@@ -842,7 +921,8 @@ impl<M: Module> Cell<M> {
             path: Option<std::path::PathBuf>,
         }
         fn parse<T: DeserializeOwned>(name: &str, args: serde_json::Value) -> Result<T, Outcome> {
-            serde_json::from_value(args).map_err(|e| Outcome::reject(format!("bad arguments for '{name}': {e}")))
+            serde_json::from_value(args)
+                .map_err(|e| Outcome::reject(format!("bad arguments for '{name}': {e}")))
         }
         let in_config = |this: &Self| {
             if this.lifecycle == Lifecycle::Config {
@@ -857,15 +937,23 @@ impl<M: Module> Cell<M> {
         let r: Result<Outcome, Outcome> = (|| match name {
             "ping" => Ok(Outcome::done()),
             "get_state" => Ok(Outcome::Completed(self.state_json())),
-            "get_stats" => Ok(Outcome::Completed(serde_json::to_value(&self.stats).unwrap_or_default())),
+            "get_stats" => Ok(Outcome::Completed(
+                serde_json::to_value(&self.stats).unwrap_or_default(),
+            )),
             "lifecycle" => {
                 let To { to } = parse(name, args)?;
                 self.change_lifecycle(core, now, to)
             }
             "set_meta" => {
-                let Meta { state, implementation } = parse(name, args)?;
+                let Meta {
+                    state,
+                    implementation,
+                } = parse(name, args)?;
                 if self.isolated {
-                    return Err(Outcome::reject(format!("module '{}' is isolated in Safe", self.info.name)));
+                    return Err(Outcome::reject(format!(
+                        "module '{}' is isolated in Safe",
+                        self.info.name
+                    )));
                 }
                 let i = *self.fsm.index.get(&state).ok_or_else(|| {
                     Outcome::reject(format!("module '{}' has no state '{state}'", self.info.name))
@@ -874,16 +962,28 @@ impl<M: Module> Cell<M> {
                 if !st.meta {
                     return Err(Outcome::reject(format!("state '{state}' is not a meta-state")));
                 }
-                let k = st.impls.iter().position(|(n, _)| *n == implementation).ok_or_else(|| {
-                    Outcome::reject(format!(
-                        "meta-state '{state}' has no implementation '{implementation}' (it has: {})",
-                        st.impls.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
-                    ))
-                })?;
+                let k = st
+                    .impls
+                    .iter()
+                    .position(|(n, _)| *n == implementation)
+                    .ok_or_else(|| {
+                        Outcome::reject(format!(
+                            "meta-state '{state}' has no implementation '{implementation}' (it has: {})",
+                            st.impls
+                                .iter()
+                                .map(|(n, _)| n.as_str())
+                                .collect::<Vec<_>>()
+                                .join(", ")
+                        ))
+                    })?;
                 st.active = k;
                 core.events.raise(
                     now,
-                    EventKind::MetaStateSwitched { module: self.info.name.clone(), state, implementation },
+                    EventKind::MetaStateSwitched {
+                        module: self.info.name.clone(),
+                        state,
+                        implementation,
+                    },
                 );
                 Ok(Outcome::done())
             }
@@ -926,7 +1026,11 @@ impl<M: Module> Cell<M> {
             }
             "save_config" => {
                 in_config(self)?;
-                let Save { path } = if args.is_null() { Save::default() } else { parse(name, args)? };
+                let Save { path } = if args.is_null() {
+                    Save::default()
+                } else {
+                    parse(name, args)?
+                };
                 let path = match (path, &self.source) {
                     (Some(p), _) => p,
                     (None, ConfigSource::File(p)) => p.clone(),
@@ -947,10 +1051,12 @@ impl<M: Module> Cell<M> {
     fn apply_config_text(&mut self, origin: &str, text: String) -> Result<Outcome, Outcome> {
         let src = Source::new(origin, &text);
         let cfg: ModuleConfigFile<M::Params> = src.parse().map_err(|e| Outcome::reject(e.to_string()))?;
-        cfg.framework.validate(&src).map_err(|e| Outcome::reject(e.to_string()))?;
-        self.module
-            .configure(&cfg.params)
-            .map_err(|e| Outcome::reject(format!("parameters rejected by module '{}': {e}", self.info.name)))?;
+        cfg.framework
+            .validate(&src)
+            .map_err(|e| Outcome::reject(e.to_string()))?;
+        self.module.configure(&cfg.params).map_err(|e| {
+            Outcome::reject(format!("parameters rejected by module '{}': {e}", self.info.name))
+        })?;
         self.exec = cfg.framework.context;
         self.keys = cfg.framework;
         self.params_text = text;
@@ -959,14 +1065,26 @@ impl<M: Module> Cell<M> {
 
     fn change_lifecycle(&mut self, core: &Core, now: Time, to: Lifecycle) -> Result<Outcome, Outcome> {
         let from = self.lifecycle;
-        from.check_transition(to).map_err(|e| Outcome::reject(format!("module '{}': {e}", self.info.name)))?;
-        let mut ctx = Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
+        from.check_transition(to)
+            .map_err(|e| Outcome::reject(format!("module '{}': {e}", self.info.name)))?;
+        let mut ctx = Self::ctx(
+            core,
+            &self.info,
+            &self.fsm,
+            &mut self.tracker,
+            now,
+            self.exec,
+            self.lifecycle,
+        );
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| module.on_transition(&mut ctx, from, to)));
         drop(ctx);
         match r {
             Ok(Err(reason)) if to != Lifecycle::Safe => {
-                return Err(Outcome::reject(format!("module '{}' refused {from} -> {to}: {reason}", self.info.name)));
+                return Err(Outcome::reject(format!(
+                    "module '{}' refused {from} -> {to}: {reason}",
+                    self.info.name
+                )));
             }
             Err(p) => {
                 let text = panic_text(&*p);
@@ -982,7 +1100,14 @@ impl<M: Module> Cell<M> {
             core.status(self.info.id).set_isolated(false);
         }
         core.status(self.info.id).set_lifecycle(to);
-        core.events.raise(now, EventKind::ModuleLifecycle { module: self.info.name.clone(), from, to });
+        core.events.raise(
+            now,
+            EventKind::ModuleLifecycle {
+                module: self.info.name.clone(),
+                from,
+                to,
+            },
+        );
         Ok(Outcome::Completed(serde_json::json!({ "lifecycle": to })))
     }
 
@@ -992,7 +1117,15 @@ impl<M: Module> Cell<M> {
             l => self.lifecycle_fns.get(&l).copied(),
         };
         let Some(f) = f else { return Duration::ZERO };
-        let mut ctx = Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
+        let mut ctx = Self::ctx(
+            core,
+            &self.info,
+            &self.fsm,
+            &mut self.tracker,
+            now,
+            self.exec,
+            self.lifecycle,
+        );
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| f(module, &mut ctx)));
         let (goto, charged) = (ctx.goto, ctx.charged);
@@ -1028,7 +1161,13 @@ impl<M: Module> Runner for Cell<M> {
         let s = core.status(self.info.id);
         s.set_lifecycle(self.lifecycle);
         s.set_context(self.exec);
-        s.set_state(self.fsm.states.get(self.fsm.current).map(|s| s.name.as_str()).unwrap_or(""));
+        s.set_state(
+            self.fsm
+                .states
+                .get(self.fsm.current)
+                .map(|s| s.name.as_str())
+                .unwrap_or(""),
+        );
     }
 
     #[allow(clippy::disallowed_methods)] // the executor measures execution time; modules never see it
@@ -1056,7 +1195,10 @@ impl<M: Module> Runner for Cell<M> {
                         None => break,
                     }
                 }
-                if !self.isolated && self.lifecycle != Lifecycle::Shutdown && self.lifecycle != Lifecycle::Startup {
+                if !self.isolated
+                    && self.lifecycle != Lifecycle::Shutdown
+                    && self.lifecycle != Lifecycle::Startup
+                {
                     let charged = self.run_state_function(core, now);
                     let exec = Duration::from_std(started.elapsed());
                     self.stats.record_cycle(exec);
@@ -1095,4 +1237,3 @@ impl<M: Module> Runner for Cell<M> {
         status.store_stats(&self.stats);
     }
 }
-

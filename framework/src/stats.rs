@@ -37,7 +37,11 @@ impl TaskStats {
     }
     /// Mean cycle execution time.
     pub fn exec_mean(&self) -> Duration {
-        if self.cycles == 0 { Duration::ZERO } else { Duration::from_nanos(self.exec_total_ns / self.cycles as i64) }
+        if self.cycles == 0 {
+            Duration::ZERO
+        } else {
+            Duration::from_nanos(self.exec_total_ns / self.cycles as i64)
+        }
     }
     /// Shortest cycle execution time.
     pub fn exec_min(&self) -> Duration {

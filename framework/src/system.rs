@@ -16,7 +16,9 @@ use crate::config::ConfigSource;
 use crate::events::{EventKind, EventLog};
 use crate::exec_context::ExecContext;
 use crate::lifecycle::{Lifecycle, TransitionError};
-use crate::message::{Ack, AckStatus, AckTracker, Body, Command, MessageId, ModuleId, PostOffice, Queue, SendError};
+use crate::message::{
+    Ack, AckStatus, AckTracker, Body, Command, MessageId, ModuleId, PostOffice, Queue, SendError,
+};
 use crate::module::{Cell, Module, ModuleInfo, Runner};
 use crate::resources::Resources;
 use crate::stats::TaskStats;
@@ -204,7 +206,9 @@ impl SystemBuilder {
             return None;
         }
         if name.is_empty() || name.contains(char::is_whitespace) {
-            self.problems.push(format!("'{name}' is not a valid module name (empty or with spaces)"));
+            self.problems.push(format!(
+                "'{name}' is not a valid module name (empty or with spaces)"
+            ));
             return None;
         }
         self.names.push(name.to_string());
@@ -232,7 +236,11 @@ impl SystemBuilder {
 
     /// Registers a module whose configuration is given as TOML text (tests, demos, generated setups).
     pub fn add_inline<M: Module>(&mut self, name: &str, module: M, toml: &str) -> &mut Self {
-        self.add(name, module, ConfigSource::inline(format!("<inline config of module '{name}'>"), toml))
+        self.add(
+            name,
+            module,
+            ConfigSource::inline(format!("<inline config of module '{name}'>"), toml),
+        )
     }
 
     /// Registers an external endpoint: a participant without a module (an operator console, a script,
@@ -262,7 +270,11 @@ impl SystemBuilder {
     }
 
     /// Runs the start-up checks and moves every module to Config.
-    pub(crate) fn assemble(self, clock: Arc<dyn Clock>, base_period: Option<Duration>) -> Result<Assembled, StartupError> {
+    pub(crate) fn assemble(
+        self,
+        clock: Arc<dyn Clock>,
+        base_period: Option<Duration>,
+    ) -> Result<Assembled, StartupError> {
         let mut problems = self.problems;
         let mut runners = Vec::new();
         for e in self.entries {
@@ -274,7 +286,10 @@ impl SystemBuilder {
         for r in &runners {
             for to in &r.declarations().recipients {
                 if !self.names.iter().any(|n| n == to) {
-                    problems.push(format!("module '{}' sends to unknown module '{to}'", r.info().name));
+                    problems.push(format!(
+                        "module '{}' sends to unknown module '{to}'",
+                        r.info().name
+                    ));
                 }
             }
         }
@@ -287,7 +302,10 @@ impl SystemBuilder {
             }
             if d.writers.is_empty() {
                 let r: Vec<_> = d.readers.iter().map(|w| format!("'{}'", name_of(*w))).collect();
-                problems.push(format!("slot '{slot}' is read by {} but no module writes it", r.join(", ")));
+                problems.push(format!(
+                    "slot '{slot}' is read by {} but no module writes it",
+                    r.join(", ")
+                ));
             }
         }
         // Periods must be whole multiples of the lockstep base period.
@@ -321,22 +339,45 @@ impl SystemBuilder {
             r.publish_status(&core);
         }
         let manager = SystemManager::new(core.clone());
-        Ok(Assembled { core, runners, manager })
+        Ok(Assembled {
+            core,
+            runners,
+            manager,
+        })
     }
 }
 
 /// Puts a module in Safe and isolates it: its state functions stop, its messages are refused, its
 /// reservations are freed, and an event says why. Used by the module's own cell (panic, error,
 /// overrun) and by the watchdog thread (hang).
-pub(crate) fn isolate(core: &Core, info: &ModuleInfo, from: Lifecycle, fault: crate::events::Fault, now: Time) {
+pub(crate) fn isolate(
+    core: &Core,
+    info: &ModuleInfo,
+    from: Lifecycle,
+    fault: crate::events::Fault,
+    now: Time,
+) {
     let status = core.status(info.id);
     status.set_isolated(true);
     status.set_lifecycle(Lifecycle::Safe);
     core.resources.release_all_of(info.id);
     tracing::warn!(module = %info.name, ?fault, "watchdog isolated module");
-    core.events.raise(now, EventKind::ModuleIsolated { module: info.name.clone(), fault });
+    core.events.raise(
+        now,
+        EventKind::ModuleIsolated {
+            module: info.name.clone(),
+            fault,
+        },
+    );
     if from != Lifecycle::Safe {
-        core.events.raise(now, EventKind::ModuleLifecycle { module: info.name.clone(), from, to: Lifecycle::Safe });
+        core.events.raise(
+            now,
+            EventKind::ModuleLifecycle {
+                module: info.name.clone(),
+                from,
+                to: Lifecycle::Safe,
+            },
+        );
     }
 }
 
@@ -360,8 +401,15 @@ pub struct Endpoint {
 
 impl Endpoint {
     pub(crate) fn new(core: Arc<Core>, name: &str) -> Result<Self, SystemError> {
-        let id = core.post.id(name).ok_or_else(|| SystemError::UnknownModule(name.to_string()))?;
-        Ok(Endpoint { core, id, tracker: Arc::default() })
+        let id = core
+            .post
+            .id(name)
+            .ok_or_else(|| SystemError::UnknownModule(name.to_string()))?;
+        Ok(Endpoint {
+            core,
+            id,
+            tracker: Arc::default(),
+        })
     }
     /// This endpoint's id.
     pub fn id(&self) -> ModuleId {
@@ -420,7 +468,11 @@ pub struct SystemManager {
 impl SystemManager {
     fn new(core: Arc<Core>) -> Self {
         let endpoint = Endpoint::new(core.clone(), SYSTEM).expect("system endpoint is registered first");
-        SystemManager { core, state: Lifecycle::Startup, endpoint }
+        SystemManager {
+            core,
+            state: Lifecycle::Startup,
+            endpoint,
+        }
     }
     /// The system's lifecycle state.
     pub fn state(&self) -> Lifecycle {
@@ -453,7 +505,11 @@ impl SystemManager {
 
     /// Sends one module a lifecycle command.
     pub(crate) fn send_lifecycle(&self, module: &str, to: Lifecycle) -> Result<MessageId, SystemError> {
-        Ok(self.endpoint.send(Command::new(module, "lifecycle").on(Queue::Emergency).json(serde_json::json!({ "to": to })))?)
+        Ok(self.endpoint.send(
+            Command::new(module, "lifecycle")
+                .on(Queue::Emergency)
+                .json(serde_json::json!({ "to": to })),
+        )?)
     }
 
     /// Collects the acknowledgements of a transition and updates the system state.
@@ -469,9 +525,15 @@ impl SystemManager {
         // A move to Safe or Shutdown happens whatever individual modules say.
         if refusals.is_empty() || matches!(to, Lifecycle::Safe | Lifecycle::Shutdown) {
             let from = std::mem::replace(&mut self.state, to);
-            self.core.events.raise(self.core.now(), EventKind::SystemState { from, to });
+            self.core
+                .events
+                .raise(self.core.now(), EventKind::SystemState { from, to });
         }
-        if refusals.is_empty() { Ok(()) } else { Err(SystemError::Refused { to, refusals }) }
+        if refusals.is_empty() {
+            Ok(())
+        } else {
+            Err(SystemError::Refused { to, refusals })
+        }
     }
 
     /// Status of the last command sent by the manager with this id.
@@ -525,7 +587,10 @@ pub fn module_reports(core: &Core) -> Vec<ModuleReport> {
 
 /// Statistics of every module by name.
 pub fn stats_by_module(core: &Core) -> BTreeMap<String, TaskStats> {
-    core.modules().iter().map(|m| (m.name.clone(), core.status(m.id).stats())).collect()
+    core.modules()
+        .iter()
+        .map(|m| (m.name.clone(), core.status(m.id).stats()))
+        .collect()
 }
 
 /// Map of module names to ids.

@@ -47,7 +47,11 @@ fn concurrent_blackboard_readers_never_see_torn_or_stale_reordered_values() {
 
 fn producer_consumer() -> SystemBuilder {
     let mut b = SystemBuilder::new();
-    b.add_inline("counter", Counter::default(), "[framework]\nperiod_s = 0.01\n[params]\nsink = \"acc\"\nstop_after = 20\n");
+    b.add_inline(
+        "counter",
+        Counter::default(),
+        "[framework]\nperiod_s = 0.01\n[params]\nsink = \"acc\"\nstop_after = 20\n",
+    );
     b.add_inline("acc", Accumulator::default(), "");
     b
 }
@@ -86,8 +90,20 @@ fn lockstep_runs_are_deterministic() {
         let mut ex = LockstepExecutor::new(producer_consumer(), Duration::from_millis(1)).unwrap();
         ex.walk_to(Lifecycle::Run).unwrap();
         ex.run_for(Duration::from_millis(500));
-        let events: Vec<_> = ex.core().events.snapshot().into_iter().map(|e| serde_json::to_string(&e).unwrap()).collect();
-        let slots: Vec<_> = ex.core().board.names().iter().map(|n| ex.core().board.slot(n).unwrap().to_json()).collect();
+        let events: Vec<_> = ex
+            .core()
+            .events
+            .snapshot()
+            .into_iter()
+            .map(|e| serde_json::to_string(&e).unwrap())
+            .collect();
+        let slots: Vec<_> = ex
+            .core()
+            .board
+            .names()
+            .iter()
+            .map(|n| ex.core().board.slot(n).unwrap().to_json())
+            .collect();
         (events, slots)
     };
     assert_eq!(run(), run());
@@ -115,7 +131,11 @@ impl Module for Sleeper {
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         d.state("work", |m, _ctx| {
             m.cycles += 1;
-            let ms = if m.hang_at == Some(m.cycles) { 1500 } else { m.sleep_ms };
+            let ms = if m.hang_at == Some(m.cycles) {
+                1500
+            } else {
+                m.sleep_ms
+            };
             std::thread::sleep(std::time::Duration::from_millis(ms));
             Ok(())
         });
@@ -136,7 +156,11 @@ fn realtime_watchdog_isolates_panicking_and_hung_modules_and_the_rest_keeps_runn
         Sleeper::default(),
         "[framework]\nperiod_s = 0.01\nhang_timeout_s = 0.2\n[params]\nsleep_ms = 0\nhang_at = 3\n",
     );
-    b.add_inline("late", Sleeper::default(), "[framework]\nperiod_s = 0.01\noverrun_budget = 1000\n[params]\nsleep_ms = 25\n");
+    b.add_inline(
+        "late",
+        Sleeper::default(),
+        "[framework]\nperiod_s = 0.01\noverrun_budget = 1000\n[params]\nsleep_ms = 25\n",
+    );
     b.add_inline("c", Counter::default(), "[framework]\nperiod_s = 0.01\n");
     let mut ex = RealtimeExecutor::new(b).unwrap();
     ex.walk_to(Lifecycle::Run).unwrap();
@@ -153,7 +177,10 @@ fn realtime_watchdog_isolates_panicking_and_hung_modules_and_the_rest_keeps_runn
     let count_later = read::<u64>(&core, "c/count").unwrap_or(0);
     let reports = ex.stop();
     assert!(isolated("fragile") && isolated("stuck"));
-    assert!(count_later > count_then, "the counter kept running after the faults");
+    assert!(
+        count_later > count_then,
+        "the counter kept running after the faults"
+    );
     let events = core.events.snapshot();
     assert!(events.iter().any(|e| matches!(&e.kind,
         EventKind::ModuleIsolated { module, fault: Fault::Hang { busy_s } } if module == "stuck" && *busy_s >= 0.2)));
@@ -161,9 +188,15 @@ fn realtime_watchdog_isolates_panicking_and_hung_modules_and_the_rest_keeps_runn
         EventKind::ModuleIsolated { module, fault: Fault::Panic(_) } if module == "fragile")));
     let late = reports.iter().find(|r| r.name == "late").unwrap();
     assert!(!late.isolated);
-    assert!(late.stats.overruns >= 1 && late.stats.skipped >= 1, "{:?}", late.stats);
+    assert!(
+        late.stats.overruns >= 1 && late.stats.skipped >= 1,
+        "{:?}",
+        late.stats
+    );
     assert!(late.stats.exec_max() >= Duration::from_millis(25));
-    assert!(late.stats.exec_min() <= late.stats.exec_mean() && late.stats.exec_mean() <= late.stats.exec_max());
+    assert!(
+        late.stats.exec_min() <= late.stats.exec_mean() && late.stats.exec_mean() <= late.stats.exec_max()
+    );
 }
 
 #[test]
@@ -177,7 +210,10 @@ fn realtime_lifecycle_and_emergency_commands_reach_module_threads() {
     let id = g.send(Command::new("c", "ping").on(Queue::Emergency)).unwrap();
     // Answered well before the module's next 0.5 s cycle.
     let status = g.wait_final(id, std::time::Duration::from_millis(400));
-    assert!(matches!(status, Some(framework::AckStatus::Completed(_))), "{status:?}");
+    assert!(
+        matches!(status, Some(framework::AckStatus::Completed(_))),
+        "{status:?}"
+    );
     let e = ex.transition(Lifecycle::Shutdown).unwrap_err();
     assert!(e.to_string().contains("Hold -> Shutdown"), "{e}");
     ex.walk_to(Lifecycle::Shutdown).unwrap();

@@ -189,6 +189,13 @@ pub fn debug_periodic(period_s: f64) -> String {
     format!("[framework]\nperiod_s = {period_s}\ncontext = {{ mode = \"dry-run\", purpose = \"debug\" }}\n")
 }
 
-pub fn read<T: framework::blackboard::BoardData + Clone>(core: &framework::system::Core, slot: &str) -> Option<T> {
-    core.board.reader::<T>(slot).unwrap().and_then(|r| r.read()).map(|s| s.value.clone())
+pub fn read<T: framework::blackboard::BoardData + Clone>(
+    core: &framework::system::Core,
+    slot: &str,
+) -> Option<T> {
+    core.board
+        .reader::<T>(slot)
+        .unwrap()
+        .and_then(|r| r.read())
+        .map(|s| s.value.clone())
 }

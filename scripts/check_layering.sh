@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Enforces the dependency direction of ARCHITECTURE.md:
+#   framework depends on no crate of ours; gnc never on twin, rapier, parry or wgpu (it sees the world
+#   only through the framework's HAL); twin and gnc never on each other; worlds on none of ours but
+#   framework... and nothing depends on scenarios.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+fail=0
+deps() { cargo tree --locked -p "$1" -e normal --prefix none --format '{p}' 2>/dev/null | awk '{print $1}' | sort -u; }
+forbid() { # crate, forbidden dependency names...
+  local crate=$1; shift
+  local have; have=$(deps "$crate")
+  for f in "$@"; do
+    if grep -qx "$f" <<<"$have"; then
+      echo "layering: '$crate' must not depend on '$f'" >&2
+      fail=1
+    fi
+  done
+}
+forbid framework twin gnc worlds scenarios
+forbid gnc twin worlds scenarios rapier3d parry3d wgpu
+forbid twin gnc scenarios
+forbid worlds twin gnc scenarios
+[ $fail -eq 0 ] && echo "layering: ok"
+exit $fail

@@ -72,8 +72,7 @@ fn message_send_dispatch_ack(b: Bencher<'_, '_>) {
     let g = ex.endpoint("ground").unwrap();
     let args = serde_json::json!({ "v": 0.5 });
     b.bench_local(|| {
-        g.send(Command::new("sink", "set_speed").json(args.clone()))
-            .unwrap();
+        g.send(Command::new("sink", "set_speed").json(args.clone())).unwrap();
         ex.tick();
         black_box(g.poll())
     });

@@ -95,10 +95,8 @@ impl<T: BoardData> ErasedSlot for SlotCell<T> {
         self.latest().and_then(|s| postcard::to_allocvec(&*s).ok())
     }
     fn import(&self, bytes: &[u8]) -> Result<(), BlackBoardError> {
-        let s: Stamped<T> = postcard::from_bytes(bytes).map_err(|e| BlackBoardError::Decode {
-            slot: self.name.clone(),
-            reason: e.to_string(),
-        })?;
+        let s: Stamped<T> = postcard::from_bytes(bytes)
+            .map_err(|e| BlackBoardError::Decode { slot: self.name.clone(), reason: e.to_string() })?;
         self.seq.store(s.seq, Ordering::Release);
         self.current.store(Some(Arc::new(s)));
         Ok(())
@@ -138,9 +136,7 @@ pub struct Reader<T> {
 
 impl<T> Clone for Reader<T> {
     fn clone(&self) -> Self {
-        Reader {
-            cell: self.cell.clone(),
-        }
+        Reader { cell: self.cell.clone() }
     }
 }
 
@@ -169,9 +165,7 @@ impl<T: BoardData> Writer<T> {
     }
     /// A reader of the same slot.
     pub fn reader(&self) -> Reader<T> {
-        Reader {
-            cell: self.cell.clone(),
-        }
+        Reader { cell: self.cell.clone() }
     }
     /// The slot's name.
     pub fn name(&self) -> &str {
@@ -215,21 +209,13 @@ impl BlackBoard {
                 current: ArcSwapOption::empty(),
                 seq: AtomicU64::new(0),
             });
-            Entry {
-                slot: cell.clone(),
-                typed: cell,
-                decl: SlotDeclarations::default(),
-            }
+            Entry { slot: cell.clone(), typed: cell, decl: SlotDeclarations::default() }
         });
-        entry
-            .typed
-            .clone()
-            .downcast::<SlotCell<T>>()
-            .map_err(|_| BlackBoardError::TypeMismatch {
-                slot: name.to_string(),
-                existing: entry.slot.type_name(),
-                requested: std::any::type_name::<T>(),
-            })
+        entry.typed.clone().downcast::<SlotCell<T>>().map_err(|_| BlackBoardError::TypeMismatch {
+            slot: name.to_string(),
+            existing: entry.slot.type_name(),
+            requested: std::any::type_name::<T>(),
+        })
     }
 
     /// Declares `module` as the writer of slot `name` and returns the write handle.
@@ -240,13 +226,7 @@ impl BlackBoard {
         module: ModuleId,
     ) -> Result<Writer<T>, BlackBoardError> {
         let cell = self.cell::<T>(name)?;
-        self.inner
-            .write()
-            .get_mut(name)
-            .expect("slot just created")
-            .decl
-            .writers
-            .push(module);
+        self.inner.write().get_mut(name).expect("slot just created").decl.writers.push(module);
         Ok(Writer { cell })
     }
 
@@ -257,13 +237,7 @@ impl BlackBoard {
         module: ModuleId,
     ) -> Result<Reader<T>, BlackBoardError> {
         let cell = self.cell::<T>(name)?;
-        self.inner
-            .write()
-            .get_mut(name)
-            .expect("slot just created")
-            .decl
-            .readers
-            .push(module);
+        self.inner.write().get_mut(name).expect("slot just created").decl.readers.push(module);
         Ok(Reader { cell })
     }
 
@@ -272,9 +246,7 @@ impl BlackBoard {
         if !self.inner.read().contains_key(name) {
             return Ok(None);
         }
-        Ok(Some(Reader {
-            cell: self.cell::<T>(name)?,
-        }))
+        Ok(Some(Reader { cell: self.cell::<T>(name)? }))
     }
 
     /// Type-erased access to a slot.
@@ -291,12 +263,7 @@ impl BlackBoard {
 
     /// Declarations of every slot, sorted by name.
     pub fn declarations(&self) -> Vec<(String, SlotDeclarations)> {
-        let mut v: Vec<_> = self
-            .inner
-            .read()
-            .iter()
-            .map(|(k, e)| (k.clone(), e.decl.clone()))
-            .collect();
+        let mut v: Vec<_> = self.inner.read().iter().map(|(k, e)| (k.clone(), e.decl.clone())).collect();
         v.sort_by(|a, b| a.0.cmp(&b.0));
         v
     }
@@ -335,18 +302,8 @@ mod tests {
         w.write(vec![1, 2, 3], Time::from_nanos(7));
         let bytes = here.slot("ids").unwrap().encode().unwrap();
         there.slot("ids").unwrap().import(&bytes).unwrap();
-        assert_eq!(
-            *r.read().unwrap(),
-            Stamped {
-                value: vec![1, 2, 3],
-                stamp: Time::from_nanos(7),
-                seq: 1
-            }
-        );
-        assert_eq!(
-            here.slot("ids").unwrap().to_json().unwrap()["value"],
-            serde_json::json!([1, 2, 3])
-        );
+        assert_eq!(*r.read().unwrap(), Stamped { value: vec![1, 2, 3], stamp: Time::from_nanos(7), seq: 1 });
+        assert_eq!(here.slot("ids").unwrap().to_json().unwrap()["value"], serde_json::json!([1, 2, 3]));
         assert!(there.slot("ids").unwrap().import(&[0xff]).is_err());
     }
 }

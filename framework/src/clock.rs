@@ -62,10 +62,7 @@ impl ClockDriver {
     /// If `t` is earlier than the current time: simulated time never runs backwards.
     pub fn advance_to(&self, t: Time) {
         let prev = self.ns.swap(t.as_nanos(), Ordering::AcqRel);
-        assert!(
-            prev <= t.as_nanos(),
-            "simulated clock moved backwards from {prev} ns to {t}"
-        );
+        assert!(prev <= t.as_nanos(), "simulated clock moved backwards from {prev} ns to {t}");
     }
     /// Moves the clock forward by `d` and returns the new time.
     pub fn advance_by(&self, d: Duration) -> Time {
@@ -89,9 +86,7 @@ impl WallClock {
     /// A wall clock whose epoch is now.
     #[allow(clippy::disallowed_methods)] // the wall clock is the one place that reads the OS clock
     pub fn new() -> Self {
-        WallClock {
-            start: std::time::Instant::now(),
-        }
+        WallClock { start: std::time::Instant::now() }
     }
     /// The OS instant matching a time on this clock (for sleeping until it).
     pub fn instant_at(&self, t: Time) -> std::time::Instant {
@@ -124,10 +119,7 @@ pub struct Timer {
 impl Timer {
     /// A timer started at `now` that expires after `timeout`.
     pub fn start(now: Time, timeout: Duration) -> Self {
-        Timer {
-            started: now,
-            timeout,
-        }
+        Timer { started: now, timeout }
     }
     /// Time elapsed since the timer started.
     pub fn elapsed(&self, now: Time) -> Duration {

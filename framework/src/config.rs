@@ -86,13 +86,7 @@ impl<'a> Source<'a> {
         message: impl Into<String>,
     ) -> ConfigError {
         let (line, col) = span.map(|s| self.line_col(s.start)).unwrap_or((1, 1));
-        ConfigError {
-            file: self.origin.to_string(),
-            line,
-            col,
-            key,
-            message: message.into(),
-        }
+        ConfigError { file: self.origin.to_string(), line, col, key, message: message.into() }
     }
 
     /// An error at a dotted key path (`framework.period_s`), located in the text if the key is present.
@@ -110,8 +104,7 @@ impl<'a> Source<'a> {
             let key = (key != "." && !key.is_empty()).then_some(key);
             let inner = e.into_inner();
             let span = inner.span().or_else(|| {
-                key.as_deref()
-                    .and_then(|k| locate_key(self.text, &k.split('.').collect::<Vec<_>>()))
+                key.as_deref().and_then(|k| locate_key(self.text, &k.split('.').collect::<Vec<_>>()))
             });
             self.error_at(span, key, inner.message())
         })
@@ -270,10 +263,7 @@ impl ConfigSource {
     }
     /// An inline source.
     pub fn inline(origin: impl Into<String>, text: impl Into<String>) -> Self {
-        ConfigSource::Inline {
-            origin: origin.into(),
-            text: text.into(),
-        }
+        ConfigSource::Inline { origin: origin.into(), text: text.into() }
     }
     /// Name for error messages.
     pub fn origin(&self) -> String {
@@ -321,10 +311,7 @@ mod tests {
     fn good_file_loads() {
         let c = load("[framework]\nperiod_s = 0.02\ncontext = { mode = \"dry-run\", purpose = \"debug\" }\n[params]\ngain = 2.5\n")
             .unwrap();
-        assert_eq!(
-            c.framework.schedule(),
-            Schedule::Periodic(Duration::from_millis(20))
-        );
+        assert_eq!(c.framework.schedule(), Schedule::Periodic(Duration::from_millis(20)));
         assert_eq!(c.framework.context, ExecContext::DRY_RUN_DEBUG);
         assert_eq!(c.params.gain, 2.5);
         assert_eq!(load("").unwrap().framework.schedule(), Schedule::Aperiodic);
@@ -359,10 +346,7 @@ mod tests {
     #[test]
     fn missing_file_is_named() {
         let e = ConfigSource::file("/nonexistent/x.toml").load::<P>().unwrap_err();
-        assert!(
-            e.to_string().starts_with("/nonexistent/x.toml: cannot read file"),
-            "{e}"
-        );
+        assert!(e.to_string().starts_with("/nonexistent/x.toml: cannot read file"), "{e}");
     }
 
     #[test]

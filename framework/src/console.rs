@@ -65,11 +65,7 @@ fn state_arg(word: Option<&str>, verb: &str) -> Result<Lifecycle, ConsoleError> 
     Lifecycle::parse(w).ok_or_else(|| {
         ConsoleError(format!(
             "unknown lifecycle state '{w}' (states: {})",
-            Lifecycle::ALL
-                .iter()
-                .map(|l| l.name())
-                .collect::<Vec<_>>()
-                .join(", ")
+            Lifecycle::ALL.iter().map(|l| l.name()).collect::<Vec<_>>().join(", ")
         ))
     })
 }
@@ -90,9 +86,7 @@ pub fn parse(line: &str) -> Result<Option<ConsoleCommand>, ConsoleError> {
             while let Some(first) = rest.first().copied() {
                 match first {
                     "--queue" => {
-                        let q = rest
-                            .get(1)
-                            .ok_or_else(|| ConsoleError("--queue needs a value".into()))?;
+                        let q = rest.get(1).ok_or_else(|| ConsoleError("--queue needs a value".into()))?;
                         queue = match *q {
                             "emergency" => Queue::Emergency,
                             "debug" => Queue::Debug,
@@ -106,9 +100,7 @@ pub fn parse(line: &str) -> Result<Option<ConsoleCommand>, ConsoleError> {
                         rest.drain(..2);
                     }
                     "--via" => {
-                        let v = rest
-                            .get(1)
-                            .ok_or_else(|| ConsoleError("--via needs module names".into()))?;
+                        let v = rest.get(1).ok_or_else(|| ConsoleError("--via needs module names".into()))?;
                         via = v.split(',').map(str::to_string).collect();
                         rest.drain(..2);
                     }
@@ -132,29 +124,21 @@ pub fn parse(line: &str) -> Result<Option<ConsoleCommand>, ConsoleError> {
         "system" => ConsoleCommand::System(state_arg(words.next(), verb)?),
         "walk" => ConsoleCommand::Walk(state_arg(words.next(), verb)?),
         "module" => {
-            let m = words
-                .next()
-                .ok_or_else(|| ConsoleError("usage: module <name> <state>".into()))?;
+            let m = words.next().ok_or_else(|| ConsoleError("usage: module <name> <state>".into()))?;
             ConsoleCommand::Module(m.to_string(), state_arg(words.next(), verb)?)
         }
         "state" => ConsoleCommand::State(words.next().map(str::to_string)),
         "stats" => ConsoleCommand::Stats,
         "slots" => ConsoleCommand::Slots,
         "read" => ConsoleCommand::Read(
-            words
-                .next()
-                .ok_or_else(|| ConsoleError("usage: read <slot>".into()))?
-                .to_string(),
+            words.next().ok_or_else(|| ConsoleError("usage: read <slot>".into()))?.to_string(),
         ),
         "events" => ConsoleCommand::Events,
         "acks" => ConsoleCommand::Acks,
         "advance" => {
-            let s = words
-                .next()
-                .ok_or_else(|| ConsoleError("usage: advance <seconds>".into()))?;
-            let secs: f64 = s
-                .parse()
-                .map_err(|_| ConsoleError(format!("'{s}' is not a number of seconds")))?;
+            let s = words.next().ok_or_else(|| ConsoleError("usage: advance <seconds>".into()))?;
+            let secs: f64 =
+                s.parse().map_err(|_| ConsoleError(format!("'{s}' is not a number of seconds")))?;
             if !(secs.is_finite() && secs >= 0.0) {
                 return Err(ConsoleError(format!("cannot advance by {secs} s")));
             }
@@ -162,9 +146,7 @@ pub fn parse(line: &str) -> Result<Option<ConsoleCommand>, ConsoleError> {
         }
         "help" => ConsoleCommand::Help,
         other => {
-            return Err(ConsoleError(format!(
-                "unknown console command '{other}' (known: {VERBS})"
-            )));
+            return Err(ConsoleError(format!("unknown console command '{other}' (known: {VERBS})")));
         }
     };
     if let Some(extra) = words.next()
@@ -183,9 +165,7 @@ pub struct Console {
 impl Console {
     /// A console sending from the endpoint `name` (registered on the builder).
     pub fn new(exec: &dyn Executor, name: &str) -> Result<Self, SystemError> {
-        Ok(Console {
-            endpoint: exec.endpoint(name)?,
-        })
+        Ok(Console { endpoint: exec.endpoint(name)? })
     }
 
     /// Executes one command and returns its text output.
@@ -264,10 +244,8 @@ impl Console {
                 }
             }
             ConsoleCommand::Read(slot) => {
-                let s = core
-                    .board
-                    .slot(&slot)
-                    .ok_or_else(|| ConsoleError(format!("no slot named '{slot}'")))?;
+                let s =
+                    core.board.slot(&slot).ok_or_else(|| ConsoleError(format!("no slot named '{slot}'")))?;
                 let v = s.to_json().unwrap_or(serde_json::Value::Null);
                 let _ = write!(out, "{v}");
             }
@@ -326,14 +304,9 @@ mod tests {
 
     #[test]
     fn parses_send_with_options_and_json() {
-        let c = parse("send --queue emergency --via relay gripper open {\"width\": 0.05}")
-            .unwrap()
-            .unwrap();
+        let c = parse("send --queue emergency --via relay gripper open {\"width\": 0.05}").unwrap().unwrap();
         let ConsoleCommand::Send(c) = c else { panic!() };
-        assert_eq!(
-            (c.to.as_str(), c.name.as_str(), c.queue),
-            ("gripper", "open", Queue::Emergency)
-        );
+        assert_eq!((c.to.as_str(), c.name.as_str(), c.queue), ("gripper", "open", Queue::Emergency));
         assert_eq!(c.via, vec!["relay".to_string()]);
         assert_eq!(c.args["width"], 0.05);
     }
@@ -341,29 +314,11 @@ mod tests {
     #[test]
     fn clear_errors() {
         assert!(parse("  # comment").unwrap().is_none());
-        assert!(
-            parse("fly away")
-                .unwrap_err()
-                .0
-                .contains("unknown console command 'fly'")
-        );
-        assert!(
-            parse("system flying")
-                .unwrap_err()
-                .0
-                .contains("unknown lifecycle state 'flying'")
-        );
+        assert!(parse("fly away").unwrap_err().0.contains("unknown console command 'fly'"));
+        assert!(parse("system flying").unwrap_err().0.contains("unknown lifecycle state 'flying'"));
         assert!(parse("send a b {bad").unwrap_err().0.contains("not valid JSON"));
-        assert!(
-            parse("send --queue loud a b")
-                .unwrap_err()
-                .0
-                .contains("unknown queue")
-        );
+        assert!(parse("send --queue loud a b").unwrap_err().0.contains("unknown queue"));
         assert!(parse("stats now").unwrap_err().0.contains("unexpected 'now'"));
-        assert_eq!(
-            parse("advance 0.5").unwrap(),
-            Some(ConsoleCommand::Advance(Duration::from_millis(500)))
-        );
+        assert_eq!(parse("advance 0.5").unwrap(), Some(ConsoleCommand::Advance(Duration::from_millis(500))));
     }
 }

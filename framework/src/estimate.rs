@@ -48,10 +48,7 @@ impl Estimate<f64, f64> {
             return Err(EstimateError::Singular);
         }
         let k = self.covariance / s;
-        Ok(Estimate::new(
-            self.value + k * (other.value - self.value),
-            (1.0 - k) * self.covariance,
-        ))
+        Ok(Estimate::new(self.value + k * (other.value - self.value), (1.0 - k) * self.covariance))
     }
 }
 
@@ -124,9 +121,6 @@ mod tests {
         let d = x.mahalanobis(&Vector2::new(1.0, 1.0)).unwrap();
         assert!((d - 2.0).abs() < 1e-12);
         let singular = GaussianEstimate::<2>::new(Vector2::zeros(), Matrix2::zeros());
-        assert_eq!(
-            singular.mahalanobis(&Vector2::zeros()),
-            Err(EstimateError::Singular)
-        );
+        assert_eq!(singular.mahalanobis(&Vector2::zeros()), Err(EstimateError::Singular));
     }
 }

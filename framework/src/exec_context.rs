@@ -39,25 +39,14 @@ pub struct ExecContext {
 
 impl ExecContext {
     /// Dry-Run, Mission: the simulator's nominal context.
-    pub const DRY_RUN_MISSION: ExecContext = ExecContext {
-        mode: Mode::DryRun,
-        purpose: Purpose::Mission,
-    };
+    pub const DRY_RUN_MISSION: ExecContext = ExecContext { mode: Mode::DryRun, purpose: Purpose::Mission };
     /// Dry-Run, Debug.
-    pub const DRY_RUN_DEBUG: ExecContext = ExecContext {
-        mode: Mode::DryRun,
-        purpose: Purpose::Debug,
-    };
+    pub const DRY_RUN_DEBUG: ExecContext = ExecContext { mode: Mode::DryRun, purpose: Purpose::Debug };
     /// Operative, Mission: the nominal context on the robot.
-    pub const OPERATIVE_MISSION: ExecContext = ExecContext {
-        mode: Mode::Operative,
-        purpose: Purpose::Mission,
-    };
+    pub const OPERATIVE_MISSION: ExecContext =
+        ExecContext { mode: Mode::Operative, purpose: Purpose::Mission };
     /// Operative, Debug.
-    pub const OPERATIVE_DEBUG: ExecContext = ExecContext {
-        mode: Mode::Operative,
-        purpose: Purpose::Debug,
-    };
+    pub const OPERATIVE_DEBUG: ExecContext = ExecContext { mode: Mode::Operative, purpose: Purpose::Debug };
 
     /// True when the debug queue is active.
     pub fn debug_queue_active(self) -> bool {

@@ -66,6 +66,11 @@ pub trait Executor {
     }
 }
 
+/// Called by the watchdog thread when it isolates a hung module: the module's name and how long it
+/// had been busy. Under lockstep a module that never returns blocks the simulation, so a runner uses
+/// this to finalize its logs and exit with an error naming the module.
+pub type HangHandler = Arc<dyn Fn(&str, Duration) + Send + Sync>;
+
 /// Deterministic executor on simulated time.
 pub struct LockstepExecutor {
     core: Arc<Core>,
@@ -73,6 +78,7 @@ pub struct LockstepExecutor {
     base: Duration,
     runners: Vec<Box<dyn Runner>>,
     manager: SystemManager,
+    watchdog: Watchdog,
 }
 
 impl LockstepExecutor {
@@ -80,25 +86,21 @@ impl LockstepExecutor {
     /// Config. Every module period must be a multiple of `base`.
     pub fn new(builder: SystemBuilder, base: Duration) -> Result<Self, StartupError> {
         if base.is_zero_or_negative() {
-            return Err(StartupError {
-                problems: vec![format!("base period must be positive, got {base}")],
-            });
+            return Err(StartupError { problems: vec![format!("base period must be positive, got {base}")] });
         }
         let (clock, driver) = SimClock::new();
         let a = builder.assemble(Arc::new(clock), Some(base))?;
         let mut runners = a.runners;
         runners.sort_by_key(|r| r.info().kind); // stable: registration order within a kind
-        let mut ex = LockstepExecutor {
-            core: a.core,
-            driver,
-            base,
-            runners,
-            manager: a.manager,
-        };
-        ex.transition(Lifecycle::Config).map_err(|e| StartupError {
-            problems: vec![e.to_string()],
-        })?;
+        let watchdog = Watchdog::start(a.core.clone(), &runners);
+        let mut ex = LockstepExecutor { core: a.core, driver, base, runners, manager: a.manager, watchdog };
+        ex.transition(Lifecycle::Config).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
         Ok(ex)
+    }
+
+    /// Sets the handler called when the watchdog isolates a hung module (see [`HangHandler`]).
+    pub fn on_hang(&mut self, handler: HangHandler) {
+        *self.watchdog.handler.lock() = Some(handler);
     }
 
     /// The base period.
@@ -180,10 +182,9 @@ impl Executor for LockstepExecutor {
         let id = self.manager.send_lifecycle(module, to)?;
         match self.module_ack(id) {
             Some(AckStatus::Completed(_)) => Ok(()),
-            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused {
-                to,
-                refusals: vec![r],
-            }),
+            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                Err(SystemError::Refused { to, refusals: vec![r] })
+            }
             _ => Err(SystemError::Timeout(module.to_string())),
         }
     }
@@ -198,7 +199,7 @@ pub struct RealtimeExecutor {
     manager: SystemManager,
     threads: Vec<(ModuleId, JoinHandle<Box<dyn Runner>>)>,
     stop: Arc<AtomicBool>,
-    watchdog: Option<JoinHandle<Vec<ModuleId>>>,
+    watchdog: Watchdog,
     ack_timeout: std::time::Duration,
 }
 
@@ -211,23 +212,17 @@ impl RealtimeExecutor {
         let mut manager = a.manager;
         let mut runners = a.runners;
         // Startup -> Config before any thread exists, on this thread.
-        let sent = manager.begin(Lifecycle::Config).map_err(|e| StartupError {
-            problems: vec![e.to_string()],
-        })?;
+        let sent =
+            manager.begin(Lifecycle::Config).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
         for r in &mut runners {
             r.step(&core, core.now(), StepMode::EmergencyOnly, OverrunBasis::Wall);
         }
         manager
             .finish(Lifecycle::Config, &sent)
-            .map_err(|e| StartupError {
-                problems: vec![e.to_string()],
-            })?;
+            .map_err(|e| StartupError { problems: vec![e.to_string()] })?;
 
         let stop = Arc::new(AtomicBool::new(false));
-        let hang: Vec<(ModuleId, String, Duration)> = runners
-            .iter()
-            .map(|r| (r.info().id, r.info().name.clone(), r.hang_timeout()))
-            .collect();
+        let watchdog = Watchdog::start(core.clone(), &runners);
         let mut threads = Vec::new();
         for runner in runners {
             let (core, stop, wall) = (core.clone(), stop.clone(), wall.clone());
@@ -239,19 +234,12 @@ impl RealtimeExecutor {
                 .expect("spawn module thread");
             threads.push((id, h));
         }
-        let watchdog = {
-            let (core, stop) = (core.clone(), stop.clone());
-            std::thread::Builder::new()
-                .name("watchdog".into())
-                .spawn(move || watchdog_thread(&core, &stop, &hang))
-                .expect("spawn watchdog thread")
-        };
         Ok(RealtimeExecutor {
             core,
             manager,
             threads,
             stop,
-            watchdog: Some(watchdog),
+            watchdog,
             ack_timeout: std::time::Duration::from_secs(5),
         })
     }
@@ -268,11 +256,7 @@ impl RealtimeExecutor {
         for m in self.core.modules() {
             self.core.post.inbox(m.id).wake();
         }
-        let hung = self
-            .watchdog
-            .take()
-            .map(|w| w.join().unwrap_or_default())
-            .unwrap_or_default();
+        let hung = self.watchdog.stop();
         for (id, h) in self.threads.drain(..) {
             if !hung.contains(&id) {
                 let _ = h.join();
@@ -338,48 +322,68 @@ fn module_thread(
     runner
 }
 
-/// Isolates modules whose step stays busy past their hang timeout. Returns the hung modules.
+/// The watchdog thread: isolates modules whose step stays busy past their hang timeout.
+struct Watchdog {
+    stop: Arc<AtomicBool>,
+    thread: Option<JoinHandle<Vec<ModuleId>>>,
+    handler: Arc<parking_lot::Mutex<Option<HangHandler>>>,
+}
+
+impl Watchdog {
+    fn start(core: Arc<Core>, runners: &[Box<dyn Runner>]) -> Self {
+        let modules: Vec<_> = runners.iter().map(|r| (r.info().clone(), r.hang_timeout())).collect();
+        let stop = Arc::new(AtomicBool::new(false));
+        let handler: Arc<parking_lot::Mutex<Option<HangHandler>>> = Arc::default();
+        let thread = {
+            let (stop, handler) = (stop.clone(), handler.clone());
+            std::thread::Builder::new()
+                .name("watchdog".into())
+                .spawn(move || watchdog_thread(&core, &stop, &modules, &handler))
+                .expect("spawn watchdog thread")
+        };
+        Watchdog { stop, thread: Some(thread), handler }
+    }
+
+    /// Stops the thread; returns the modules it found hung.
+    fn stop(&mut self) -> Vec<ModuleId> {
+        self.stop.store(true, Ordering::Release);
+        self.thread.take().map(|t| t.join().unwrap_or_default()).unwrap_or_default()
+    }
+}
+
+impl Drop for Watchdog {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
 fn watchdog_thread(
     core: &Core,
     stop: &AtomicBool,
-    modules: &[(ModuleId, String, Duration)],
+    modules: &[(crate::module::ModuleInfo, Duration)],
+    handler: &parking_lot::Mutex<Option<HangHandler>>,
 ) -> Vec<ModuleId> {
     let mut hung = Vec::new();
     let poll = modules
         .iter()
-        .map(|(_, _, t)| *t / 4)
+        .map(|(_, t)| *t / 4)
         .min()
         .unwrap_or(Duration::from_millis(50))
-        .max(Duration::from_millis(1))
-        .min(Duration::from_millis(50));
+        .clamp(Duration::from_millis(1), Duration::from_millis(50));
     while !stop.load(Ordering::Acquire) {
         std::thread::sleep(poll.to_std());
         let now = core.wall_now();
-        for (id, name, timeout) in modules {
-            let status = core.status(*id);
+        for (info, timeout) in modules {
+            let status = core.status(info.id);
             let since = status.busy_since_ns();
             if since >= 0 && !status.is_isolated() && now - since > timeout.as_nanos() {
                 let busy = Duration::from_nanos(now - since);
-                let info = crate::module::ModuleInfo {
-                    id: *id,
-                    name: name.clone(),
-                    kind: core
-                        .modules()
-                        .iter()
-                        .find(|m| m.id == *id)
-                        .map(|m| m.kind)
-                        .unwrap_or(crate::ModuleKind::External),
-                };
-                crate::system::isolate(
-                    core,
-                    &info,
-                    status.lifecycle(),
-                    crate::events::Fault::Hang {
-                        busy_s: busy.as_secs_f64(),
-                    },
-                    core.now(),
-                );
-                hung.push(*id);
+                let fault = crate::events::Fault::Hang { busy_s: busy.as_secs_f64() };
+                crate::system::isolate(core, info, status.lifecycle(), fault, core.now());
+                hung.push(info.id);
+                if let Some(h) = handler.lock().clone() {
+                    h(&info.name, busy);
+                }
             }
         }
     }
@@ -407,10 +411,9 @@ impl Executor for RealtimeExecutor {
         let id = self.manager.send_lifecycle(module, to)?;
         match self.manager.endpoint().wait_final(id, self.ack_timeout) {
             Some(AckStatus::Completed(_)) => Ok(()),
-            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(SystemError::Refused {
-                to,
-                refusals: vec![r],
-            }),
+            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                Err(SystemError::Refused { to, refusals: vec![r] })
+            }
             _ => Err(SystemError::Timeout(module.to_string())),
         }
     }

@@ -55,13 +55,7 @@ impl Lifecycle {
     /// Checks whether a commanded move from `self` to `to` is legal.
     pub fn check_transition(self, to: Lifecycle) -> Result<(), TransitionError> {
         use Lifecycle::*;
-        let refuse = |reason: &str| {
-            Err(TransitionError {
-                from: self,
-                to,
-                reason: reason.to_string(),
-            })
-        };
+        let refuse = |reason: &str| Err(TransitionError { from: self, to, reason: reason.to_string() });
         match (self, to) {
             (a, b) if a == b => refuse("already in that state"),
             (Shutdown, _) => refuse("Shutdown is terminal"),
@@ -113,9 +107,7 @@ impl Lifecycle {
 
     /// Parses a state name, case-insensitively.
     pub fn parse(s: &str) -> Option<Lifecycle> {
-        Lifecycle::ALL
-            .into_iter()
-            .find(|l| l.name().eq_ignore_ascii_case(s))
+        Lifecycle::ALL.into_iter().find(|l| l.name().eq_ignore_ascii_case(s))
     }
 
     /// The state's name.

@@ -107,10 +107,7 @@ pub enum AckStatus {
 impl AckStatus {
     /// True for the statuses that end a command's life (rejected, completed, failed).
     pub fn is_final(&self) -> bool {
-        matches!(
-            self,
-            AckStatus::Rejected(_) | AckStatus::Completed(_) | AckStatus::Failed(_)
-        )
+        matches!(self, AckStatus::Rejected(_) | AckStatus::Completed(_) | AckStatus::Failed(_))
     }
 }
 
@@ -331,10 +328,7 @@ impl Inbox {
     }
 
     fn next_id(&self, sender: ModuleId) -> MessageId {
-        MessageId {
-            sender,
-            seq: self.next_seq.fetch_add(1, Ordering::Relaxed) + 1,
-        }
+        MessageId { sender, seq: self.next_seq.fetch_add(1, Ordering::Relaxed) + 1 }
     }
 }
 
@@ -348,18 +342,9 @@ pub struct PostOffice {
 
 impl PostOffice {
     pub(crate) fn new(names: Vec<String>, trace: bool) -> Self {
-        let index = names
-            .iter()
-            .enumerate()
-            .map(|(i, n)| (n.clone(), ModuleId(i as u32)))
-            .collect();
+        let index = names.iter().enumerate().map(|(i, n)| (n.clone(), ModuleId(i as u32))).collect();
         let inboxes = names.iter().map(|_| Inbox::default()).collect();
-        PostOffice {
-            names,
-            index,
-            inboxes,
-            trace: trace.then(|| Mutex::new(Vec::new())),
-        }
+        PostOffice { names, index, inboxes, trace: trace.then(|| Mutex::new(Vec::new())) }
     }
 
     /// The id of a participant.
@@ -368,10 +353,7 @@ impl PostOffice {
     }
     /// The name of a participant.
     pub fn name(&self, id: ModuleId) -> &str {
-        self.names
-            .get(id.0 as usize)
-            .map(String::as_str)
-            .unwrap_or("<unknown>")
+        self.names.get(id.0 as usize).map(String::as_str).unwrap_or("<unknown>")
     }
     /// All participant names, indexed by id.
     pub fn names(&self) -> &[String] {
@@ -384,9 +366,7 @@ impl PostOffice {
 
     /// Builds a message from `sender` for `cmd`, stamped `now`, without posting it.
     pub fn compose(&self, sender: ModuleId, now: Time, cmd: Command) -> Result<Message, SendError> {
-        let recipient = self
-            .id(&cmd.to)
-            .ok_or_else(|| SendError::UnknownRecipient(cmd.to.clone()))?;
+        let recipient = self.id(&cmd.to).ok_or_else(|| SendError::UnknownRecipient(cmd.to.clone()))?;
         let route = cmd
             .via
             .iter()
@@ -400,10 +380,7 @@ impl PostOffice {
             route,
             path: Vec::new(),
             queue: cmd.queue,
-            body: Body::Command {
-                name: cmd.name,
-                args: cmd.args,
-            },
+            body: Body::Command { name: cmd.name, args: cmd.args },
         })
     }
 
@@ -428,27 +405,15 @@ impl PostOffice {
             recipient: original.sender,
             route: original.path.iter().rev().copied().collect(),
             path: Vec::new(),
-            queue: if original.queue == Queue::Emergency {
-                Queue::Emergency
-            } else {
-                Queue::Nominal
-            },
-            body: Body::Ack(Ack {
-                of: original.id,
-                command: name.clone(),
-                by,
-                status,
-            }),
+            queue: if original.queue == Queue::Emergency { Queue::Emergency } else { Queue::Nominal },
+            body: Body::Ack(Ack { of: original.id, command: name.clone(), by, status }),
         };
         self.post(ack);
     }
 
     /// Takes the messages traced so far (when tracing is on).
     pub fn take_trace(&self) -> Vec<Message> {
-        self.trace
-            .as_ref()
-            .map(|t| std::mem::take(&mut *t.lock()))
-            .unwrap_or_default()
+        self.trace.as_ref().map(|t| std::mem::take(&mut *t.lock())).unwrap_or_default()
     }
 }
 
@@ -474,8 +439,7 @@ impl AckTracker {
             if self.finished.len() == FINISHED_KEPT {
                 self.finished.pop_front();
             }
-            self.finished
-                .push_back((ack.of, ack.command.clone(), ack.status.clone()));
+            self.finished.push_back((ack.of, ack.command.clone(), ack.status.clone()));
         } else if let Some(e) = self.pending.get_mut(&ack.of) {
             e.1 = ack.status.clone();
         }
@@ -485,11 +449,7 @@ impl AckTracker {
         if let Some((_, s)) = self.pending.get(&id) {
             return Some(s.clone());
         }
-        self.finished
-            .iter()
-            .rev()
-            .find(|(i, _, _)| *i == id)
-            .map(|(_, _, s)| s.clone())
+        self.finished.iter().rev().find(|(i, _, _)| *i == id).map(|(_, _, s)| s.clone())
     }
     /// Number of commands without a final acknowledgement.
     pub fn outstanding(&self) -> usize {
@@ -509,15 +469,8 @@ mod tests {
     fn emergency_overtakes_nominal_and_debug() {
         let po = office();
         let a = po.id("a").unwrap();
-        for (i, q) in [Queue::Nominal, Queue::Debug, Queue::Emergency]
-            .into_iter()
-            .enumerate()
-        {
-            let m = po.compose(
-                a,
-                Time::from_nanos(i as i64),
-                Command::new("b", format!("c{i}")).on(q),
-            );
+        for (i, q) in [Queue::Nominal, Queue::Debug, Queue::Emergency].into_iter().enumerate() {
+            let m = po.compose(a, Time::from_nanos(i as i64), Command::new("b", format!("c{i}")).on(q));
             po.post(m.unwrap());
         }
         let b = po.inbox(po.id("b").unwrap());
@@ -538,19 +491,14 @@ mod tests {
             po.compose(a, Time::ZERO, Command::new("zz", "x")).unwrap_err(),
             SendError::UnknownRecipient("zz".into())
         );
-        assert!(
-            po.compose(a, Time::ZERO, Command::new("c", "x").via(["nope"]))
-                .is_err()
-        );
+        assert!(po.compose(a, Time::ZERO, Command::new("c", "x").via(["nope"])).is_err());
     }
 
     #[test]
     fn ack_goes_back_along_the_reverse_path() {
         let po = office();
         let (a, b, c) = (po.id("a").unwrap(), po.id("b").unwrap(), po.id("c").unwrap());
-        let mut m = po
-            .compose(a, Time::ZERO, Command::new("c", "x").via(["b"]))
-            .unwrap();
+        let mut m = po.compose(a, Time::ZERO, Command::new("c", "x").via(["b"])).unwrap();
         assert_eq!(m.next_hop(), b);
         m.route.remove(0);
         m.path.push(b);
@@ -564,18 +512,10 @@ mod tests {
     #[test]
     fn tracker_keeps_latest_status() {
         let mut t = AckTracker::default();
-        let id = MessageId {
-            sender: ModuleId(0),
-            seq: 1,
-        };
+        let id = MessageId { sender: ModuleId(0), seq: 1 };
         t.sent(id, "go");
         assert_eq!(t.status(id), Some(AckStatus::Pending));
-        let mut ack = Ack {
-            of: id,
-            command: "go".into(),
-            by: ModuleId(1),
-            status: AckStatus::Accepted,
-        };
+        let mut ack = Ack { of: id, command: "go".into(), by: ModuleId(1), status: AckStatus::Accepted };
         t.update(&ack);
         assert_eq!(t.status(id), Some(AckStatus::Accepted));
         ack.status = AckStatus::Failed("stalled".into());

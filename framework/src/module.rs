@@ -161,12 +161,7 @@ impl<M: Module> Declare<'_, M> {
             return;
         }
         self.fsm.index.insert(name.to_string(), self.fsm.states.len());
-        self.fsm.states.push(StateEntry {
-            name: name.to_string(),
-            impls,
-            active: 0,
-            meta,
-        });
+        self.fsm.states.push(StateEntry { name: name.to_string(), impls, active: 0, meta });
     }
 
     /// Declares a state of the module's own machine with its state function. The first state declared
@@ -180,9 +175,7 @@ impl<M: Module> Declare<'_, M> {
     /// being the default, switchable at runtime by the `set_meta` command.
     pub fn meta_state(&mut self, name: &str, impls: &[(&str, StateFn<M>)]) -> &mut Self {
         if impls.is_empty() {
-            self.decl
-                .problems
-                .push(format!("meta-state '{name}' has no implementation"));
+            self.decl.problems.push(format!("meta-state '{name}' has no implementation"));
             return self;
         }
         let impls = impls.iter().map(|(n, f)| (n.to_string(), *f)).collect();
@@ -223,9 +216,7 @@ impl<M: Module> Declare<'_, M> {
         handler: fn(&mut M, &mut Ctx<'_>, A) -> Outcome,
     ) -> &mut Self {
         if FRAMEWORK_COMMANDS.contains(&name) {
-            self.decl
-                .problems
-                .push(format!("command '{name}' is reserved by the framework"));
+            self.decl.problems.push(format!("command '{name}' is reserved by the framework"));
             return self;
         }
         if self.commands.contains_key(name) {
@@ -237,11 +228,7 @@ impl<M: Module> Declare<'_, M> {
             name.to_string(),
             Box::new(move |m, ctx, args| {
                 // A missing argument object is read as an empty one, so `()`-like structs work.
-                let args = if args.is_null() {
-                    serde_json::Value::Object(Default::default())
-                } else {
-                    args
-                };
+                let args = if args.is_null() { serde_json::Value::Object(Default::default()) } else { args };
                 match serde_json::from_value::<A>(args.clone()).or_else(|e| {
                     // Unit and unit-like argument types accept an empty object or null.
                     if args.as_object().is_some_and(|o| o.is_empty()) {
@@ -268,9 +255,7 @@ impl<M: Module> Declare<'_, M> {
             Ok(w) => w,
             Err(e) => {
                 self.decl.problems.push(e.to_string());
-                crate::blackboard::BlackBoard::new()
-                    .declare_writer(slot, self.id)
-                    .expect("fresh board")
+                crate::blackboard::BlackBoard::new().declare_writer(slot, self.id).expect("fresh board")
             }
         }
     }
@@ -281,9 +266,7 @@ impl<M: Module> Declare<'_, M> {
             Ok(r) => r,
             Err(e) => {
                 self.decl.problems.push(e.to_string());
-                crate::blackboard::BlackBoard::new()
-                    .declare_reader(slot, self.id)
-                    .expect("fresh board")
+                crate::blackboard::BlackBoard::new().declare_reader(slot, self.id).expect("fresh board")
             }
         }
     }
@@ -312,19 +295,13 @@ impl<M: Module> Declare<'_, M> {
                 (Some(&a), Some(&b)) => {
                     self.fsm.transitions.insert((a, b));
                 }
-                _ => self
-                    .decl
-                    .problems
-                    .push(format!("transition {from} -> {to} names an undeclared state")),
+                _ => self.decl.problems.push(format!("transition {from} -> {to} names an undeclared state")),
             }
         }
         if let Some(init) = self.initial.take() {
             match self.fsm.index.get(&init) {
                 Some(&i) => self.fsm.current = i,
-                None => self
-                    .decl
-                    .problems
-                    .push(format!("initial state '{init}' is not declared")),
+                None => self.decl.problems.push(format!("initial state '{init}' is not declared")),
             }
         }
     }
@@ -488,9 +465,7 @@ impl<'a> Ctx<'a> {
     }
     /// Reports the completion or failure of a command accepted earlier.
     pub fn reply(&mut self, request: &Request, outcome: Outcome) {
-        self.core
-            .post
-            .acknowledge(&request.message, self.id, self.now, outcome.into_status());
+        self.core.post.acknowledge(&request.message, self.id, self.now, outcome.into_status());
     }
     /// Declares simulated execution time spent in this cycle (the cost on the target computer). The
     /// lockstep executor compares it with the deadline to count overruns deterministically.
@@ -524,13 +499,9 @@ impl<'a> Ctx<'a> {
     }
     /// Raises a free-text event.
     pub fn note(&self, text: impl Into<String>) {
-        self.core.events.raise(
-            self.now,
-            EventKind::Note {
-                module: self.name.to_string(),
-                text: text.into(),
-            },
-        );
+        self.core
+            .events
+            .raise(self.now, EventKind::Note { module: self.name.to_string(), text: text.into() });
     }
 }
 
@@ -618,12 +589,8 @@ impl<M: Module> Cell<M> {
             Source::new(&source.origin(), &text)
                 .error_at_key("params", format!("rejected by module '{name}': {e}"))
         })?;
-        let mut fsm = Fsm {
-            states: Vec::new(),
-            index: HashMap::new(),
-            transitions: HashSet::new(),
-            current: 0,
-        };
+        let mut fsm =
+            Fsm { states: Vec::new(), index: HashMap::new(), transitions: HashSet::new(), current: 0 };
         let mut lifecycle_fns = HashMap::new();
         let mut commands = BTreeMap::new();
         let mut on_ack = None;
@@ -660,11 +627,7 @@ impl<M: Module> Cell<M> {
             }
         }
         Ok(Cell {
-            info: ModuleInfo {
-                id,
-                name: name.to_string(),
-                kind: M::KIND,
-            },
+            info: ModuleInfo { id, name: name.to_string(), kind: M::KIND },
             module,
             fsm,
             lifecycle_fns,
@@ -749,8 +712,7 @@ impl<M: Module> Cell<M> {
             if self.isolated && matches!(m.body, Body::Command { .. }) {
                 let reason = format!("relay module '{}' is isolated in Safe", self.info.name);
                 m.path.pop();
-                core.post
-                    .acknowledge(&m, self.info.id, now, AckStatus::Rejected(reason));
+                core.post.acknowledge(&m, self.info.id, now, AckStatus::Rejected(reason));
             } else {
                 core.post.post(m);
             }
@@ -796,8 +758,7 @@ impl<M: Module> Cell<M> {
                 },
             );
         }
-        core.post
-            .acknowledge(&m, self.info.id, now, outcome.into_status());
+        core.post.acknowledge(&m, self.info.id, now, outcome.into_status());
     }
 
     fn dispatch(
@@ -836,21 +797,11 @@ impl<M: Module> Cell<M> {
             ));
         }
         let handler = &self.commands[name];
-        let mut ctx = Self::ctx(
-            core,
-            &self.info,
-            &self.fsm,
-            &mut self.tracker,
-            now,
-            self.exec,
-            self.lifecycle,
-        );
+        let mut ctx =
+            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
         ctx.request = Some(Request {
             message: Message {
-                body: Body::Command {
-                    name: name.into(),
-                    args: serde_json::Value::Null,
-                },
+                body: Body::Command { name: name.into(), args: serde_json::Value::Null },
                 ..m.clone()
             },
         });
@@ -937,23 +888,15 @@ impl<M: Module> Cell<M> {
         let r: Result<Outcome, Outcome> = (|| match name {
             "ping" => Ok(Outcome::done()),
             "get_state" => Ok(Outcome::Completed(self.state_json())),
-            "get_stats" => Ok(Outcome::Completed(
-                serde_json::to_value(&self.stats).unwrap_or_default(),
-            )),
+            "get_stats" => Ok(Outcome::Completed(serde_json::to_value(&self.stats).unwrap_or_default())),
             "lifecycle" => {
                 let To { to } = parse(name, args)?;
                 self.change_lifecycle(core, now, to)
             }
             "set_meta" => {
-                let Meta {
-                    state,
-                    implementation,
-                } = parse(name, args)?;
+                let Meta { state, implementation } = parse(name, args)?;
                 if self.isolated {
-                    return Err(Outcome::reject(format!(
-                        "module '{}' is isolated in Safe",
-                        self.info.name
-                    )));
+                    return Err(Outcome::reject(format!("module '{}' is isolated in Safe", self.info.name)));
                 }
                 let i = *self.fsm.index.get(&state).ok_or_else(|| {
                     Outcome::reject(format!("module '{}' has no state '{state}'", self.info.name))
@@ -962,28 +905,16 @@ impl<M: Module> Cell<M> {
                 if !st.meta {
                     return Err(Outcome::reject(format!("state '{state}' is not a meta-state")));
                 }
-                let k = st
-                    .impls
-                    .iter()
-                    .position(|(n, _)| *n == implementation)
-                    .ok_or_else(|| {
-                        Outcome::reject(format!(
-                            "meta-state '{state}' has no implementation '{implementation}' (it has: {})",
-                            st.impls
-                                .iter()
-                                .map(|(n, _)| n.as_str())
-                                .collect::<Vec<_>>()
-                                .join(", ")
-                        ))
-                    })?;
+                let k = st.impls.iter().position(|(n, _)| *n == implementation).ok_or_else(|| {
+                    Outcome::reject(format!(
+                        "meta-state '{state}' has no implementation '{implementation}' (it has: {})",
+                        st.impls.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
+                    ))
+                })?;
                 st.active = k;
                 core.events.raise(
                     now,
-                    EventKind::MetaStateSwitched {
-                        module: self.info.name.clone(),
-                        state,
-                        implementation,
-                    },
+                    EventKind::MetaStateSwitched { module: self.info.name.clone(), state, implementation },
                 );
                 Ok(Outcome::done())
             }
@@ -1026,11 +957,7 @@ impl<M: Module> Cell<M> {
             }
             "save_config" => {
                 in_config(self)?;
-                let Save { path } = if args.is_null() {
-                    Save::default()
-                } else {
-                    parse(name, args)?
-                };
+                let Save { path } = if args.is_null() { Save::default() } else { parse(name, args)? };
                 let path = match (path, &self.source) {
                     (Some(p), _) => p,
                     (None, ConfigSource::File(p)) => p.clone(),
@@ -1051,9 +978,7 @@ impl<M: Module> Cell<M> {
     fn apply_config_text(&mut self, origin: &str, text: String) -> Result<Outcome, Outcome> {
         let src = Source::new(origin, &text);
         let cfg: ModuleConfigFile<M::Params> = src.parse().map_err(|e| Outcome::reject(e.to_string()))?;
-        cfg.framework
-            .validate(&src)
-            .map_err(|e| Outcome::reject(e.to_string()))?;
+        cfg.framework.validate(&src).map_err(|e| Outcome::reject(e.to_string()))?;
         self.module.configure(&cfg.params).map_err(|e| {
             Outcome::reject(format!("parameters rejected by module '{}': {e}", self.info.name))
         })?;
@@ -1067,15 +992,8 @@ impl<M: Module> Cell<M> {
         let from = self.lifecycle;
         from.check_transition(to)
             .map_err(|e| Outcome::reject(format!("module '{}': {e}", self.info.name)))?;
-        let mut ctx = Self::ctx(
-            core,
-            &self.info,
-            &self.fsm,
-            &mut self.tracker,
-            now,
-            self.exec,
-            self.lifecycle,
-        );
+        let mut ctx =
+            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| module.on_transition(&mut ctx, from, to)));
         drop(ctx);
@@ -1100,14 +1018,7 @@ impl<M: Module> Cell<M> {
             core.status(self.info.id).set_isolated(false);
         }
         core.status(self.info.id).set_lifecycle(to);
-        core.events.raise(
-            now,
-            EventKind::ModuleLifecycle {
-                module: self.info.name.clone(),
-                from,
-                to,
-            },
-        );
+        core.events.raise(now, EventKind::ModuleLifecycle { module: self.info.name.clone(), from, to });
         Ok(Outcome::Completed(serde_json::json!({ "lifecycle": to })))
     }
 
@@ -1117,15 +1028,8 @@ impl<M: Module> Cell<M> {
             l => self.lifecycle_fns.get(&l).copied(),
         };
         let Some(f) = f else { return Duration::ZERO };
-        let mut ctx = Self::ctx(
-            core,
-            &self.info,
-            &self.fsm,
-            &mut self.tracker,
-            now,
-            self.exec,
-            self.lifecycle,
-        );
+        let mut ctx =
+            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| f(module, &mut ctx)));
         let (goto, charged) = (ctx.goto, ctx.charged);
@@ -1161,13 +1065,7 @@ impl<M: Module> Runner for Cell<M> {
         let s = core.status(self.info.id);
         s.set_lifecycle(self.lifecycle);
         s.set_context(self.exec);
-        s.set_state(
-            self.fsm
-                .states
-                .get(self.fsm.current)
-                .map(|s| s.name.as_str())
-                .unwrap_or(""),
-        );
+        s.set_state(self.fsm.states.get(self.fsm.current).map(|s| s.name.as_str()).unwrap_or(""));
     }
 
     #[allow(clippy::disallowed_methods)] // the executor measures execution time; modules never see it

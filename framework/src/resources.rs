@@ -76,22 +76,13 @@ impl Resources {
     /// Reserves `device` for `holder`, if free.
     pub fn acquire(&self, device: &str, holder: ModuleId) -> Result<ReservationToken, ReservationError> {
         let mut map = self.devices.lock();
-        let e = map
-            .get_mut(device)
-            .ok_or_else(|| ReservationError::UnknownDevice(device.into()))?;
+        let e = map.get_mut(device).ok_or_else(|| ReservationError::UnknownDevice(device.into()))?;
         match e.holder {
-            Some(h) => Err(ReservationError::Busy {
-                device: device.into(),
-                holder: h,
-            }),
+            Some(h) => Err(ReservationError::Busy { device: device.into(), holder: h }),
             None => {
                 e.generation += 1;
                 e.holder = Some(holder);
-                Ok(ReservationToken {
-                    device: device.into(),
-                    holder,
-                    generation: e.generation,
-                })
+                Ok(ReservationToken { device: device.into(), holder, generation: e.generation })
             }
         }
     }
@@ -102,19 +93,10 @@ impl Resources {
         holder: ModuleId,
     ) -> Result<(ReservationToken, Option<ModuleId>), ReservationError> {
         let mut map = self.devices.lock();
-        let e = map
-            .get_mut(device)
-            .ok_or_else(|| ReservationError::UnknownDevice(device.into()))?;
+        let e = map.get_mut(device).ok_or_else(|| ReservationError::UnknownDevice(device.into()))?;
         let previous = e.holder.replace(holder);
         e.generation += 1;
-        Ok((
-            ReservationToken {
-                device: device.into(),
-                holder,
-                generation: e.generation,
-            },
-            previous,
-        ))
+        Ok((ReservationToken { device: device.into(), holder, generation: e.generation }, previous))
     }
     /// Checks that a token still grants command of its device.
     pub fn validate(&self, token: &ReservationToken) -> Result<(), ReservationError> {
@@ -166,18 +148,12 @@ mod tests {
         let t1 = r.acquire("ptu", nav).unwrap();
         assert_eq!(
             r.acquire("ptu", track).unwrap_err(),
-            ReservationError::Busy {
-                device: "ptu".into(),
-                holder: nav
-            }
+            ReservationError::Busy { device: "ptu".into(), holder: nav }
         );
         r.validate(&t1).unwrap();
         let (t3, prev) = r.override_emergency("ptu", fdir).unwrap();
         assert_eq!(prev, Some(nav));
-        assert_eq!(
-            r.validate(&t1).unwrap_err(),
-            ReservationError::Revoked("ptu".into())
-        );
+        assert_eq!(r.validate(&t1).unwrap_err(), ReservationError::Revoked("ptu".into()));
         r.release(t1); // revoked token releases nothing
         assert_eq!(r.holder("ptu"), Some(fdir));
         r.release(t3);
@@ -185,9 +161,6 @@ mod tests {
         let t2 = r.acquire("ptu", track).unwrap();
         assert_eq!(r.release_all_of(track), vec!["ptu".to_string()]);
         assert!(r.validate(&t2).is_err());
-        assert!(matches!(
-            r.acquire("arm", nav),
-            Err(ReservationError::UnknownDevice(_))
-        ));
+        assert!(matches!(r.acquire("arm", nav), Err(ReservationError::UnknownDevice(_))));
     }
 }

@@ -206,9 +206,7 @@ impl SystemBuilder {
             return None;
         }
         if name.is_empty() || name.contains(char::is_whitespace) {
-            self.problems.push(format!(
-                "'{name}' is not a valid module name (empty or with spaces)"
-            ));
+            self.problems.push(format!("'{name}' is not a valid module name (empty or with spaces)"));
             return None;
         }
         self.names.push(name.to_string());
@@ -236,11 +234,7 @@ impl SystemBuilder {
 
     /// Registers a module whose configuration is given as TOML text (tests, demos, generated setups).
     pub fn add_inline<M: Module>(&mut self, name: &str, module: M, toml: &str) -> &mut Self {
-        self.add(
-            name,
-            module,
-            ConfigSource::inline(format!("<inline config of module '{name}'>"), toml),
-        )
+        self.add(name, module, ConfigSource::inline(format!("<inline config of module '{name}'>"), toml))
     }
 
     /// Registers an external endpoint: a participant without a module (an operator console, a script,
@@ -286,10 +280,7 @@ impl SystemBuilder {
         for r in &runners {
             for to in &r.declarations().recipients {
                 if !self.names.iter().any(|n| n == to) {
-                    problems.push(format!(
-                        "module '{}' sends to unknown module '{to}'",
-                        r.info().name
-                    ));
+                    problems.push(format!("module '{}' sends to unknown module '{to}'", r.info().name));
                 }
             }
         }
@@ -302,10 +293,7 @@ impl SystemBuilder {
             }
             if d.writers.is_empty() {
                 let r: Vec<_> = d.readers.iter().map(|w| format!("'{}'", name_of(*w))).collect();
-                problems.push(format!(
-                    "slot '{slot}' is read by {} but no module writes it",
-                    r.join(", ")
-                ));
+                problems.push(format!("slot '{slot}' is read by {} but no module writes it", r.join(", ")));
             }
         }
         // Periods must be whole multiples of the lockstep base period.
@@ -339,11 +327,7 @@ impl SystemBuilder {
             r.publish_status(&core);
         }
         let manager = SystemManager::new(core.clone());
-        Ok(Assembled {
-            core,
-            runners,
-            manager,
-        })
+        Ok(Assembled { core, runners, manager })
     }
 }
 
@@ -362,22 +346,10 @@ pub(crate) fn isolate(
     status.set_lifecycle(Lifecycle::Safe);
     core.resources.release_all_of(info.id);
     tracing::warn!(module = %info.name, ?fault, "watchdog isolated module");
-    core.events.raise(
-        now,
-        EventKind::ModuleIsolated {
-            module: info.name.clone(),
-            fault,
-        },
-    );
+    core.events.raise(now, EventKind::ModuleIsolated { module: info.name.clone(), fault });
     if from != Lifecycle::Safe {
-        core.events.raise(
-            now,
-            EventKind::ModuleLifecycle {
-                module: info.name.clone(),
-                from,
-                to: Lifecycle::Safe,
-            },
-        );
+        core.events
+            .raise(now, EventKind::ModuleLifecycle { module: info.name.clone(), from, to: Lifecycle::Safe });
     }
 }
 
@@ -401,15 +373,8 @@ pub struct Endpoint {
 
 impl Endpoint {
     pub(crate) fn new(core: Arc<Core>, name: &str) -> Result<Self, SystemError> {
-        let id = core
-            .post
-            .id(name)
-            .ok_or_else(|| SystemError::UnknownModule(name.to_string()))?;
-        Ok(Endpoint {
-            core,
-            id,
-            tracker: Arc::default(),
-        })
+        let id = core.post.id(name).ok_or_else(|| SystemError::UnknownModule(name.to_string()))?;
+        Ok(Endpoint { core, id, tracker: Arc::default() })
     }
     /// This endpoint's id.
     pub fn id(&self) -> ModuleId {
@@ -468,11 +433,7 @@ pub struct SystemManager {
 impl SystemManager {
     fn new(core: Arc<Core>) -> Self {
         let endpoint = Endpoint::new(core.clone(), SYSTEM).expect("system endpoint is registered first");
-        SystemManager {
-            core,
-            state: Lifecycle::Startup,
-            endpoint,
-        }
+        SystemManager { core, state: Lifecycle::Startup, endpoint }
     }
     /// The system's lifecycle state.
     pub fn state(&self) -> Lifecycle {
@@ -506,9 +467,7 @@ impl SystemManager {
     /// Sends one module a lifecycle command.
     pub(crate) fn send_lifecycle(&self, module: &str, to: Lifecycle) -> Result<MessageId, SystemError> {
         Ok(self.endpoint.send(
-            Command::new(module, "lifecycle")
-                .on(Queue::Emergency)
-                .json(serde_json::json!({ "to": to })),
+            Command::new(module, "lifecycle").on(Queue::Emergency).json(serde_json::json!({ "to": to })),
         )?)
     }
 
@@ -525,15 +484,9 @@ impl SystemManager {
         // A move to Safe or Shutdown happens whatever individual modules say.
         if refusals.is_empty() || matches!(to, Lifecycle::Safe | Lifecycle::Shutdown) {
             let from = std::mem::replace(&mut self.state, to);
-            self.core
-                .events
-                .raise(self.core.now(), EventKind::SystemState { from, to });
+            self.core.events.raise(self.core.now(), EventKind::SystemState { from, to });
         }
-        if refusals.is_empty() {
-            Ok(())
-        } else {
-            Err(SystemError::Refused { to, refusals })
-        }
+        if refusals.is_empty() { Ok(()) } else { Err(SystemError::Refused { to, refusals }) }
     }
 
     /// Status of the last command sent by the manager with this id.
@@ -587,10 +540,7 @@ pub fn module_reports(core: &Core) -> Vec<ModuleReport> {
 
 /// Statistics of every module by name.
 pub fn stats_by_module(core: &Core) -> BTreeMap<String, TaskStats> {
-    core.modules()
-        .iter()
-        .map(|m| (m.name.clone(), core.status(m.id).stats()))
-        .collect()
+    core.modules().iter().map(|m| (m.name.clone(), core.status(m.id).stats())).collect()
 }
 
 /// Map of module names to ids.

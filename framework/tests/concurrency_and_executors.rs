@@ -90,20 +90,10 @@ fn lockstep_runs_are_deterministic() {
         let mut ex = LockstepExecutor::new(producer_consumer(), Duration::from_millis(1)).unwrap();
         ex.walk_to(Lifecycle::Run).unwrap();
         ex.run_for(Duration::from_millis(500));
-        let events: Vec<_> = ex
-            .core()
-            .events
-            .snapshot()
-            .into_iter()
-            .map(|e| serde_json::to_string(&e).unwrap())
-            .collect();
-        let slots: Vec<_> = ex
-            .core()
-            .board
-            .names()
-            .iter()
-            .map(|n| ex.core().board.slot(n).unwrap().to_json())
-            .collect();
+        let events: Vec<_> =
+            ex.core().events.snapshot().into_iter().map(|e| serde_json::to_string(&e).unwrap()).collect();
+        let slots: Vec<_> =
+            ex.core().board.names().iter().map(|n| ex.core().board.slot(n).unwrap().to_json()).collect();
         (events, slots)
     };
     assert_eq!(run(), run());
@@ -131,11 +121,7 @@ impl Module for Sleeper {
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         d.state("work", |m, _ctx| {
             m.cycles += 1;
-            let ms = if m.hang_at == Some(m.cycles) {
-                1500
-            } else {
-                m.sleep_ms
-            };
+            let ms = if m.hang_at == Some(m.cycles) { 1500 } else { m.sleep_ms };
             std::thread::sleep(std::time::Duration::from_millis(ms));
             Ok(())
         });
@@ -177,10 +163,7 @@ fn realtime_watchdog_isolates_panicking_and_hung_modules_and_the_rest_keeps_runn
     let count_later = read::<u64>(&core, "c/count").unwrap_or(0);
     let reports = ex.stop();
     assert!(isolated("fragile") && isolated("stuck"));
-    assert!(
-        count_later > count_then,
-        "the counter kept running after the faults"
-    );
+    assert!(count_later > count_then, "the counter kept running after the faults");
     let events = core.events.snapshot();
     assert!(events.iter().any(|e| matches!(&e.kind,
         EventKind::ModuleIsolated { module, fault: Fault::Hang { busy_s } } if module == "stuck" && *busy_s >= 0.2)));
@@ -188,11 +171,7 @@ fn realtime_watchdog_isolates_panicking_and_hung_modules_and_the_rest_keeps_runn
         EventKind::ModuleIsolated { module, fault: Fault::Panic(_) } if module == "fragile")));
     let late = reports.iter().find(|r| r.name == "late").unwrap();
     assert!(!late.isolated);
-    assert!(
-        late.stats.overruns >= 1 && late.stats.skipped >= 1,
-        "{:?}",
-        late.stats
-    );
+    assert!(late.stats.overruns >= 1 && late.stats.skipped >= 1, "{:?}", late.stats);
     assert!(late.stats.exec_max() >= Duration::from_millis(25));
     assert!(
         late.stats.exec_min() <= late.stats.exec_mean() && late.stats.exec_mean() <= late.stats.exec_max()
@@ -210,13 +189,36 @@ fn realtime_lifecycle_and_emergency_commands_reach_module_threads() {
     let id = g.send(Command::new("c", "ping").on(Queue::Emergency)).unwrap();
     // Answered well before the module's next 0.5 s cycle.
     let status = g.wait_final(id, std::time::Duration::from_millis(400));
-    assert!(
-        matches!(status, Some(framework::AckStatus::Completed(_))),
-        "{status:?}"
-    );
+    assert!(matches!(status, Some(framework::AckStatus::Completed(_))), "{status:?}");
     let e = ex.transition(Lifecycle::Shutdown).unwrap_err();
     assert!(e.to_string().contains("Hold -> Shutdown"), "{e}");
     ex.walk_to(Lifecycle::Shutdown).unwrap();
     let r = ex.stop();
     assert_eq!(r[0].lifecycle, Lifecycle::Shutdown);
+}
+
+#[test]
+fn lockstep_watchdog_isolates_a_module_that_stops_answering_and_reports_it() {
+    let mut b = SystemBuilder::new();
+    b.add_inline(
+        "stuck",
+        Sleeper::default(),
+        "[framework]\nperiod_s = 0.01\nhang_timeout_s = 0.2\n[params]\nsleep_ms = 0\nhang_at = 3\n",
+    );
+    b.add_inline("c", Counter::default(), "[framework]\nperiod_s = 0.01\n");
+    let mut ex = LockstepExecutor::new(b, Duration::from_millis(10)).unwrap();
+    let reported = Arc::new(parking_lot::Mutex::new(Vec::new()));
+    let r2 = reported.clone();
+    ex.on_hang(Arc::new(move |name: &str, busy: Duration| r2.lock().push((name.to_string(), busy))));
+    ex.walk_to(Lifecycle::Run).unwrap();
+    ex.run_for(Duration::from_millis(100));
+    let reports = ex.reports();
+    let stuck = reports.iter().find(|r| r.name == "stuck").unwrap();
+    assert!(stuck.isolated && stuck.lifecycle == Lifecycle::Safe);
+    assert_eq!(stuck.stats.cycles, 3, "no cycle after isolation");
+    assert_eq!(read::<u64>(ex.core(), "c/count"), Some(10), "the other module ran every cycle");
+    let r = reported.lock().clone();
+    assert_eq!(r.len(), 1);
+    assert_eq!(r[0].0, "stuck");
+    assert!(r[0].1 >= Duration::from_millis(200));
 }

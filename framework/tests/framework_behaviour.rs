@@ -71,11 +71,7 @@ fn state_functions_run_only_in_their_lifecycle_state() {
     let mut ex = LockstepExecutor::new(b, MS).unwrap();
     ex.walk_to(Lifecycle::Hold).unwrap();
     ex.run_for(Duration::from_millis(100));
-    assert_eq!(
-        read::<u64>(ex.core(), "c/count"),
-        None,
-        "Hold does not run the Run state function"
-    );
+    assert_eq!(read::<u64>(ex.core(), "c/count"), None, "Hold does not run the Run state function");
     ex.transition(Lifecycle::Run).unwrap();
     ex.run_for(Duration::from_millis(100));
     assert_eq!(read::<u64>(ex.core(), "c/count"), Some(10));
@@ -130,10 +126,7 @@ fn meta_state_swap_changes_a_running_module_without_restart() {
         )
         .unwrap();
     ex.run_for(Duration::from_millis(300));
-    assert_eq!(
-        ground.status(id),
-        Some(AckStatus::Completed(serde_json::Value::Null))
-    );
+    assert_eq!(ground.status(id), Some(AckStatus::Completed(serde_json::Value::Null)));
     // Message handled before the cycle's state function: three fast cycles.
     assert_eq!(read::<f64>(ex.core(), "driver/x"), Some(33.0));
     assert_eq!(ex.system_state(), Lifecycle::Run);
@@ -144,13 +137,8 @@ fn meta_state_swap_changes_a_running_module_without_restart() {
         )
         .unwrap();
     ex.run_for(Duration::from_millis(100));
-    let Some(AckStatus::Rejected(r)) = ground.status(bad) else {
-        panic!()
-    };
-    assert!(
-        r.contains("no implementation 'warp'") && r.contains("slow, fast"),
-        "{r}"
-    );
+    let Some(AckStatus::Rejected(r)) = ground.status(bad) else { panic!() };
+    assert!(r.contains("no implementation 'warp'") && r.contains("slow, fast"), "{r}");
 }
 
 #[test]
@@ -162,13 +150,9 @@ fn emergency_message_overtakes_earlier_nominal_ones() {
     let g = ex.endpoint("ground").unwrap();
     g.send(Command::new("acc", "mark").args("nominal-1")).unwrap();
     g.send(Command::new("acc", "mark").args("nominal-2")).unwrap();
-    g.send(Command::new("acc", "mark").args("emergency").on(Queue::Emergency))
-        .unwrap();
+    g.send(Command::new("acc", "mark").args("emergency").on(Queue::Emergency)).unwrap();
     ex.tick();
-    assert_eq!(
-        read::<Vec<String>>(ex.core(), "acc/log").unwrap(),
-        ["emergency", "nominal-1", "nominal-2"]
-    );
+    assert_eq!(read::<Vec<String>>(ex.core(), "acc/log").unwrap(), ["emergency", "nominal-1", "nominal-2"]);
 }
 
 #[test]
@@ -182,15 +166,8 @@ fn emergency_messages_reach_periodic_modules_between_their_cycles() {
     let n = g.send(Command::new("c", "reset")).unwrap();
     let e = g.send(Command::new("c", "ping").on(Queue::Emergency)).unwrap();
     ex.tick(); // t = 151 ms: not a cycle of c
-    assert!(
-        g.status(e).unwrap().is_final(),
-        "emergency handled at the next tick"
-    );
-    assert_eq!(
-        g.status(n),
-        Some(AckStatus::Pending),
-        "nominal waits for the next cycle"
-    );
+    assert!(g.status(e).unwrap().is_final(), "emergency handled at the next tick");
+    assert_eq!(g.status(n), Some(AckStatus::Pending), "nominal waits for the next cycle");
     ex.run_for(Duration::from_millis(50));
     assert!(g.status(n).unwrap().is_final());
 }
@@ -207,16 +184,10 @@ fn debug_commands_are_refused_in_mission_and_accepted_in_debug() {
     b.endpoint("debugger");
     let mut ex = running(b);
     let d = ex.endpoint("debugger").unwrap();
-    let a = d
-        .send(Command::new("mission", "inject_fault").on(Queue::Debug))
-        .unwrap();
-    let c = d
-        .send(Command::new("debug", "inject_fault").on(Queue::Debug))
-        .unwrap();
+    let a = d.send(Command::new("mission", "inject_fault").on(Queue::Debug)).unwrap();
+    let c = d.send(Command::new("debug", "inject_fault").on(Queue::Debug)).unwrap();
     ex.tick();
-    let Some(AckStatus::Rejected(r)) = d.status(a) else {
-        panic!("{:?}", d.status(a))
-    };
+    let Some(AckStatus::Rejected(r)) = d.status(a) else { panic!("{:?}", d.status(a)) };
     assert!(r.contains("Mission") && r.contains("debug queue"), "{r}");
     assert_eq!(d.status(c), Some(AckStatus::Completed(serde_json::Value::Null)));
 }
@@ -238,27 +209,17 @@ impl Module for Coordinator {
         d.state("go", |m, ctx| {
             if !m.sent {
                 m.sent = true;
-                ctx.send(
-                    Command::new("acc", "add")
-                        .args(serde_json::json!({"n": 7}))
-                        .via(["relay"]),
-                )
-                .map_err(|e| ModuleError(e.to_string()))?;
-                ctx.send(Command::new("acc", "fly"))
+                ctx.send(Command::new("acc", "add").args(serde_json::json!({"n": 7})).via(["relay"]))
                     .map_err(|e| ModuleError(e.to_string()))?;
+                ctx.send(Command::new("acc", "fly")).map_err(|e| ModuleError(e.to_string()))?;
                 ctx.send(Command::new("acc", "add").args(serde_json::json!({"n": "seven"})))
                     .map_err(|e| ModuleError(e.to_string()))?;
-                ctx.send(Command::new("acc", "slow_job"))
-                    .map_err(|e| ModuleError(e.to_string()))?;
+                ctx.send(Command::new("acc", "slow_job")).map_err(|e| ModuleError(e.to_string()))?;
             }
             Ok(())
         });
         d.on_ack(|m, ctx, ack| {
-            m.seen.push(format!(
-                "{}:{}",
-                ack.command,
-                serde_json::to_string(&ack.status).unwrap()
-            ));
+            m.seen.push(format!("{}:{}", ack.command, serde_json::to_string(&ack.status).unwrap()));
             ctx.write(m.acks.as_ref().unwrap(), m.seen.clone());
         });
     }
@@ -283,32 +244,20 @@ fn relayed_command_is_acknowledged_back_to_its_sender_and_errors_come_back_too()
     let mut ex = running(b);
     ex.run_for(Duration::from_millis(100));
     let acks = read::<Vec<String>>(ex.core(), "coord/acks").unwrap();
-    assert!(
-        acks.contains(&r#"add:{"status":"completed","detail":7}"#.to_string()),
-        "{acks:?}"
-    );
+    assert!(acks.contains(&r#"add:{"status":"completed","detail":7}"#.to_string()), "{acks:?}");
     let unknown = acks.iter().find(|a| a.starts_with("fly:")).unwrap();
-    assert!(
-        unknown.contains("rejected") && unknown.contains("unknown command 'fly'"),
-        "{unknown}"
-    );
+    assert!(unknown.contains("rejected") && unknown.contains("unknown command 'fly'"), "{unknown}");
     let bad = acks.iter().find(|a| a.contains("bad arguments")).unwrap();
     assert!(bad.contains("rejected"), "{bad}");
     // Deferred: accepted first, completed later.
     let slow: Vec<_> = acks.iter().filter(|a| a.starts_with("slow_job:")).collect();
     assert_eq!(slow.len(), 2, "{acks:?}");
-    assert!(
-        slow[0].contains("accepted") && slow[1].contains("finished"),
-        "{slow:?}"
-    );
+    assert!(slow[0].contains("accepted") && slow[1].contains("finished"), "{slow:?}");
     // The relayed command and its ack both passed through the relay.
     let trace = ex.core().post.take_trace();
     let relay = ex.core().post.id("relay").unwrap();
     let hops_through_relay = trace.iter().filter(|m| m.path.contains(&relay)).count();
-    assert_eq!(
-        hops_through_relay, 2,
-        "command forwarded by relay once, ack forwarded once"
-    );
+    assert_eq!(hops_through_relay, 2, "command forwarded by relay once, ack forwarded once");
 }
 
 #[test]
@@ -320,36 +269,23 @@ fn unknown_command_from_an_endpoint_is_rejected_with_the_known_ones() {
     let g = ex.endpoint("ground").unwrap();
     let id = g.send(Command::new("acc", "explode")).unwrap();
     ex.tick();
-    let Some(AckStatus::Rejected(r)) = g.status(id) else {
-        panic!()
-    };
-    assert!(
-        r.contains("unknown command 'explode'") && r.contains("add"),
-        "{r}"
-    );
+    let Some(AckStatus::Rejected(r)) = g.status(id) else { panic!() };
+    assert!(r.contains("unknown command 'explode'") && r.contains("add"), "{r}");
     assert!(g.send(Command::new("nobody", "x")).is_err());
 }
 
 #[test]
 fn disabled_commands_are_refused() {
     let mut b = SystemBuilder::new();
-    b.add_inline(
-        "acc",
-        Accumulator::default(),
-        "[framework]\ncommands = [\"add\"]\n",
-    );
+    b.add_inline("acc", Accumulator::default(), "[framework]\ncommands = [\"add\"]\n");
     b.endpoint("ground");
     let mut ex = running(b);
     let g = ex.endpoint("ground").unwrap();
-    let ok = g
-        .send(Command::new("acc", "add").args(serde_json::json!({"n": 1})))
-        .unwrap();
+    let ok = g.send(Command::new("acc", "add").args(serde_json::json!({"n": 1}))).unwrap();
     let no = g.send(Command::new("acc", "mark").args("x")).unwrap();
     ex.tick();
     assert!(matches!(g.status(ok), Some(AckStatus::Completed(_))));
-    let Some(AckStatus::Rejected(r)) = g.status(no) else {
-        panic!()
-    };
+    let Some(AckStatus::Rejected(r)) = g.status(no) else { panic!() };
     assert!(r.contains("disabled by the configuration"), "{r}");
 }
 
@@ -362,11 +298,7 @@ fn panicking_module_is_put_in_safe_while_others_continue() {
     let mut ex = running(b);
     ex.run_for(Duration::from_secs(1));
     assert_eq!(read::<u64>(ex.core(), "fragile/cycles"), Some(5));
-    assert_eq!(
-        read::<u64>(ex.core(), "c/count"),
-        Some(100),
-        "the other module kept running"
-    );
+    assert_eq!(read::<u64>(ex.core(), "c/count"), Some(100), "the other module kept running");
     let reports = ex.reports();
     let f = reports.iter().find(|r| r.name == "fragile").unwrap();
     assert_eq!((f.lifecycle, f.isolated), (Lifecycle::Safe, true));
@@ -401,11 +333,7 @@ fn state_function_error_puts_module_in_safe() {
     g.send(Command::new("fragile", "fail")).unwrap();
     ex.run_for(Duration::from_millis(20));
     let events = ex.core().events.snapshot();
-    assert!(
-        events
-            .iter()
-            .any(|e| matches!(&e.kind, EventKind::ModuleState { to, .. } if to == "failing"))
-    );
+    assert!(events.iter().any(|e| matches!(&e.kind, EventKind::ModuleState { to, .. } if to == "failing")));
     assert!(events.iter().any(|e| matches!(&e.kind,
         EventKind::ModuleIsolated { fault: Fault::Error(m), .. } if m == "cannot read device")));
 }
@@ -418,11 +346,7 @@ fn overruns_are_counted_and_isolate_past_the_budget() {
         Heavy::default(),
         "[framework]\nperiod_s = 0.01\noverrun_budget = 3\n[params]\ncost_ms = 15\n",
     );
-    b.add_inline(
-        "light",
-        Heavy::default(),
-        "[framework]\nperiod_s = 0.01\n[params]\ncost_ms = 5\n",
-    );
+    b.add_inline("light", Heavy::default(), "[framework]\nperiod_s = 0.01\n[params]\ncost_ms = 5\n");
     b.add_inline(
         "once",
         Heavy::default(),
@@ -440,10 +364,7 @@ fn overruns_are_counted_and_isolate_past_the_budget() {
     assert_eq!(get("light").stats.overruns, 0);
     assert_eq!((get("once").stats.overruns, get("once").isolated), (1, false));
     let heavy = get("heavy");
-    assert_eq!(
-        heavy.stats.overruns, 4,
-        "isolated at the 4th consecutive overrun with a budget of 3"
-    );
+    assert_eq!(heavy.stats.overruns, 4, "isolated at the 4th consecutive overrun with a budget of 3");
     assert!(heavy.isolated && heavy.lifecycle == Lifecycle::Safe);
     assert_eq!(heavy.stats.cycles, 4);
 }
@@ -492,38 +413,21 @@ fn start_up_checks_report_every_declaration_problem() {
 fn configuration_errors_name_file_line_and_key() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("heavy.toml");
-    std::fs::write(
-        &path,
-        "[framework]\nperiod_s = 0.01\n\n[params]\ncost_ms = 1\ncots_ms = 2\n",
-    )
-    .unwrap();
+    std::fs::write(&path, "[framework]\nperiod_s = 0.01\n\n[params]\ncost_ms = 1\ncots_ms = 2\n").unwrap();
     let mut b = SystemBuilder::new();
     b.add("heavy", Heavy::default(), framework::ConfigSource::file(&path));
     let e = LockstepExecutor::new(b, MS).err().unwrap().to_string();
-    assert!(
-        e.contains(&format!("{}:6:1: ", path.display())) && e.contains("cots_ms"),
-        "{e}"
-    );
+    assert!(e.contains(&format!("{}:6:1: ", path.display())) && e.contains("cots_ms"), "{e}");
 
     let mut b = SystemBuilder::new();
     b.add_inline("heavy", Heavy::default(), "[params]\ncost_ms = -4\n");
     let e = LockstepExecutor::new(b, MS).err().unwrap().to_string();
-    assert!(
-        e.contains("cost_ms must be >= 0") && e.contains("module 'heavy'"),
-        "{e}"
-    );
+    assert!(e.contains("cost_ms must be >= 0") && e.contains("module 'heavy'"), "{e}");
 
     let mut b = SystemBuilder::new();
-    b.add_inline(
-        "acc",
-        Accumulator::default(),
-        "[framework]\ncommands = [\"add\", \"sing\"]\n",
-    );
+    b.add_inline("acc", Accumulator::default(), "[framework]\ncommands = [\"add\", \"sing\"]\n");
     let e = LockstepExecutor::new(b, MS).err().unwrap().to_string();
-    assert!(
-        e.contains(":2:") && e.contains("framework.commands") && e.contains("no command 'sing'"),
-        "{e}"
-    );
+    assert!(e.contains(":2:") && e.contains("framework.commands") && e.contains("no command 'sing'"), "{e}");
 }
 
 #[test]
@@ -550,38 +454,21 @@ fn configuration_changes_reload_and_save_only_in_config() {
         )
         .unwrap();
     let saved = dir.path().join("saved.toml");
-    let save = g
-        .send(Command::new("heavy", "save_config").json(serde_json::json!({"path": saved})))
-        .unwrap();
+    let save = g.send(Command::new("heavy", "save_config").json(serde_json::json!({"path": saved}))).unwrap();
     ex.run_for(Duration::from_millis(10));
     assert!(matches!(g.status(ok), Some(AckStatus::Completed(_))));
     assert!(matches!(g.status(neg), Some(AckStatus::Rejected(r)) if r.contains("cost_ms must be >= 0")));
     assert!(matches!(g.status(typo), Some(AckStatus::Rejected(r)) if r.contains("cots_ms")));
     assert!(matches!(g.status(save), Some(AckStatus::Completed(_))));
     let text = std::fs::read_to_string(&saved).unwrap();
-    assert!(
-        text.contains("cost_ms = 12") && text.contains("period_s = 0.01"),
-        "{text}"
-    );
+    assert!(text.contains("cost_ms = 12") && text.contains("period_s = 0.01"), "{text}");
     // Reload from the (edited) file.
-    std::fs::write(
-        &path,
-        "[framework]\nperiod_s = 0.02\noverrun_budget = 100\n\n[params]\ncost_ms = 30\n",
-    )
-    .unwrap();
+    std::fs::write(&path, "[framework]\nperiod_s = 0.02\noverrun_budget = 100\n\n[params]\ncost_ms = 30\n")
+        .unwrap();
     let reload = g.send(Command::new("heavy", "reload_config")).unwrap();
     ex.run_for(Duration::from_millis(10));
-    assert!(
-        matches!(g.status(reload), Some(AckStatus::Completed(_))),
-        "{:?}",
-        g.status(reload)
-    );
-    let before = ex
-        .reports()
-        .into_iter()
-        .find(|r| r.name == "heavy")
-        .unwrap()
-        .stats;
+    assert!(matches!(g.status(reload), Some(AckStatus::Completed(_))), "{:?}", g.status(reload));
+    let before = ex.reports().into_iter().find(|r| r.name == "heavy").unwrap().stats;
     ex.walk_to(Lifecycle::Run).unwrap();
     let late = set(&g, serde_json::json!(1));
     ex.run_for(Duration::from_millis(100));
@@ -589,10 +476,7 @@ fn configuration_changes_reload_and_save_only_in_config() {
     let heavy = ex.reports().into_iter().find(|r| r.name == "heavy").unwrap();
     assert_eq!(heavy.stats.cycles - before.cycles, 5, "reloaded period of 20 ms");
     assert_eq!(before.overruns, 0);
-    assert!(
-        heavy.stats.overruns >= 1,
-        "reloaded cost of 30 ms overruns a 20 ms period"
-    );
+    assert!(heavy.stats.overruns >= 1, "reloaded cost of 30 ms overruns a 20 ms period");
 }
 
 #[test]
@@ -616,9 +500,7 @@ fn context_changes_only_where_allowed() {
     let mut ex = running(b);
     let g = ex.endpoint("ground").unwrap();
     let ctx = serde_json::json!({"context": {"mode": "operative", "purpose": "debug"}});
-    let a = g
-        .send(Command::new("sw", "set_context").json(ctx.clone()))
-        .unwrap();
+    let a = g.send(Command::new("sw", "set_context").json(ctx.clone())).unwrap();
     let b2 = g.send(Command::new("fixed", "set_context").json(ctx)).unwrap();
     let early = g.send(Command::new("sw", "probe").on(Queue::Debug)).unwrap();
     ex.tick();
@@ -628,10 +510,7 @@ fn context_changes_only_where_allowed() {
     ex.tick();
     assert!(matches!(g.status(a), Some(AckStatus::Completed(_))));
     assert!(matches!(g.status(b2), Some(AckStatus::Rejected(r)) if r.contains("does not allow")));
-    assert_eq!(
-        g.status(dbg),
-        Some(AckStatus::Completed(serde_json::json!("Operative/Debug")))
-    );
+    assert_eq!(g.status(dbg), Some(AckStatus::Completed(serde_json::json!("Operative/Debug"))));
 }
 
 #[test]
@@ -686,11 +565,7 @@ fn own_state_machine_rejects_undeclared_transitions() {
     assert_eq!(ex.reports()[0].state, "moving");
     g.send(Command::new("w", "go").args("teleport")).unwrap();
     ex.tick();
-    assert!(
-        read::<String>(ex.core(), "walker/result")
-            .unwrap()
-            .contains("no state 'teleport'")
-    );
+    assert!(read::<String>(ex.core(), "walker/result").unwrap().contains("no state 'teleport'"));
 }
 
 #[test]
@@ -706,11 +581,7 @@ fn reservation_tokens_through_the_context() {
         fn declare(&mut self, d: &mut Declare<'_, Self>) {
             self.log = Some(d.writes(&format!("{}/log", d.name())));
             d.command("take", |m, ctx, emergency: bool| {
-                let r = if emergency {
-                    ctx.override_device("ptu")
-                } else {
-                    ctx.acquire("ptu")
-                };
+                let r = if emergency { ctx.override_device("ptu") } else { ctx.acquire("ptu") };
                 match r {
                     Ok(t) => {
                         m.token = Some(t);
@@ -769,25 +640,12 @@ fn console_script_drives_a_system() {
     assert_eq!(out[0], "system is Run");
     assert_eq!(out[1], "time is 0.500000 s");
     assert!(out[2].starts_with("sent add to acc"), "{}", out[2]);
-    assert!(
-        out[4].contains("add by") && out[4].contains("completed"),
-        "{}",
-        out[4]
-    );
+    assert!(out[4].contains("add by") && out[4].contains("completed"), "{}", out[4]);
     assert!(out[5].contains("\"value\":5"), "{}", out[5]);
     assert!(out[6].contains("cycles"), "{}", out[6]);
-    assert!(
-        out[7].contains("system: Run") && out[7].contains("acc"),
-        "{}",
-        out[7]
-    );
-    let e = console
-        .run_script(&mut ex, "demo.script", "stats\nsystem levitate\n")
-        .unwrap_err();
-    assert!(
-        e.0.starts_with("demo.script:2: unknown lifecycle state 'levitate'"),
-        "{e}"
-    );
+    assert!(out[7].contains("system: Run") && out[7].contains("acc"), "{}", out[7]);
+    let e = console.run_script(&mut ex, "demo.script", "stats\nsystem levitate\n").unwrap_err();
+    assert!(e.0.starts_with("demo.script:2: unknown lifecycle state 'levitate'"), "{e}");
     let e = console.run_script(&mut ex, "x", "system standby\n").unwrap_err();
     assert!(e.0.contains("illegal transition Run -> Standby"), "{e}");
 }
@@ -801,11 +659,7 @@ fn lifecycle_hook_can_refuse_a_transition() {
         const KIND: ModuleKind = ModuleKind::Actuator;
         fn declare(&mut self, _d: &mut Declare<'_, Self>) {}
         fn on_transition(&mut self, _c: &mut Ctx<'_>, _f: Lifecycle, to: Lifecycle) -> Result<(), String> {
-            if to == Lifecycle::Hold {
-                Err("motors not powered".into())
-            } else {
-                Ok(())
-            }
+            if to == Lifecycle::Hold { Err("motors not powered".into()) } else { Ok(()) }
         }
     }
     let mut b = SystemBuilder::new();

@@ -38,22 +38,13 @@ pub struct GyroParams {
 
 impl Default for GyroParams {
     fn default() -> Self {
-        GyroParams {
-            bias: 0.002,
-            noise: 0.001,
-            seed: 1,
-        }
+        GyroParams { bias: 0.002, noise: 0.001, seed: 1 }
     }
 }
 
 impl Default for Gyro {
     fn default() -> Self {
-        Gyro {
-            cmd: None,
-            out: None,
-            params: GyroParams::default(),
-            rng: 1,
-        }
+        Gyro { cmd: None, out: None, params: GyroParams::default(), rng: 1 }
     }
 }
 
@@ -76,12 +67,7 @@ impl Module for Gyro {
         self.cmd = Some(d.reads("locomotion/yaw_rate"));
         self.out = Some(d.writes("gyro/yaw_rate"));
         d.state("sampling", |m, ctx| {
-            let cmd = m
-                .cmd
-                .as_ref()
-                .and_then(|r| ctx.read(r))
-                .map(|s| s.value)
-                .unwrap_or(0.0);
+            let cmd = m.cmd.as_ref().and_then(|r| ctx.read(r)).map(|s| s.value).unwrap_or(0.0);
             // Uniform noise scaled to the configured standard deviation (sqrt(3) sigma half-width).
             let n = m.noise() * m.params.noise * 3f64.sqrt();
             let rate = cmd + m.params.bias + n;
@@ -133,12 +119,7 @@ impl Module for Heading {
             let now = ctx.now();
             let dt = m.last.map(|l| (now - l).as_secs_f64()).unwrap_or(0.0);
             m.last = Some(now);
-            let rate = m
-                .rate
-                .as_ref()
-                .and_then(|r| ctx.read(r))
-                .map(|s| s.value)
-                .unwrap_or(0.0);
+            let rate = m.rate.as_ref().and_then(|r| ctx.read(r)).map(|s| s.value).unwrap_or(0.0);
             let e = m.estimate.get_or_insert(Estimate::new(0.0, 1e-6));
             e.value += rate * dt;
             e.covariance += m.params.rate_noise.powi(2) * dt;
@@ -178,11 +159,7 @@ pub struct NavigatorParams {
 
 impl Default for NavigatorParams {
     fn default() -> Self {
-        NavigatorParams {
-            turn_rate: 0.3,
-            gain: 1.5,
-            tolerance_deg: 1.0,
-        }
+        NavigatorParams { turn_rate: 0.3, gain: 1.5, tolerance_deg: 1.0 }
     }
 }
 
@@ -205,11 +182,8 @@ impl Navigator {
         };
         let h = stamped.value;
         let err = wrap(goal - h.value);
-        let rate = if err.abs() < self.params.tolerance_deg.to_radians() {
-            0.0
-        } else {
-            law(&self.params, err)
-        };
+        let rate =
+            if err.abs() < self.params.tolerance_deg.to_radians() { 0.0 } else { law(&self.params, err) };
         if self.last_cmd != Some(rate) {
             ctx.send(Command::new("locomotion", "set_yaw_rate").args(rate))
                 .map_err(|e| ModuleError(e.to_string()))?;

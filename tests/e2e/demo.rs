@@ -31,18 +31,10 @@ fn demo_reports_an_impossible_manoeuvre_as_failed_with_exit_one() {
     let dir = tempfile::tempdir().unwrap();
     let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/demo");
     for f in ["gyro", "heading", "navigator", "locomotion"] {
-        std::fs::copy(
-            src.join(format!("{f}.toml")),
-            dir.path().join(format!("{f}.toml")),
-        )
-        .unwrap();
+        std::fs::copy(src.join(format!("{f}.toml")), dir.path().join(format!("{f}.toml"))).unwrap();
     }
     // Locomotion refuses every turn faster than 0.1 rad/s, the navigator asks for 0.3.
-    std::fs::write(
-        dir.path().join("locomotion.toml"),
-        "[params]\nmax_yaw_rate = 0.1\n",
-    )
-    .unwrap();
+    std::fs::write(dir.path().join("locomotion.toml"), "[params]\nmax_yaw_rate = 0.1\n").unwrap();
     let out = rover_twin()
         .args(["demo", "--quiet", "--timeout", "3", "--config-dir"])
         .arg(dir.path())
@@ -50,10 +42,7 @@ fn demo_reports_an_impossible_manoeuvre_as_failed_with_exit_one() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(1), "{stdout}");
-    assert!(
-        stdout.contains("NOT completed") && stdout.contains("demo FAILED"),
-        "{stdout}"
-    );
+    assert!(stdout.contains("NOT completed") && stdout.contains("demo FAILED"), "{stdout}");
 }
 
 #[test]
@@ -61,29 +50,18 @@ fn bad_configuration_exits_two_naming_file_line_and_key() {
     let dir = tempfile::tempdir().unwrap();
     let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/demo");
     for f in ["gyro", "heading", "navigator", "locomotion"] {
-        std::fs::copy(
-            src.join(format!("{f}.toml")),
-            dir.path().join(format!("{f}.toml")),
-        )
-        .unwrap();
+        std::fs::copy(src.join(format!("{f}.toml")), dir.path().join(format!("{f}.toml"))).unwrap();
     }
     std::fs::write(
         dir.path().join("heading.toml"),
         "[framework]\nperiod_s = 0.02\n[params]\nrate_noize = 1\n",
     )
     .unwrap();
-    let out = rover_twin()
-        .args(["demo", "--config-dir"])
-        .arg(dir.path())
-        .output()
-        .unwrap();
+    let out = rover_twin().args(["demo", "--config-dir"]).arg(dir.path()).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     let expected = format!("{}:4:1: ", dir.path().join("heading.toml").display());
-    assert!(
-        stderr.contains(&expected) && stderr.contains("rate_noize"),
-        "{stderr}"
-    );
+    assert!(stderr.contains(&expected) && stderr.contains("rate_noize"), "{stderr}");
 }
 
 #[test]
@@ -92,18 +70,11 @@ fn console_script_errors_name_the_script_line() {
     let script = dir.path().join("bringup.console");
     std::fs::write(&script, "walk run\nsend --queue debug navigator turn_to {\"heading_deg\": 10}\nadvance 0.2\nacks\nteleport rover\n")
         .unwrap();
-    let out = rover_twin()
-        .args(["demo", "--script"])
-        .arg(&script)
-        .output()
-        .unwrap();
+    let out = rover_twin().args(["demo", "--script"]).arg(&script).output().unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2));
     assert!(
-        stderr.contains(&format!(
-            "{}:5: unknown console command 'teleport'",
-            script.display()
-        )),
+        stderr.contains(&format!("{}:5: unknown console command 'teleport'", script.display())),
         "{stderr}"
     );
 
@@ -112,17 +83,10 @@ fn console_script_errors_name_the_script_line() {
         "walk run\nsend --queue debug navigator turn_to {\"heading_deg\": 10}\nadvance 0.2\nacks\n",
     )
     .unwrap();
-    let out = rover_twin()
-        .args(["demo", "--script"])
-        .arg(&script)
-        .output()
-        .unwrap();
+    let out = rover_twin().args(["demo", "--script"]).arg(&script).output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(out.status.code(), Some(0), "{stdout}");
-    assert!(
-        stdout.contains("rejected") && stdout.contains("Mission context"),
-        "{stdout}"
-    );
+    assert!(stdout.contains("rejected") && stdout.contains("Mission context"), "{stdout}");
 }
 
 #[test]
@@ -145,18 +109,8 @@ fn console_on_stdin_sends_commands_and_reads_state() {
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(stdout.contains("system is Run"), "{stdout}");
-    assert!(
-        stdout.contains("turn_to") && stdout.contains("completed"),
-        "{stdout}"
-    );
+    assert!(stdout.contains("turn_to") && stdout.contains("completed"), "{stdout}");
     assert!(stdout.contains("\"covariance\""), "{stdout}");
-    assert!(
-        stderr.contains("<stdin>:6: unknown console command 'bogus'"),
-        "{stderr}"
-    );
-    assert_eq!(
-        out.status.code(),
-        Some(1),
-        "a bad console line makes the session fail"
-    );
+    assert!(stderr.contains("<stdin>:6: unknown console command 'bogus'"), "{stderr}");
+    assert_eq!(out.status.code(), Some(1), "a bad console line makes the session fail");
 }

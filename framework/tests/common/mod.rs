@@ -193,9 +193,5 @@ pub fn read<T: framework::blackboard::BoardData + Clone>(
     core: &framework::system::Core,
     slot: &str,
 ) -> Option<T> {
-    core.board
-        .reader::<T>(slot)
-        .unwrap()
-        .and_then(|r| r.read())
-        .map(|s| s.value.clone())
+    core.board.reader::<T>(slot).unwrap().and_then(|r| r.read()).map(|s| s.value.clone())
 }

@@ -20,6 +20,6 @@ forbid() { # crate, forbidden dependency names...
 forbid framework twin gnc worlds scenarios
 forbid gnc twin worlds scenarios rapier3d parry3d wgpu
 forbid twin gnc scenarios
-forbid worlds twin gnc scenarios
+forbid worlds twin gnc scenarios rapier3d wgpu
 [ $fail -eq 0 ] && echo "layering: ok"
 exit $fail

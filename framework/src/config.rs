@@ -112,19 +112,26 @@ impl<'a> Source<'a> {
 }
 
 /// The byte span of a key's value (or of the key itself if the value has no span) in a TOML text.
+/// Path parts that are numbers index arrays (`objects.2.name`).
 pub fn locate_key(text: &str, path: &[&str]) -> Option<Range<usize>> {
+    use toml::de::DeValue;
     let doc = toml::de::DeTable::parse(text).ok()?;
-    let mut table = doc.get_ref();
+    let mut value: &DeValue<'_> = &DeValue::Table(doc.get_ref().clone());
     let mut span = None;
-    for (i, part) in path.iter().enumerate() {
-        let (k, v) = table.iter().find(|(k, _)| k.get_ref().as_ref() == *part)?;
-        span = Some(if v.span().is_empty() { k.span() } else { v.span() });
-        if i + 1 < path.len() {
-            match v.get_ref() {
-                toml::de::DeValue::Table(t) => table = t,
-                _ => return span,
+    for part in path {
+        let (k_span, v) = match value {
+            DeValue::Table(t) => {
+                let (k, v) = t.iter().find(|(k, _)| k.get_ref().as_ref() == *part)?;
+                (k.span(), v)
             }
-        }
+            DeValue::Array(a) => {
+                let v = a.get(part.parse::<usize>().ok()?)?;
+                (v.span(), v)
+            }
+            _ => return span,
+        };
+        span = Some(if v.span().is_empty() { k_span } else { v.span() });
+        value = v.get_ref();
     }
     span
 }

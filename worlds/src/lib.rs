@@ -137,7 +137,7 @@ fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), Confi
         );
     }
     if let Some(h) = &t.heightmap {
-        if !(h.height_range_m[1] >= h.height_range_m[0]) {
+        if !h.height_range_m.iter().all(|v| v.is_finite()) || h.height_range_m[1] < h.height_range_m[0] {
             return err("terrain.heightmap.height_range_m", "must be [low, high] with low <= high".into());
         }
         let p = base.join(&h.image);
@@ -194,7 +194,7 @@ fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), Confi
             return err("rocks.coverage_k", format!("must be in (0, 0.5], got {}", r.coverage_k));
         }
         positive("rocks.min_diameter_m", r.min_diameter_m)?;
-        if !(r.max_diameter_m > r.min_diameter_m) {
+        if !r.max_diameter_m.is_finite() || r.max_diameter_m <= r.min_diameter_m {
             return err("rocks.max_diameter_m", "must be larger than min_diameter_m".into());
         }
         positive("rocks.height_ratio", r.height_ratio)?;

@@ -1,9 +1,19 @@
 //! # twin: the simulator half of the digital twin
 //!
-//! Will hold the rapier3d world (terrain heightfield, rocks, the rover with its suspension, 6-DoF arm,
-//! gripper, pan-tilt unit and the sample canister), the headless wgpu sensors (stereo cameras,
-//! Time-of-Flight cameras), the IMU and encoder models, and the Dry-Run implementations of the
-//! framework's HAL device traits. It owns ground truth, which flows only to the logger and the scorer.
+//! - [`sim::Twin`]: the rapier3d world of a [`worlds::World`] with the rover (from
+//!   `assets/rover/rover.urdf`, loaded with dimforge's rapier URDF loader), its arm, pan-tilt unit,
+//!   gripper and the sample canister, at full-dynamics or kinematic fidelity; deterministic.
+//! - [`devices`]: the Dry-Run implementations of the framework's HAL traits, and the device map that
+//!   builds them from configuration.
+//! - [`truth`]: ground truth, for the logger and the scorer only.
 //!
-//! Status: skeleton. Nothing is simulated yet; the physics and the dry-run HAL arrive with the twin
-//! issue, the rendered sensors with their own issue. Depends on `framework` only, never on `gnc`.
+//! Depends on `framework` and `worlds`, never on `gnc`. Rendered sensors come with their own issue.
+
+pub mod config;
+pub mod convert;
+pub mod devices;
+pub mod sim;
+pub mod truth;
+
+pub use config::TwinConfig;
+pub use sim::{Fidelity, StartPose, Twin, TwinError, assets_dir, rover_urdf};

@@ -1,0 +1,415 @@
+//! The twin against analytic answers (issue: the twin). Each test builds a small world, drives the
+//! rover or its joints through the Dry-Run devices or the twin's API, and checks what physics did.
+
+use framework::hal::{BodyTwist, DeviceMap, MoveStatus};
+use framework::mechanism::IkOptions;
+use framework::resources::Resources;
+use framework::time::Duration;
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use twin::devices::{DryRunDeviceMap, SharedTwin, share};
+use twin::{Fidelity, StartPose, Twin};
+use worlds::World;
+
+fn world(text: &str) -> World {
+    World::from_str(text, "<test world>", std::path::Path::new("."), None).unwrap()
+}
+
+fn flat(friction: f64) -> World {
+    world(&format!(
+        "name = \"flat\"\n[terrain]\nsize_m = [30.0, 30.0]\nresolution_m = 0.5\n[regolith]\nfriction = {friction}\n\
+         [[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [5.0, 5.0]\n"
+    ))
+}
+
+fn slope(deg: f64, friction: f64) -> World {
+    world(&format!(
+        "name = \"slope\"\n[terrain]\nsize_m = [30.0, 30.0]\nresolution_m = 0.25\n[[terrain.slopes]]\ngradient_deg = {deg}\n[regolith]\nfriction = {friction}\n"
+    ))
+}
+
+fn rover(w: World, x: f64, y: f64, yaw: f64, fidelity: Fidelity) -> Twin {
+    Twin::with_defaults(w, StartPose { x, y, yaw }, fidelity).unwrap()
+}
+
+fn devices(t: &SharedTwin) -> (DryRunDeviceMap, Resources) {
+    let r = Resources::new();
+    (DryRunDeviceMap::new(t.clone(), r.clone(), 7), r)
+}
+
+const S: fn(f64) -> Duration = Duration::from_secs_f64;
+
+#[test]
+fn straight_drive_on_flat_ground_reaches_the_commanded_speed_within_two_percent() {
+    let t = share(rover(flat(0.8), -8.0, 0.0, 0.0, Fidelity::Dynamic));
+    let (map, res) = devices(&t);
+    let mut loco = map.locomotor().unwrap();
+    let token = res.acquire("locomotor", framework::message::ModuleId(1)).unwrap();
+    t.lock().run_for(S(1.0));
+    for v in [0.1, 0.25] {
+        loco.drive(&token, BodyTwist { v, omega: 0.0 }).unwrap();
+        t.lock().run_for(S(3.0));
+        let a = t.lock().base_pose().translation.vector;
+        t.lock().run_for(S(4.0));
+        let b = t.lock().base_pose().translation.vector;
+        let speed = (b - a).xy().norm() / 4.0;
+        assert!((speed - v).abs() / v < 0.02, "commanded {v} m/s, drove {speed} m/s");
+    }
+    // Beyond the rover's limits the locomotor refuses.
+    assert!(loco.drive(&token, BodyTwist { v: 2.0, omega: 0.0 }).is_err());
+    // Without the token, no command.
+    let other = Resources::new();
+    other.register("locomotor");
+    let foreign = other.acquire("locomotor", framework::message::ModuleId(2)).unwrap();
+    assert!(loco.stop(&foreign).is_err());
+}
+
+/// Distance slid along the ground over `secs` with the wheels held, after settling.
+fn slide(deg: f64, friction: f64) -> (f64, f64) {
+    let t = share(rover(slope(deg, friction), 0.0, 0.0, 0.0, Fidelity::Dynamic));
+    let (map, _) = devices(&t);
+    let mut enc = map.encoders().unwrap();
+    t.lock().run_for(S(1.0));
+    let a = t.lock().base_pose().translation.vector;
+    let e0 = enc.read();
+    t.lock().run_for(S(4.0));
+    let b = t.lock().base_pose().translation.vector;
+    let e1 = enc.read();
+    let wheel_travel: f64 = e1.angles.iter().zip(&e0.angles).map(|(x, y)| (x - y).abs()).sum::<f64>()
+        / e0.angles.len() as f64
+        * 0.16;
+    ((b - a).norm(), wheel_travel)
+}
+
+#[test]
+fn rover_slides_on_a_slope_steeper_than_its_friction_allows_and_not_on_a_gentler_one() {
+    // mu = 0.3 holds up to atan(0.3) = 16.7 degrees.
+    let (gentle, _) = slide(8.0, 0.3);
+    assert!(gentle < 0.02, "slid {gentle} m on 8 degrees");
+    let (steep, wheels) = slide(25.0, 0.3);
+    assert!(steep > 0.5, "slid only {steep} m on 25 degrees");
+    // The encoders see the slip: the wheels hardly turned while the rover slid.
+    assert!(wheels < 0.1 * steep, "wheels rolled {wheels} m of the {steep} m slide");
+}
+
+#[test]
+fn a_static_imu_reads_gravity_within_its_noise() {
+    let t = share(rover(flat(0.8), 0.0, 0.0, 0.3, Fidelity::Dynamic));
+    let (map, _) = devices(&t);
+    let mut imu = map.imu().unwrap();
+    t.lock().run_for(S(2.0));
+    let cfg = t.lock().config().imu.clone();
+    // Gravity as the IMU should sense it: the reaction pointing up, in the (slightly tilted) IMU frame.
+    let up = t.lock().link_pose("imu_link").unwrap().rotation.inverse() * Vector3::new(0.0, 0.0, 9.81);
+    let white = cfg.accel_noise_density * cfg.rate_hz.sqrt();
+    let bias = 4.0 * cfg.accel_bias_initial * 3f64.sqrt();
+    let mut mean = Vector3::zeros();
+    let mut mean_rate = Vector3::zeros();
+    let n = 200;
+    for _ in 0..n {
+        t.lock().run_for(S(1.0 / cfg.rate_hz));
+        let s = imu.read();
+        assert!((s.specific_force - up).norm() < bias + 5.0 * white * 3f64.sqrt(), "{s:?} vs {up}");
+        mean += s.specific_force / n as f64;
+        mean_rate += s.angular_rate / n as f64;
+    }
+    assert!((mean - up).norm() < bias + 5.0 * white * 3f64.sqrt() / (n as f64).sqrt(), "mean {mean} vs {up}");
+    assert!(mean_rate.norm() < 4.0 * cfg.gyro_bias_initial * 3f64.sqrt() + 0.002, "mean rate {mean_rate}");
+    assert!((imu.period() - 0.01).abs() < 1e-12);
+}
+
+fn arm_names(t: &Twin) -> Vec<String> {
+    t.group_joints("arm").unwrap()
+}
+
+#[test]
+fn mechanism_forward_kinematics_matches_the_physics_arm_within_one_millimetre() {
+    let mut t = rover(flat(0.8), 0.0, 0.0, 0.0, Fidelity::Dynamic);
+    t.run_for(S(1.0));
+    let mech = t.mechanism().clone();
+    let all: Vec<String> = mech.dof_names().iter().map(|s| s.to_string()).collect();
+    // Random configurations above the ground (shoulder pitched up, elbow bent), deterministic.
+    let mut seed = 12345u64;
+    let mut rnd = |lo: f64, hi: f64| {
+        seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        lo + (hi - lo) * ((seed >> 11) as f64 / (1u64 << 53) as f64)
+    };
+    for _ in 0..5 {
+        let q =
+            [rnd(-1.5, 1.5), rnd(-1.0, 0.1), rnd(-0.5, 1.2), rnd(-2.0, 2.0), rnd(-1.2, 1.2), rnd(-2.0, 2.0)];
+        let id = t.start_move("arm", &q, 1.0).unwrap();
+        assert!(t.run_until(S(15.0), |tw| tw.move_status(id) == MoveStatus::Done), "{:?}", t.move_status(id));
+        t.run_for(S(0.3));
+        let qm: Vec<f64> = t.joint_states(&all).iter().map(|s| s.position).collect();
+        let poses = mech.link_poses(&qm).unwrap();
+        let base = t.link_pose("base_link").unwrap();
+        for (i, l) in mech.links().iter().enumerate() {
+            if !l.name.starts_with("arm") && !l.name.starts_with("gripper") {
+                continue;
+            }
+            let phys = t.link_pose(&l.name).unwrap();
+            let err = (phys.translation.vector - (base * poses[i]).translation.vector).norm();
+            assert!(err < 1e-3, "{} off by {err} m at q={q:?}", l.name);
+        }
+        // And the servo reached its target.
+        for (a, b) in t.joint_states(&arm_names(&t)).iter().zip(q) {
+            assert!((a.position - b).abs() < 0.01, "{} at {} for {b}", a.name, a.position);
+        }
+    }
+}
+
+#[test]
+fn joint_limits_hold() {
+    let t = share(rover(flat(0.8), 0.0, 0.0, 0.0, Fidelity::Dynamic));
+    let (map, res) = devices(&t);
+    let mut ptu = map.joint_group("ptu").unwrap();
+    let tok = res.acquire("ptu", framework::message::ModuleId(1)).unwrap();
+    let lim = ptu.limits();
+    assert!(ptu.move_to(&tok, &[0.0, lim[1].upper + 0.1], 1.0).is_err(), "beyond the limit is refused");
+    let id = ptu.move_to(&tok, &[lim[0].upper, lim[1].upper], 1.0).unwrap();
+    let mut worst: f64 = 0.0;
+    for _ in 0..1200 {
+        t.lock().step();
+        for (s, l) in ptu.states().iter().zip(&lim) {
+            worst = worst.max(s.position - l.upper).max(l.lower - s.position);
+        }
+    }
+    assert_eq!(ptu.move_status(id), MoveStatus::Done);
+    assert!(worst < 0.01, "exceeded a limit by {worst} rad");
+    assert!(map.joint_group("tail").is_err());
+}
+
+#[test]
+fn moves_do_not_block_and_report_their_progress() {
+    let t = share(rover(flat(0.8), 0.0, 0.0, 0.0, Fidelity::Dynamic));
+    let (map, res) = devices(&t);
+    let mut ptu = map.joint_group("ptu").unwrap();
+    let tok = res.acquire("ptu", framework::message::ModuleId(1)).unwrap();
+    t.lock().run_for(S(0.5));
+    let id = ptu.move_to(&tok, &[1.0, 0.0], 0.5).unwrap();
+    // Forward processing: the call returned at once, the move goes on with simulated time.
+    let mut last = 0.0;
+    let mut reached_45 = None;
+    let mut steps = 0;
+    while !ptu.move_status(id).is_over() {
+        t.lock().step();
+        steps += 1;
+        let f = ptu.move_status(id).fraction();
+        assert!(f >= last - 0.02, "progress went back from {last} to {f}");
+        last = f;
+        if reached_45.is_none() && ptu.move_status(id).reached(0.45) {
+            reached_45 = Some(steps);
+            // Half-way the pan joint is really half-way.
+            let p = ptu.positions()[0];
+            assert!((0.4..0.6).contains(&p), "pan at {p} when 45% done");
+        }
+        assert!(steps < 2000, "move never finished");
+    }
+    assert_eq!(ptu.move_status(id), MoveStatus::Done);
+    assert!(reached_45.unwrap() < steps);
+    // About 2 s at half of a 1 rad/s limit (cubic profile), in simulated time.
+    let secs = steps as f64 * 0.005;
+    assert!((1.9..3.0).contains(&secs), "took {secs} s");
+    // A new move replaces the old one.
+    let a = ptu.move_to(&tok, &[-1.0, 0.0], 0.5).unwrap();
+    let b = ptu.move_to(&tok, &[0.0, 0.3], 0.5).unwrap();
+    assert_eq!(ptu.move_status(a), MoveStatus::Stopped);
+    assert!(matches!(ptu.move_status(b), MoveStatus::InProgress { .. }));
+}
+
+#[test]
+fn a_blocked_joint_faults_and_recovers_through_the_motor_state_machine() {
+    let t = share(rover(flat(0.8), 0.0, 0.0, 0.0, Fidelity::Dynamic));
+    let (map, res) = devices(&t);
+    let mut arm = map.joint_group("arm").unwrap();
+    let tok = res.acquire("arm", framework::message::ModuleId(1)).unwrap();
+    // Shoulder down into the ground: the arm is stopped by the terrain and stalls.
+    let id = arm.move_to(&tok, &[0.0, 1.5, 0.0, 0.0, 0.0, 0.0], 1.0).unwrap();
+    t.lock().run_for(S(6.0));
+    assert!(
+        matches!(arm.move_status(id), MoveStatus::Failed(ref r) if r.contains("FAULT")),
+        "{:?}",
+        arm.move_status(id)
+    );
+    let st = arm.states();
+    assert!(st.iter().all(|s| s.status.name() == "FAULT"), "{:?}", st[1].status);
+    assert!(matches!(arm.move_to(&tok, &[0.0; 6], 1.0), Err(framework::hal::DeviceError::Fault { .. })));
+    arm.recover(&tok).unwrap();
+    assert_eq!(arm.states()[1].status.name(), "RECOVERING");
+    t.lock().run_for(S(0.5));
+    assert!(arm.states()[1].status.name().ends_with("+SERVOING"));
+    let id = arm.move_to(&tok, &[0.0, -0.3, 0.3, 0.0, 0.0, 0.0], 1.0).unwrap();
+    t.lock().run_for(S(6.0));
+    assert_eq!(arm.move_status(id), MoveStatus::Done);
+}
+
+/// Rotation whose x axis points down and y axis is the base's y: the palm facing the ground.
+fn palm_down() -> UnitQuaternion<f64> {
+    let m = Matrix3::from_columns(&[Vector3::new(0.0, 0.0, -1.0), Vector3::y(), Vector3::new(1.0, 0.0, 0.0)]);
+    UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(m))
+}
+
+/// Grasps the canister placed 0.95 m ahead of the rover with the arm (inverse kinematics from the
+/// mechanism model) and lifts it. Returns the twin holding it.
+fn grasp(fidelity: Fidelity) -> Twin {
+    let mut t = rover(flat(0.8), 0.0, 0.0, 0.0, fidelity);
+    t.run_for(S(1.0));
+    let base = t.base_pose();
+    let ground = t.world().ground_height(0.95, 0.0);
+    t.place_canister(Isometry3::from_parts(
+        Translation3::new(0.95, 0.0, ground + 0.002),
+        UnitQuaternion::identity(),
+    ));
+    t.run_for(S(0.5));
+    let can = t.canister_truth().unwrap();
+    let handle_base = base.inverse() * (can * Isometry3::translation(0.0, 0.0, 0.1975));
+    let chain = t.mechanism().chain("base_link", "gripper_tcp").unwrap();
+    let ik = |z: f64, seed: &[f64]| {
+        let target = Isometry3::from_parts(
+            Translation3::from(handle_base.translation.vector + Vector3::new(0.0, 0.0, z)),
+            palm_down(),
+        );
+        chain.inverse(&target, seed, &IkOptions::default()).unwrap()
+    };
+    let above = ik(0.12, &[0.0, 0.3, 1.2, 0.0, 0.4, 0.0]);
+    let at = ik(0.0, &above);
+    let open = t.start_move("gripper", &[0.045, 0.045], 1.0).unwrap();
+    assert!(t.run_until(S(3.0), |tw| tw.move_status(open) == MoveStatus::Done));
+    for q in [&above, &at] {
+        let id = t.start_move("arm", q, 0.6).unwrap();
+        assert!(t.run_until(S(15.0), |tw| tw.move_status(id) == MoveStatus::Done), "{:?}", t.move_status(id));
+    }
+    let close = t.start_move("gripper", &[0.0, 0.0], 1.0).unwrap();
+    assert!(
+        t.run_until(S(4.0), |tw| tw.move_status(close) == MoveStatus::Done),
+        "{:?}",
+        t.move_status(close)
+    );
+    assert!(t.holding_canister(), "gripper did not latch the handle");
+    let up = t.start_move("arm", &above, 0.5).unwrap();
+    assert!(t.run_until(S(15.0), |tw| tw.move_status(up) == MoveStatus::Done));
+    let lifted = t.canister_truth().unwrap().translation.vector.z - ground;
+    assert!(lifted > 0.08, "canister only {lifted} m off the ground");
+    t
+}
+
+#[test]
+fn a_grasped_canister_stays_in_the_gripper_during_a_two_metre_drive() {
+    let mut t = grasp(Fidelity::Dynamic);
+    let palm = |t: &Twin| t.link_pose("gripper_palm").unwrap();
+    let rel0 = palm(&t).inverse() * t.canister_truth().unwrap();
+    let start = t.base_pose().translation.vector;
+    let rates = t.locomotor_model().wheel_rates(BodyTwist { v: 0.25, omega: 0.0 }).unwrap();
+    t.set_wheel_rates(&rates);
+    let mut worst: f64 = 0.0;
+    while (t.base_pose().translation.vector - start).xy().norm() < 2.0 {
+        t.step();
+        let rel = palm(&t).inverse() * t.canister_truth().unwrap();
+        worst = worst.max((rel.translation.vector - rel0.translation.vector).norm());
+        assert!(t.time().as_secs_f64() < 60.0, "drive did not cover 2 m");
+    }
+    assert!(t.holding_canister());
+    assert!(worst < 0.01, "canister moved {worst} m in the gripper");
+}
+
+#[test]
+fn a_stowed_canister_stays_in_its_slot_over_rough_ground() {
+    let w = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
+    let mut t = rover(w, -12.0, -12.0, std::f64::consts::FRAC_PI_4, Fidelity::Dynamic);
+    t.run_for(S(0.5));
+    let slot = t.link_pose("stow_slot").unwrap();
+    t.place_canister(slot * Isometry3::translation(0.0, 0.0, 0.003));
+    t.run_for(S(1.0));
+    let rates = t.locomotor_model().wheel_rates(BodyTwist { v: 0.25, omega: 0.05 }).unwrap();
+    t.set_wheel_rates(&rates);
+    let start = t.base_pose().translation.vector;
+    let mut worst: f64 = 0.0;
+    while (t.base_pose().translation.vector - start).xy().norm() < 5.0 {
+        t.step();
+        let rel = t.link_pose("stow_slot").unwrap().inverse() * t.canister_truth().unwrap();
+        worst = worst.max(rel.translation.vector.xy().norm());
+        assert!(
+            rel.translation.vector.z < 0.05,
+            "canister lifted {} m out of the slot",
+            rel.translation.vector.z
+        );
+        assert!(t.time().as_secs_f64() < 60.0, "drive did not cover 5 m");
+    }
+    // The cradle leaves 2 cm of play on each side.
+    assert!(worst < 0.03, "canister wandered {worst} m in its slot");
+}
+
+#[test]
+fn two_runs_of_5000_steps_with_the_same_inputs_end_in_identical_states() {
+    let run = || {
+        let w = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
+        let mut t = rover(w, -12.0, -12.0, 0.7, Fidelity::Dynamic);
+        for k in 0..5000 {
+            if k == 100 {
+                let r = t.locomotor_model().wheel_rates(BodyTwist { v: 0.2, omega: 0.1 }).unwrap();
+                t.set_wheel_rates(&r);
+                t.start_move("arm", &[0.3, -0.4, 0.8, 0.2, 0.3, -0.5], 0.5).unwrap();
+            }
+            if k == 2500 {
+                t.start_move("ptu", &[0.8, 0.4], 0.7).unwrap();
+            }
+            t.step();
+        }
+        t.state_digest()
+    };
+    let (a, b) = (run(), run());
+    assert_eq!(a.len(), b.len());
+    assert!(a == b, "states differ");
+}
+
+#[test]
+fn kinematic_mode_follows_the_commanded_motion_settled_on_the_terrain() {
+    let mut t = rover(flat(0.8), 0.0, 0.0, 0.0, Fidelity::Kinematic);
+    let r = t.locomotor_model().wheel_rates(BodyTwist { v: 0.2, omega: 0.0 }).unwrap();
+    t.set_wheel_rates(&r);
+    t.run_for(S(10.0));
+    let p = t.base_pose().translation.vector;
+    assert!((p.x - 2.0).abs() < 1e-6 && p.y.abs() < 1e-9, "{p}");
+    // A quarter turn on the spot.
+    let r = t.locomotor_model().wheel_rates(BodyTwist { v: 0.0, omega: 0.25 }).unwrap();
+    t.set_wheel_rates(&r);
+    t.run_for(S(std::f64::consts::PI * 2.0));
+    let yaw = t.base_pose().rotation.euler_angles().2;
+    assert!((yaw - std::f64::consts::FRAC_PI_2).abs() < 1e-3, "yaw {yaw}");
+
+    let w = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
+    let mut t = rover(w, -12.0, -12.0, 0.5, Fidelity::Kinematic);
+    let r = t.locomotor_model().wheel_rates(BodyTwist { v: 0.3, omega: 0.02 }).unwrap();
+    t.set_wheel_rates(&r);
+    for _ in 0..20 {
+        t.run_for(S(1.0));
+        // Every wheel rests on the ground (within the fit of a plane to four points).
+        for w in ["wheel_front_left", "wheel_front_right", "wheel_rear_left", "wheel_rear_right"] {
+            let c = t.link_pose(w).unwrap().translation.vector;
+            let gap = c.z - 0.16 - t.world().ground_height(c.x, c.y);
+            assert!(gap.abs() < 0.03, "{w} {gap} m off the ground");
+        }
+    }
+    // The arm and the canister work kinematically too.
+    let t = grasp(Fidelity::Kinematic);
+    assert!(t.holding_canister());
+}
+
+#[test]
+fn ground_truth_covers_every_link_the_canister_and_contacts() {
+    let mut t = rover(
+        World::load(worlds::worlds_dir().join("flat_yard.toml")).unwrap(),
+        0.0,
+        0.0,
+        0.0,
+        Fidelity::Dynamic,
+    );
+    t.run_for(S(1.0));
+    let gt = t.ground_truth();
+    assert_eq!(gt.bodies.len(), t.mechanism().links().len() + 1);
+    assert!(gt.body("canister").is_some() && gt.body("tof_left_optical").is_some());
+    let wheel_contacts =
+        gt.contacts.iter().filter(|c| c.a.starts_with("wheel") || c.b.starts_with("wheel")).count();
+    assert_eq!(wheel_contacts, 4, "{:?}", gt.contacts);
+    assert!(gt.contacts.iter().any(|c| c.a.starts_with("canister") || c.b.starts_with("canister")));
+    assert_eq!(gt.collisions, 0);
+}

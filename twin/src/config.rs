@@ -64,6 +64,18 @@ pub struct WheelConfig {
     pub position_gain: f64,
     /// Tread friction coefficient.
     pub friction: f64,
+    /// Collision shape of the wheels against the ground.
+    pub contact_shape: WheelShape,
+}
+
+/// Collision shape of a wheel.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WheelShape {
+    /// The wheel's cylinder with rounded edges (2 cm).
+    RoundCylinder,
+    /// A ball of the wheel's radius: a round tyre; contacts cost a fraction of the cylinder's.
+    Ball,
 }
 
 /// Rocker suspension spring.

@@ -485,8 +485,9 @@ impl Twin {
                 }
             }
         }
-        // Wheels: the loader makes plain cylinders; rounded-edge cylinders roll smoothly on the
-        // heightfield's triangles (plain cylinder contacts chatter).
+        // Wheels: the loader makes plain cylinders, whose contacts with the heightfield's triangles
+        // chatter; the contact shape is a rounded-edge cylinder or, cheaper, a ball of the wheel's
+        // radius (config `wheels.contact_shape`).
         for (name, lh) in link_names.iter().zip(&handles.links) {
             if !name.starts_with("wheel_") {
                 continue;
@@ -498,8 +499,12 @@ impl Twin {
                 let pos = *old.position_wrt_parent().unwrap_or(&Pose::IDENTITY);
                 ph.colliders.remove(ch.handle, &mut ph.islands, &mut ph.bodies, &mut ph.soft_bodies, false);
                 let border = 0.02f32;
-                let b =
-                    ColliderBuilder::round_cylinder(cyl.half_height - border, cyl.radius - border, border);
+                let b = match c.wheels.contact_shape {
+                    crate::config::WheelShape::RoundCylinder => {
+                        ColliderBuilder::round_cylinder(cyl.half_height - border, cyl.radius - border, border)
+                    }
+                    crate::config::WheelShape::Ball => ColliderBuilder::ball(cyl.radius),
+                };
                 ph.colliders.insert_with_parent(
                     b.position(pos)
                         .density(0.0)

@@ -177,6 +177,31 @@ struct KinState {
     twist: BodyTwist,
 }
 
+impl KinState {
+    fn at(start: StartPose) -> Self {
+        KinState {
+            x: start.x,
+            y: start.y,
+            yaw: start.yaw,
+            base: Isometry3::identity(),
+            prev_base: Isometry3::identity(),
+            prev_vel: Vector3::zeros(),
+            twist: BodyTwist::default(),
+        }
+    }
+}
+
+/// Height of the canister's handle centre above its base, m (`assets/canister/canister.urdf`).
+const HANDLE_HEIGHT: f64 = 0.1975;
+
+/// Pose of a placed object on the ground, lifted by `lift`.
+fn object_pose(o: &worlds::PlacedObject, lift: f64) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::new(o.position.x, o.position.y, o.position.z + lift),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), o.yaw),
+    )
+}
+
 enum Engine {
     Dynamic(Box<Physics>),
     Kinematic(KinState),
@@ -251,15 +276,7 @@ impl Twin {
             mech,
             locomotor,
             fidelity,
-            engine: Engine::Kinematic(KinState {
-                x: start.x,
-                y: start.y,
-                yaw: start.yaw,
-                base: Isometry3::identity(),
-                prev_base: Isometry3::identity(),
-                prev_vel: Vector3::zeros(),
-                twist: BodyTwist::default(),
-            }),
+            engine: Engine::Kinematic(KinState::at(start)),
             time: Time::ZERO,
             dt,
             links: Vec::new(),
@@ -433,10 +450,7 @@ impl Twin {
                 ObjectKind::MarkerTable => Vector3::new(0.5, 0.3, 0.4),
                 ObjectKind::Canister => continue,
             };
-            let pose = Isometry3::from_parts(
-                Translation3::new(o.position.x, o.position.y, o.position.z + half.z),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), o.yaw),
-            );
+            let pose = object_pose(&o, half.z);
             let tag = self.tag(o.name.clone(), false, false, false);
             ph.colliders.insert(
                 ColliderBuilder::cuboid(half.x as f32, half.y as f32, half.z as f32)
@@ -591,10 +605,7 @@ impl Twin {
 
         // The canister, dynamic.
         if let Some(o) = self.world.objects.iter().find(|o| o.kind == ObjectKind::Canister).cloned() {
-            let pose = Isometry3::from_parts(
-                Translation3::new(o.position.x, o.position.y, o.position.z + 0.003),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), o.yaw),
-            );
+            let pose = object_pose(&o, 0.003);
             let body = ph.bodies.insert(
                 RigidBodyBuilder::dynamic().pose(pose_to_rapier(&pose)).can_sleep(false).ccd_enabled(true),
             );
@@ -603,7 +614,7 @@ impl Twin {
                 ("canister_box", [0.05, 0.05, 0.075], [0.0, 0.0, 0.075]),
                 ("canister_post_front", [0.0075, 0.0075, 0.02], [0.035, 0.0, 0.17]),
                 ("canister_post_back", [0.0075, 0.0075, 0.02], [-0.035, 0.0, 0.17]),
-                ("canister_handle", [0.0425, 0.01, 0.0075], [0.0, 0.0, 0.1975]),
+                ("canister_handle", [0.0425, 0.01, 0.0075], [0.0, 0.0, HANDLE_HEIGHT]),
             ];
             for (i, (name, h, p)) in parts.iter().enumerate() {
                 let tag = self.tag(name.to_string(), false, false, false);
@@ -622,7 +633,7 @@ impl Twin {
             self.canister = Some(Canister {
                 body: Some(body),
                 pose,
-                handle_offset: Isometry3::translation(0.0, 0.0, 0.1975),
+                handle_offset: Isometry3::translation(0.0, 0.0, HANDLE_HEIGHT),
             });
         }
         self.engine = Engine::Dynamic(Box::new(ph));
@@ -637,22 +648,13 @@ impl Twin {
             .map(|i| LinkSource::Attached { body: RigidBodyHandle::invalid(), offset: poses[i] })
             .collect();
         if let Some(o) = self.world.objects.iter().find(|o| o.kind == ObjectKind::Canister) {
-            let pose = Isometry3::from_parts(
-                Translation3::new(o.position.x, o.position.y, o.position.z),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), o.yaw),
-            );
-            self.canister =
-                Some(Canister { body: None, pose, handle_offset: Isometry3::translation(0.0, 0.0, 0.1975) });
+            self.canister = Some(Canister {
+                body: None,
+                pose: object_pose(o, 0.0),
+                handle_offset: Isometry3::translation(0.0, 0.0, HANDLE_HEIGHT),
+            });
         }
-        let mut k = KinState {
-            x: start.x,
-            y: start.y,
-            yaw: start.yaw,
-            base: Isometry3::identity(),
-            prev_base: Isometry3::identity(),
-            prev_vel: Vector3::zeros(),
-            twist: BodyTwist::default(),
-        };
+        let mut k = KinState::at(start);
         k.base = self.settle(k.x, k.y, k.yaw);
         k.prev_base = k.base;
         self.engine = Engine::Kinematic(k);

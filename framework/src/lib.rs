@@ -21,6 +21,7 @@
 //! under the [`executor::LockstepExecutor`] are deterministic.
 
 pub mod blackboard;
+pub mod camera;
 pub mod clock;
 pub mod config;
 pub mod console;

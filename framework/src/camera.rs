@@ -1,0 +1,231 @@
+//! Camera models and images: the data interface between sensors (real or rendered) and perception.
+//!
+//! A [`CameraModel`] is a pinhole with Brown-Conrady distortion (radial k1, k2, k3 and tangential
+//! p1, p2), in the camera's optical frame: z forward, x right, y down (the URDF `*_optical` links).
+//! Pixels are (u, v) with (0, 0) at the top-left corner of the top-left pixel, so the centre of pixel
+//! (i, j) is at (i + 0.5, j + 0.5). Depth images hold the z coordinate in metres (NaN: no return).
+
+use crate::time::Time;
+use nalgebra::{Point2, Point3, Vector2};
+use serde::{Deserialize, Serialize};
+
+/// Pinhole intrinsics.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Pinhole {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Focal length along u, pixels.
+    pub fx: f64,
+    /// Focal length along v, pixels.
+    pub fy: f64,
+    /// Principal point u, pixels.
+    pub cx: f64,
+    /// Principal point v, pixels.
+    pub cy: f64,
+}
+
+/// Lens distortion (Brown-Conrady).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Distortion {
+    /// Radial coefficients.
+    pub k1: f64,
+    /// Radial coefficients.
+    pub k2: f64,
+    /// Radial coefficients.
+    pub k3: f64,
+    /// Tangential coefficients.
+    pub p1: f64,
+    /// Tangential coefficients.
+    pub p2: f64,
+}
+
+impl Distortion {
+    /// True when there is no distortion.
+    pub fn is_zero(&self) -> bool {
+        *self == Distortion::default()
+    }
+    /// Distorts normalized image coordinates.
+    pub fn distort(&self, p: Vector2<f64>) -> Vector2<f64> {
+        let (x, y) = (p.x, p.y);
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (self.k1 + r2 * (self.k2 + r2 * self.k3));
+        Vector2::new(
+            x * radial + 2.0 * self.p1 * x * y + self.p2 * (r2 + 2.0 * x * x),
+            y * radial + self.p1 * (r2 + 2.0 * y * y) + 2.0 * self.p2 * x * y,
+        )
+    }
+    /// Inverts [`Distortion::distort`] by fixed-point iteration.
+    pub fn undistort(&self, d: Vector2<f64>) -> Vector2<f64> {
+        let mut p = d;
+        for _ in 0..20 {
+            let e = self.distort(p) - d;
+            p -= e;
+            if e.norm() < 1e-12 {
+                break;
+            }
+        }
+        p
+    }
+}
+
+/// A camera: intrinsics, distortion, and the optical frame it sees from.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraModel {
+    /// Intrinsics.
+    pub pinhole: Pinhole,
+    /// Distortion.
+    pub distortion: Distortion,
+    /// Name of the optical frame (a link of the robot description).
+    pub frame: String,
+}
+
+impl CameraModel {
+    /// An undistorted camera of `width` x `height` pixels with horizontal field of view `hfov` (rad)
+    /// and square pixels, principal point at the centre.
+    pub fn from_hfov(width: u32, height: u32, hfov: f64, frame: &str) -> Self {
+        let fx = width as f64 / 2.0 / (hfov / 2.0).tan();
+        CameraModel {
+            pinhole: Pinhole { width, height, fx, fy: fx, cx: width as f64 / 2.0, cy: height as f64 / 2.0 },
+            distortion: Distortion::default(),
+            frame: frame.to_string(),
+        }
+    }
+    /// Horizontal and vertical fields of view, rad (of the undistorted pinhole).
+    pub fn fov(&self) -> (f64, f64) {
+        let p = &self.pinhole;
+        (2.0 * (p.width as f64 / 2.0 / p.fx).atan(), 2.0 * (p.height as f64 / 2.0 / p.fy).atan())
+    }
+    /// Projects a point of the optical frame to pixel coordinates; None behind the camera.
+    pub fn project(&self, p: &Point3<f64>) -> Option<Point2<f64>> {
+        if p.z <= 1e-9 {
+            return None;
+        }
+        let n = self.distortion.distort(Vector2::new(p.x / p.z, p.y / p.z));
+        let k = &self.pinhole;
+        Some(Point2::new(k.fx * n.x + k.cx, k.fy * n.y + k.cy))
+    }
+    /// True when pixel coordinates fall inside the image.
+    pub fn contains(&self, uv: &Point2<f64>) -> bool {
+        uv.x >= 0.0 && uv.y >= 0.0 && uv.x < self.pinhole.width as f64 && uv.y < self.pinhole.height as f64
+    }
+    /// The normalized ray (z = 1) through pixel coordinates.
+    pub fn ray(&self, uv: &Point2<f64>) -> Vector2<f64> {
+        let k = &self.pinhole;
+        self.distortion.undistort(Vector2::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy))
+    }
+    /// The point at depth `z` (optical-frame z, m) seen at pixel coordinates.
+    pub fn unproject(&self, uv: &Point2<f64>, z: f64) -> Point3<f64> {
+        let r = self.ray(uv);
+        Point3::new(r.x * z, r.y * z, z)
+    }
+}
+
+/// A rectified stereo pair: identical cameras, the right one `baseline` metres along the left's +x.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StereoModel {
+    /// Left camera.
+    pub left: CameraModel,
+    /// Right camera.
+    pub right: CameraModel,
+    /// Baseline, m.
+    pub baseline: f64,
+}
+
+impl StereoModel {
+    /// Disparity (pixels) of a point at depth `z`: f B / Z.
+    pub fn disparity(&self, z: f64) -> f64 {
+        self.left.pinhole.fx * self.baseline / z
+    }
+    /// Depth of a disparity.
+    pub fn depth(&self, disparity: f64) -> f64 {
+        self.left.pinhole.fx * self.baseline / disparity
+    }
+}
+
+/// A greyscale image, row-major, 8 bits.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GreyImage {
+    /// Acquisition time.
+    pub stamp: Time,
+    /// Optical frame.
+    pub frame: String,
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Pixels, `data[v * width + u]`.
+    pub data: Vec<u8>,
+}
+
+impl GreyImage {
+    /// Pixel value.
+    pub fn at(&self, u: u32, v: u32) -> u8 {
+        self.data[(v * self.width + u) as usize]
+    }
+}
+
+/// A depth image: optical-frame z in metres, NaN where there is no valid return.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DepthImage {
+    /// Acquisition time.
+    pub stamp: Time,
+    /// Optical frame.
+    pub frame: String,
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Depths, m, `data[v * width + u]`.
+    pub data: Vec<f32>,
+}
+
+impl DepthImage {
+    /// Depth at a pixel (NaN if invalid).
+    pub fn at(&self, u: u32, v: u32) -> f32 {
+        self.data[(v * self.width + u) as usize]
+    }
+    /// Number of valid pixels.
+    pub fn valid(&self) -> usize {
+        self.data.iter().filter(|d| d.is_finite()).count()
+    }
+}
+
+/// A Time-of-Flight frame: depth, amplitude and the point cloud in the camera's optical frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TofFrame {
+    /// Depth (z) image.
+    pub depth: DepthImage,
+    /// Amplitude image (arbitrary units, 0 where invalid).
+    pub amplitude: Vec<u16>,
+    /// Valid points, optical frame, m.
+    pub points: Vec<Point3<f32>>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn projection_round_trip_with_distortion() {
+        let mut c = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "cam");
+        c.distortion = Distortion { k1: -0.2, k2: 0.05, k3: 0.0, p1: 0.001, p2: -0.0005 };
+        let p = Point3::new(0.3, -0.2, 2.0);
+        let uv = c.project(&p).unwrap();
+        let back = c.unproject(&uv, 2.0);
+        assert!((back - p).norm() < 1e-9, "{back} vs {p}");
+        assert!(c.project(&Point3::new(0.0, 0.0, -1.0)).is_none());
+        let (h, v) = c.fov();
+        assert!((h - 60f64.to_radians()).abs() < 1e-12 && v < h);
+    }
+
+    #[test]
+    fn stereo_disparity_is_f_b_over_z() {
+        let cam = CameraModel::from_hfov(640, 480, 1.0, "l");
+        let s = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
+        let d = s.disparity(4.0);
+        assert!((d - s.left.pinhole.fx * 0.25 / 4.0).abs() < 1e-12);
+        assert!((s.depth(d) - 4.0).abs() < 1e-12);
+    }
+}

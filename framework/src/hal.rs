@@ -333,6 +333,28 @@ pub fn check_token(
     Ok(())
 }
 
+/// A rectified stereo camera pair.
+pub trait StereoCamera: Send {
+    /// Device name.
+    fn device(&self) -> &str;
+    /// The pair's model (intrinsics, baseline, optical frames).
+    fn model(&self) -> &crate::camera::StereoModel;
+    /// The latest pair of images; a new one is acquired only when the camera's period has passed.
+    fn capture(&mut self) -> Result<(crate::camera::GreyImage, crate::camera::GreyImage), DeviceError>;
+}
+
+/// A Time-of-Flight depth camera.
+pub trait TofCamera: Send {
+    /// Device name.
+    fn device(&self) -> &str;
+    /// The camera model.
+    fn model(&self) -> &crate::camera::CameraModel;
+    /// Range limits, m.
+    fn range_limits(&self) -> (f64, f64);
+    /// The latest frame; a new one is acquired only when the camera's period has passed.
+    fn capture(&mut self) -> Result<crate::camera::TofFrame, DeviceError>;
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

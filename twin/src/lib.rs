@@ -12,6 +12,7 @@
 pub mod config;
 pub mod convert;
 pub mod devices;
+pub mod render;
 pub mod sim;
 pub mod truth;
 

@@ -1,0 +1,670 @@
+//! The GPU side of the sensor renderer: a headless wgpu device, pipelines drawing textured, lit
+//! triangle meshes into an RGBA8 color target and an R32Uint target holding the optical-axis distance
+//! in metres (an f32 bit-cast: GL can neither copy depth textures nor render to R32Float, so this
+//! works on every backend), and the readback of both.
+//!
+//! Two fragment programs share the geometry: `fs_main` (passive cameras lit by the sun) and `fs_tof`
+//! (a Time-of-Flight camera lit by its own emitter: amplitude falls with the square of the range and
+//! the cosine of incidence, which it writes with that cosine for the sensor model to use).
+//!
+//! Adapter choice: the GPU when there is one, Mesa's software Vulkan (lavapipe) otherwise; the
+//! environment variable `WGPU_BACKEND` (`vulkan`, `gl`) forces a backend.
+
+use std::borrow::Cow;
+use std::mem::size_of;
+use std::sync::mpsc;
+
+use bytemuck::{Pod, Zeroable};
+use wgpu::util::DeviceExt;
+
+/// Why the renderer could not start or draw.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// No adapter: no GPU driver and no software Vulkan.
+    #[error(
+        "no graphics adapter found ({0}): install Mesa's software Vulkan driver (Debian/Ubuntu packages \
+         libvulkan1 and mesa-vulkan-drivers; scripts/setup.sh does it) or a GPU driver"
+    )]
+    NoAdapter(String),
+    /// The device or a pipeline could not be created, or a frame could not be read back.
+    #[error("renderer: {0}")]
+    Gpu(String),
+}
+
+type BoxErr = RenderError;
+
+const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Stride between per-object uniforms; 256 = the default `min_uniform_buffer_offset_alignment`.
+const OBJECT_STRIDE: u64 = 256;
+const MAX_OBJECTS: u64 = 512;
+
+const SHADER: &str = r#"
+struct Globals {
+    view_proj: mat4x4<f32>,
+    cam_pos: vec4<f32>,
+    cam_fwd: vec4<f32>,     // unit optical axis (world frame)
+    light_dir: vec4<f32>,   // xyz: unit vector towards the light, w: ambient term
+}
+struct Object {
+    model: mat4x4<f32>,
+    tint: vec4<f32>,
+}
+
+@group(0) @binding(0) var<uniform> globals: Globals;
+@group(1) @binding(0) var albedo_tex: texture_2d<f32>;
+@group(1) @binding(1) var albedo_smp: sampler;
+@group(2) @binding(0) var<uniform> object: Object;
+
+struct VsIn {
+    @location(0) position: vec3<f32>,
+    @location(1) normal: vec3<f32>,
+    @location(2) uv: vec2<f32>,
+}
+struct VsOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) normal: vec3<f32>,
+    @location(1) uv: vec2<f32>,
+    @location(2) axis_dist: f32,
+    @location(3) world: vec3<f32>,
+}
+
+@vertex
+fn vs_main(v: VsIn) -> VsOut {
+    let world = object.model * vec4<f32>(v.position, 1.0);
+    var out: VsOut;
+    out.clip = globals.view_proj * world;
+    out.normal = (object.model * vec4<f32>(v.normal, 0.0)).xyz;
+    out.uv = v.uv;
+    out.axis_dist = dot(world.xyz - globals.cam_pos.xyz, globals.cam_fwd.xyz);
+    out.world = world.xyz;
+    return out;
+}
+
+struct FsOut {
+    @location(0) color: vec4<f32>,
+    @location(1) range_m: u32,
+}
+
+@fragment
+fn fs_main(f: VsOut) -> FsOut {
+    let base = textureSample(albedo_tex, albedo_smp, f.uv) * object.tint;
+    let n = normalize(f.normal);
+    let diffuse = max(dot(n, globals.light_dir.xyz), 0.0);
+    let ambient = globals.light_dir.w;
+    var out: FsOut;
+    out.color = vec4<f32>(base.rgb * (ambient + (1.0 - ambient) * diffuse), 1.0);
+    out.range_m = bitcast<u32>(f.axis_dist);
+    return out;
+}
+
+@fragment
+fn fs_tof(f: VsOut) -> FsOut {
+    let base = textureSample(albedo_tex, albedo_smp, f.uv) * object.tint;
+    let albedo = dot(base.rgb, vec3<f32>(0.299, 0.587, 0.114));
+    let to_cam = globals.cam_pos.xyz - f.world;
+    let d2 = max(dot(to_cam, to_cam), 1e-4);
+    let cos_i = max(dot(normalize(f.normal), to_cam * inverseSqrt(d2)), 0.0);
+    var out: FsOut;
+    // Amplitude relative to a white target facing the camera at 1 m, over 4 (8-bit headroom).
+    out.color = vec4<f32>(clamp(albedo * cos_i / d2 / 4.0, 0.0, 1.0), cos_i, 0.0, 1.0);
+    out.range_m = bitcast<u32>(f.axis_dist);
+    return out;
+}
+"#;
+
+/// Which fragment program a frame uses.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+pub enum Shading {
+    /// Sunlit scene for passive cameras.
+    Sun,
+    /// Active illumination from the camera (Time-of-Flight): color.r = amplitude / 4, color.g = cos i.
+    Tof,
+}
+
+/// Mesh vertex.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct Vertex {
+    /// Position in the object frame (m).
+    pub position: [f32; 3],
+    /// Unit normal in the object frame.
+    pub normal: [f32; 3],
+    /// Texture coordinates.
+    pub uv: [f32; 2],
+}
+
+const VERTEX_ATTRS: [wgpu::VertexAttribute; 3] =
+    wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2];
+
+/// Per-frame uniforms (group 0). Matrices are column-major.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct Globals {
+    /// Projection * view.
+    pub view_proj: [[f32; 4]; 4],
+    /// Camera position (w unused).
+    pub cam_pos: [f32; 4],
+    /// Unit optical axis (w unused).
+    pub cam_fwd: [f32; 4],
+    /// Direction towards the light in xyz, ambient term in w.
+    pub light_dir: [f32; 4],
+}
+
+/// Per-draw uniforms (group 2, dynamic offset).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+pub struct ObjectUniform {
+    /// Object-to-world transform.
+    pub model: [[f32; 4]; 4],
+    /// Multiplies the albedo.
+    pub tint: [f32; 4],
+}
+
+/// Vertex and index buffers of one mesh.
+pub struct Mesh {
+    vertices: wgpu::Buffer,
+    indices: wgpu::Buffer,
+    index_count: u32,
+}
+
+/// One draw: a mesh, its texture bind group (group 1) and its transform.
+pub struct Draw<'a> {
+    /// Geometry.
+    pub mesh: &'a Mesh,
+    /// Bind group made by [`Renderer::create_texture`].
+    pub texture: &'a wgpu::BindGroup,
+    /// Transform and tint.
+    pub object: ObjectUniform,
+}
+
+/// One rendered frame, rows tightly packed, row 0 at the top.
+pub struct Frame {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// RGBA8, `width * height * 4` bytes.
+    pub rgba: Vec<u8>,
+    /// Distance along the optical axis in metres; 0.0 where nothing was hit.
+    pub range_m: Vec<f32>,
+}
+
+struct Targets {
+    width: u32,
+    height: u32,
+    padded_bytes_per_row: u32,
+    range_offset: u64,
+    color: wgpu::Texture,
+    color_view: wgpu::TextureView,
+    range: wgpu::Texture,
+    range_view: wgpu::TextureView,
+    depth_view: wgpu::TextureView,
+    readback: wgpu::Buffer,
+}
+
+/// Owns the device, the pipeline and the offscreen targets.
+pub struct Renderer {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    /// Adapter that was picked (log it: name, backend, driver).
+    pub adapter_info: wgpu::AdapterInfo,
+    pipeline: wgpu::RenderPipeline,
+    tof_pipeline: wgpu::RenderPipeline,
+    globals_buf: wgpu::Buffer,
+    globals_bg: wgpu::BindGroup,
+    objects_buf: wgpu::Buffer,
+    objects_bg: wgpu::BindGroup,
+    texture_bgl: wgpu::BindGroupLayout,
+    sampler: wgpu::Sampler,
+    targets: std::collections::BTreeMap<(u32, u32), Targets>,
+}
+
+impl Renderer {
+    /// Opens a device without a window. `WGPU_BACKEND=vulkan|gl` overrides the backend choice.
+    pub fn new() -> Result<Self, BoxErr> {
+        let mut instance_desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        instance_desc.backends =
+            wgpu::Backends::from_env().unwrap_or(wgpu::Backends::VULKAN | wgpu::Backends::GL);
+        instance_desc.flags = wgpu::InstanceFlags::from_build_config().with_env();
+        let instance = wgpu::Instance::new(instance_desc);
+
+        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
+            force_fallback_adapter: false,
+            compatible_surface: None,
+            apply_limit_buckets: false,
+        }))
+        .map_err(|e| RenderError::NoAdapter(e.to_string()))?;
+        let adapter_info = adapter.get_info();
+
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("offscreen"),
+            required_features: wgpu::Features::empty(),
+            required_limits: adapter.limits(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| RenderError::Gpu(e.to_string()))?;
+
+        // Turn shader/pipeline validation errors into a Result instead of the default panic.
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+
+        let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("scene.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADER)),
+        });
+
+        let globals_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("globals"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: wgpu::BufferSize::new(size_of::<Globals>() as u64),
+                },
+                count: None,
+            }],
+        });
+        let texture_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("albedo"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Float { filterable: true },
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Filtering),
+                    count: None,
+                },
+            ],
+        });
+        let object_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("object"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::VERTEX_FRAGMENT,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(size_of::<ObjectUniform>() as u64),
+                },
+                count: None,
+            }],
+        });
+
+        let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("scene"),
+            bind_group_layouts: &[Some(&globals_bgl), Some(&texture_bgl), Some(&object_bgl)],
+            immediate_size: 0,
+        });
+
+        let make_pipeline = |entry: &str| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("scene"),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: wgpu::PipelineCompilationOptions::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: size_of::<Vertex>() as u64,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &VERTEX_ATTRS,
+                    })],
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    strip_index_format: None,
+                    front_face: wgpu::FrontFace::Ccw,
+                    cull_mode: Some(wgpu::Face::Back),
+                    unclipped_depth: false,
+                    polygon_mode: wgpu::PolygonMode::Fill,
+                    conservative: false,
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: DEPTH_FORMAT,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: wgpu::StencilState::default(),
+                    bias: wgpu::DepthBiasState::default(),
+                }),
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some(entry),
+                    compilation_options: wgpu::PipelineCompilationOptions::default(),
+                    // Same blend/write_mask on both targets: no INDEPENDENT_BLEND needed on GL.
+                    targets: &[
+                        Some(wgpu::ColorTargetState {
+                            format: COLOR_FORMAT,
+                            blend: None,
+                            write_mask: wgpu::ColorWrites::ALL,
+                        }),
+                        Some(wgpu::ColorTargetState {
+                            format: RANGE_FORMAT,
+                            blend: None,
+                            write_mask: wgpu::ColorWrites::ALL,
+                        }),
+                    ],
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let pipeline = make_pipeline("fs_main");
+        let tof_pipeline = make_pipeline("fs_tof");
+
+        if let Some(err) = pollster::block_on(scope.pop()) {
+            return Err(RenderError::Gpu(format!("pipeline creation failed: {err}")));
+        }
+
+        let globals_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("globals"),
+            size: size_of::<Globals>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let globals_bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("globals"),
+            layout: &globals_bgl,
+            entries: &[wgpu::BindGroupEntry { binding: 0, resource: globals_buf.as_entire_binding() }],
+        });
+        let objects_buf = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("objects"),
+            size: OBJECT_STRIDE * MAX_OBJECTS,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let objects_bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("objects"),
+            layout: &object_bgl,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &objects_buf,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(size_of::<ObjectUniform>() as u64),
+                }),
+            }],
+        });
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("albedo"),
+            address_mode_u: wgpu::AddressMode::Repeat,
+            address_mode_v: wgpu::AddressMode::Repeat,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Nearest,
+            ..Default::default()
+        });
+
+        let targets = Default::default();
+        Ok(Self {
+            device,
+            queue,
+            adapter_info,
+            pipeline,
+            tof_pipeline,
+            globals_buf,
+            globals_bg,
+            objects_buf,
+            objects_bg,
+            texture_bgl,
+            sampler,
+            targets,
+        })
+    }
+
+    /// Uploads an RGBA8 image (terrain albedo, marker) and returns its group-1 bind group.
+    pub fn create_texture(&self, width: u32, height: u32, rgba: &[u8]) -> wgpu::BindGroup {
+        let size = wgpu::Extent3d { width, height, depth_or_array_layers: 1 };
+        let texture = self.device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("albedo"),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: wgpu::TextureFormat::Rgba8Unorm,
+            usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        });
+        self.queue.write_texture(
+            wgpu::TexelCopyTextureInfo {
+                texture: &texture,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            rgba,
+            wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(4 * width), // no 256 alignment needed for write_texture
+                rows_per_image: Some(height),
+            },
+            size,
+        );
+        let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("albedo"),
+            layout: &self.texture_bgl,
+            entries: &[
+                wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+                wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(&self.sampler) },
+            ],
+        })
+    }
+
+    /// Uploads a triangle mesh (must not be empty: `set_vertex_buffer` panics on empty slices).
+    pub fn create_mesh(&self, vertices: &[Vertex], indices: &[u32]) -> Mesh {
+        let vertices_buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("vertices"),
+            contents: bytemuck::cast_slice(vertices),
+            usage: wgpu::BufferUsages::VERTEX,
+        });
+        let indices_buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("indices"),
+            contents: bytemuck::cast_slice(indices),
+            usage: wgpu::BufferUsages::INDEX,
+        });
+        Mesh { vertices: vertices_buf, indices: indices_buf, index_count: indices.len() as u32 }
+    }
+
+    /// Renders the draws at `width` x `height` and reads back color and range.
+    pub fn render(
+        &mut self,
+        width: u32,
+        height: u32,
+        shading: Shading,
+        globals: &Globals,
+        draws: &[Draw<'_>],
+    ) -> Result<Frame, BoxErr> {
+        if draws.len() as u64 > MAX_OBJECTS {
+            return Err(RenderError::Gpu(format!("too many draws: {} > {MAX_OBJECTS}", draws.len())));
+        }
+        if !self.targets.contains_key(&(width, height)) {
+            let t = create_targets(&self.device, width, height);
+            self.targets.insert((width, height), t);
+        }
+        let t = &self.targets[&(width, height)];
+        self.queue.write_buffer(&self.globals_buf, 0, bytemuck::bytes_of(globals));
+        for (i, d) in draws.iter().enumerate() {
+            self.queue.write_buffer(
+                &self.objects_buf,
+                i as u64 * OBJECT_STRIDE,
+                bytemuck::bytes_of(&d.object),
+            );
+        }
+
+        let mut encoder =
+            self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("scene"),
+                color_attachments: &[
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: &t.color_view,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(wgpu::Color { r: 0.0, g: 0.0, b: 0.0, a: 1.0 }),
+                            store: wgpu::StoreOp::Store,
+                        },
+                    }),
+                    Some(wgpu::RenderPassColorAttachment {
+                        view: &t.range_view,
+                        depth_slice: None,
+                        resolve_target: None,
+                        ops: wgpu::Operations {
+                            // Integer target: each f64 is cast `as u32` by the backend -> clears to 0.
+                            load: wgpu::LoadOp::Clear(wgpu::Color { r: 0.0, g: 0.0, b: 0.0, a: 0.0 }),
+                            store: wgpu::StoreOp::Store,
+                        },
+                    }),
+                ],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &t.depth_view,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Discard,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(match shading {
+                Shading::Sun => &self.pipeline,
+                Shading::Tof => &self.tof_pipeline,
+            });
+            pass.set_bind_group(0, &self.globals_bg, &[]);
+            for (i, d) in draws.iter().enumerate() {
+                pass.set_bind_group(1, d.texture, &[]);
+                pass.set_bind_group(2, &self.objects_bg, &[(i as u64 * OBJECT_STRIDE) as u32]);
+                pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
+                pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+                pass.draw_indexed(0..d.mesh.index_count, 0, 0..1);
+            }
+        } // pass dropped: encoder usable again
+
+        let extent = wgpu::Extent3d { width: t.width, height: t.height, depth_or_array_layers: 1 };
+        encoder.copy_texture_to_buffer(
+            wgpu::TexelCopyTextureInfo {
+                texture: &t.color,
+                mip_level: 0,
+                origin: wgpu::Origin3d::ZERO,
+                aspect: wgpu::TextureAspect::All,
+            },
+            wgpu::TexelCopyBufferInfo {
+                buffer: &t.readback,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(t.padded_bytes_per_row),
+                    rows_per_image: Some(t.height),
+                },
+            },
+            extent,
+        );
+        encoder.copy_texture_to_buffer(
+            t.range.as_image_copy(),
+            wgpu::TexelCopyBufferInfo {
+                buffer: &t.readback,
+                layout: wgpu::TexelCopyBufferLayout {
+                    offset: t.range_offset,
+                    bytes_per_row: Some(t.padded_bytes_per_row),
+                    rows_per_image: Some(t.height),
+                },
+            },
+            extent,
+        );
+        let submission = self.queue.submit([encoder.finish()]);
+
+        let slice = t.readback.slice(..);
+        let (tx, rx) = mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |result| {
+            let _ = tx.send(result);
+        });
+        self.device
+            .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
+            .map_err(|e| RenderError::Gpu(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| RenderError::Gpu(e.to_string()))?
+            .map_err(|e| RenderError::Gpu(e.to_string()))?;
+
+        let (w, h, bpr) = (t.width as usize, t.height as usize, t.padded_bytes_per_row as usize);
+        let mut rgba = Vec::with_capacity(w * h * 4);
+        let mut range_m = Vec::with_capacity(w * h);
+        {
+            let data = slice.get_mapped_range().map_err(|e| RenderError::Gpu(e.to_string()))?;
+            for row in 0..h {
+                let start = row * bpr;
+                rgba.extend_from_slice(&data[start..start + w * 4]);
+            }
+            let base = t.range_offset as usize;
+            for row in 0..h {
+                let start = base + row * bpr;
+                for px in data[start..start + w * 4].chunks_exact(4) {
+                    range_m.push(f32::from_bits(u32::from_le_bytes([px[0], px[1], px[2], px[3]])));
+                }
+            }
+        } // BufferView dropped before unmap (unmap panics otherwise)
+        t.readback.unmap();
+
+        Ok(Frame { width: t.width, height: t.height, rgba, range_m })
+    }
+}
+
+fn create_targets(device: &wgpu::Device, width: u32, height: u32) -> Targets {
+    let size = wgpu::Extent3d { width, height, depth_or_array_layers: 1 };
+    let make = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
+        device.create_texture(&wgpu::TextureDescriptor {
+            label: Some(label),
+            size,
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage,
+            view_formats: &[],
+        })
+    };
+    let copy_target = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
+    let color = make("color", COLOR_FORMAT, copy_target);
+    let range = make("range", RANGE_FORMAT, copy_target);
+    let depth = make("depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT);
+
+    // Both formats are 4 bytes per texel, so they share one padded row pitch.
+    let align = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
+    let padded_bytes_per_row = (width * 4).div_ceil(align) * align;
+    let plane = u64::from(padded_bytes_per_row) * u64::from(height); // multiple of 256
+    let readback = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("readback"),
+        size: 2 * plane,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    Targets {
+        width,
+        height,
+        padded_bytes_per_row,
+        range_offset: plane,
+        color_view: color.create_view(&wgpu::TextureViewDescriptor::default()),
+        range_view: range.create_view(&wgpu::TextureViewDescriptor::default()),
+        depth_view: depth.create_view(&wgpu::TextureViewDescriptor::default()),
+        color,
+        range,
+        readback,
+    }
+}

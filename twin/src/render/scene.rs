@@ -1,0 +1,310 @@
+//! The render scene: triangle meshes built once from the same geometry the physics uses (terrain
+//! heightfield, rock hulls, objects, the robot's URDF visuals, the canister), placed each frame at
+//! the twin's ground-truth poses.
+
+use super::gpu::{Draw, Mesh, ObjectUniform, Renderer, Vertex};
+use crate::sim::Twin;
+use nalgebra::{Isometry3, Matrix4, Point3, UnitQuaternion, Vector3};
+use rand::SeedableRng;
+use worlds::spec::ObjectKind;
+
+/// Size of one repeat of the regolith texture, m.
+const TERRAIN_TILE_M: f64 = 4.0;
+/// Regolith texture resolution (one tile).
+const TERRAIN_TEX: u32 = 1024;
+
+/// Geometry in a local frame, before upload.
+#[derive(Default)]
+pub struct MeshData {
+    /// Vertices.
+    pub vertices: Vec<Vertex>,
+    /// Triangle indices.
+    pub indices: Vec<u32>,
+}
+
+impl MeshData {
+    fn push_tri(&mut self, p: [Vector3<f64>; 3], uv: [[f32; 2]; 3]) {
+        let n = (p[1] - p[0]).cross(&(p[2] - p[0]));
+        let n = if n.norm() > 0.0 { n.normalize() } else { Vector3::z() };
+        let base = self.vertices.len() as u32;
+        for (k, q) in p.iter().enumerate() {
+            self.vertices.push(Vertex {
+                position: [q.x as f32, q.y as f32, q.z as f32],
+                normal: [n.x as f32, n.y as f32, n.z as f32],
+                uv: uv[k],
+            });
+        }
+        self.indices.extend([base, base + 1, base + 2]);
+    }
+
+    fn push_quad(&mut self, c: [Vector3<f64>; 4]) {
+        self.push_tri([c[0], c[1], c[2]], [[0.0, 1.0], [1.0, 1.0], [1.0, 0.0]]);
+        self.push_tri([c[0], c[2], c[3]], [[0.0, 1.0], [1.0, 0.0], [0.0, 0.0]]);
+    }
+
+    /// An axis-aligned box centred at `c` with half extents `h`, transformed by `t`.
+    pub fn add_box(&mut self, t: &Isometry3<f64>, c: Vector3<f64>, h: Vector3<f64>) {
+        let p = |sx: f64, sy: f64, sz: f64| {
+            (t * Point3::from(c + Vector3::new(sx * h.x, sy * h.y, sz * h.z))).coords
+        };
+        // Counter-clockwise seen from outside.
+        self.push_quad([p(1., -1., -1.), p(1., 1., -1.), p(1., 1., 1.), p(1., -1., 1.)]);
+        self.push_quad([p(-1., 1., -1.), p(-1., -1., -1.), p(-1., -1., 1.), p(-1., 1., 1.)]);
+        self.push_quad([p(1., 1., -1.), p(-1., 1., -1.), p(-1., 1., 1.), p(1., 1., 1.)]);
+        self.push_quad([p(-1., -1., -1.), p(1., -1., -1.), p(1., -1., 1.), p(-1., -1., 1.)]);
+        self.push_quad([p(-1., -1., 1.), p(1., -1., 1.), p(1., 1., 1.), p(-1., 1., 1.)]);
+        self.push_quad([p(-1., 1., -1.), p(1., 1., -1.), p(1., -1., -1.), p(-1., -1., -1.)]);
+    }
+
+    /// A cylinder of radius `r` and length `l` along the z axis of `t`.
+    pub fn add_cylinder(&mut self, t: &Isometry3<f64>, r: f64, l: f64) {
+        let n = 20;
+        let at = |k: usize, z: f64| {
+            let a = k as f64 / n as f64 * std::f64::consts::TAU;
+            (t * Point3::new(r * a.cos(), r * a.sin(), z)).coords
+        };
+        let (top, bot) =
+            ((t * Point3::new(0.0, 0.0, l / 2.0)).coords, (t * Point3::new(0.0, 0.0, -l / 2.0)).coords);
+        for k in 0..n {
+            let (a0, a1) = (at(k, -l / 2.0), at(k + 1, -l / 2.0));
+            let (b0, b1) = (at(k, l / 2.0), at(k + 1, l / 2.0));
+            self.push_quad([a0, a1, b1, b0]);
+            self.push_tri([top, b0, b1], [[0.5, 0.5], [0.0, 0.0], [1.0, 0.0]]);
+            self.push_tri([bot, a1, a0], [[0.5, 0.5], [0.0, 0.0], [1.0, 0.0]]);
+        }
+    }
+
+    /// The convex hull of points, transformed by `t`.
+    pub fn add_hull(&mut self, t: &Isometry3<f64>, points: &[Point3<f64>]) {
+        let pts: Vec<rapier3d::math::Vector> = points.iter().map(crate::convert::point_to_rapier).collect();
+        let (verts, tris) = rapier3d::parry::transformation::convex_hull(&pts);
+        for tri in tris {
+            let p = tri.map(|i| (t * Point3::from(crate::convert::from_rapier(verts[i as usize]))).coords);
+            self.push_tri(p, [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]);
+        }
+    }
+
+    /// A textured rectangle of half sizes (hx, hy) in the xy plane of `t`, facing +z.
+    pub fn add_quad(&mut self, t: &Isometry3<f64>, hx: f64, hy: f64) {
+        let p = |x: f64, y: f64| (t * Point3::new(x, y, 0.0)).coords;
+        self.push_quad([p(-hx, -hy), p(hx, -hy), p(hx, hy), p(-hx, hy)]);
+    }
+}
+
+/// A mesh uploaded to the GPU with its color and what places it.
+struct Part {
+    mesh: Mesh,
+    tint: [f32; 4],
+    texture: TextureId,
+    place: Placement,
+}
+
+#[derive(Clone, Copy)]
+enum TextureId {
+    White,
+    Regolith,
+    Marker,
+}
+
+#[derive(Clone, Debug)]
+enum Placement {
+    /// World geometry.
+    Fixed,
+    /// In the frame of a robot link.
+    Link(String),
+    /// In the canister frame.
+    Canister,
+}
+
+/// Everything drawable, uploaded.
+pub struct Scene {
+    parts: Vec<Part>,
+    white: wgpu::BindGroup,
+    regolith: wgpu::BindGroup,
+    marker: wgpu::BindGroup,
+}
+
+fn terrain_mesh(twin: &Twin) -> MeshData {
+    let hf = &twin.world().terrain;
+    let mut m = MeshData::default();
+    for j in 0..hf.ny {
+        for i in 0..hf.nx {
+            let p = hf.position(i, j);
+            let n = hf.normal(p.x, p.y);
+            m.vertices.push(Vertex {
+                position: [p.x as f32, p.y as f32, hf.at(i, j) as f32],
+                normal: [n.x as f32, n.y as f32, n.z as f32],
+                uv: [(p.x / TERRAIN_TILE_M) as f32, (p.y / TERRAIN_TILE_M) as f32],
+            });
+        }
+    }
+    for j in 0..hf.ny - 1 {
+        for i in 0..hf.nx - 1 {
+            let k = (j * hf.nx + i) as u32;
+            let nx = hf.nx as u32;
+            m.indices.extend([k, k + 1, k + nx + 1, k, k + nx + 1, k + nx]);
+        }
+    }
+    m
+}
+
+/// Regolith albedo: fractal noise around the world's albedo, fine enough for feature matching.
+fn regolith_texture(albedo: f64, seed: u64) -> Vec<u8> {
+    use noise::{Fbm, MultiFractal, NoiseFn, Perlin};
+    let fbm = Fbm::<Perlin>::new(seed as u32).set_octaves(7).set_frequency(2.0).set_persistence(0.6);
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+    let n = TERRAIN_TEX as usize;
+    let mut out = Vec::with_capacity(n * n * 4);
+    // Periodic in both directions: sample 4-D noise on a torus, so the texture tiles seamlessly.
+    let tau = std::f64::consts::TAU;
+    let r = 2.0;
+    for v in 0..n {
+        for u in 0..n {
+            let (a, b) = (u as f64 / n as f64 * tau, v as f64 / n as f64 * tau);
+            let x = fbm.get([r * a.cos(), r * a.sin(), r * b.cos(), r * b.sin()]);
+            let grain: f64 = rand::Rng::random_range(&mut rng, -0.06..0.06);
+            let g = (albedo * (1.0 + 0.9 * x + grain)).clamp(0.02, 1.0);
+            let c = (g * 255.0) as u8;
+            out.extend([c, c, c, 255]);
+        }
+    }
+    out
+}
+
+fn urdf_parts(twin: &Twin, out: &mut Vec<(MeshData, [f32; 4], Placement)>) {
+    let robot = match rapier3d_urdf::urdf_rs::read_file(crate::rover_urdf()) {
+        Ok(r) => r,
+        Err(e) => {
+            tracing::warn!("robot visuals not drawn: {e}");
+            return;
+        }
+    };
+    let _ = twin;
+    for l in &robot.links {
+        let tint = if l.name.starts_with("wheel") {
+            [0.15, 0.15, 0.15, 1.0]
+        } else if l.name.starts_with("arm") || l.name.starts_with("gripper") {
+            [0.85, 0.85, 0.8, 1.0]
+        } else {
+            [0.6, 0.62, 0.65, 1.0]
+        };
+        let mut m = MeshData::default();
+        for v in &l.visual {
+            let o = &v.origin;
+            let t = Isometry3::from_parts(
+                nalgebra::Translation3::new(o.xyz[0], o.xyz[1], o.xyz[2]),
+                UnitQuaternion::from_euler_angles(o.rpy[0], o.rpy[1], o.rpy[2]),
+            );
+            use rapier3d_urdf::urdf_rs::Geometry;
+            match &v.geometry {
+                Geometry::Box { size } => {
+                    m.add_box(&t, Vector3::zeros(), Vector3::new(size[0], size[1], size[2]) / 2.0)
+                }
+                Geometry::Cylinder { radius, length } => m.add_cylinder(&t, *radius, *length),
+                Geometry::Sphere { radius } => m.add_box(&t, Vector3::zeros(), Vector3::repeat(*radius)),
+                _ => tracing::warn!(link = %l.name, "visual geometry kind not drawn"),
+            }
+        }
+        if !m.indices.is_empty() {
+            out.push((m, tint, Placement::Link(l.name.clone())));
+        }
+    }
+}
+
+fn canister_parts(out: &mut Vec<(MeshData, [f32; 4], Placement, TextureId)>) {
+    let id = Isometry3::identity();
+    let mut body = MeshData::default();
+    body.add_box(&id, Vector3::new(0.0, 0.0, 0.075), Vector3::new(0.05, 0.05, 0.075));
+    body.add_box(&id, Vector3::new(0.035, 0.0, 0.17), Vector3::new(0.0075, 0.0075, 0.02));
+    body.add_box(&id, Vector3::new(-0.035, 0.0, 0.17), Vector3::new(0.0075, 0.0075, 0.02));
+    body.add_box(&id, Vector3::new(0.0, 0.0, 0.1975), Vector3::new(0.0425, 0.01, 0.0075));
+    out.push((body, [0.85, 0.45, 0.15, 1.0], Placement::Canister, TextureId::White));
+    // The fiducial marker on the +y face, just proud of it (canister_marker frame of the URDF).
+    let face = Isometry3::from_parts(
+        nalgebra::Translation3::new(0.0, 0.0505, 0.075),
+        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), -std::f64::consts::FRAC_PI_2),
+    );
+    let mut marker = MeshData::default();
+    marker.add_quad(&face, 0.045, 0.045);
+    out.push((marker, [1.0, 1.0, 1.0, 1.0], Placement::Canister, TextureId::Marker));
+}
+
+impl Scene {
+    /// Builds and uploads the scene of a twin's world and robot.
+    pub fn new(gpu: &Renderer, twin: &Twin, marker_rgba: (u32, u32, Vec<u8>)) -> Self {
+        let mut parts = Vec::new();
+        let mut add = |m: MeshData, tint: [f32; 4], place: Placement, texture: TextureId| {
+            if !m.indices.is_empty() {
+                parts.push(Part { mesh: gpu.create_mesh(&m.vertices, &m.indices), tint, texture, place });
+            }
+        };
+        let albedo = twin.world().regolith.albedo;
+        add(terrain_mesh(twin), [1.0, 1.0, 1.0, 1.0], Placement::Fixed, TextureId::Regolith);
+        let mut rocks = MeshData::default();
+        for r in &twin.world().rocks {
+            let t = Isometry3::from_parts(
+                nalgebra::Translation3::from(r.position.coords),
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), r.yaw),
+            );
+            rocks.add_hull(&t, &r.points);
+        }
+        let a = (albedo * 1.3).min(1.0) as f32;
+        add(rocks, [a, a, a, 1.0], Placement::Fixed, TextureId::White);
+        let mut objects = MeshData::default();
+        for o in &twin.world().objects {
+            let half = match o.kind {
+                ObjectKind::Lander => Vector3::new(1.0, 1.0, 0.75),
+                ObjectKind::MarkerTable => Vector3::new(0.5, 0.3, 0.4),
+                ObjectKind::Canister => continue,
+            };
+            let t = Isometry3::from_parts(
+                nalgebra::Translation3::new(o.position.x, o.position.y, o.position.z),
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), o.yaw),
+            );
+            objects.add_box(&t, Vector3::new(0.0, 0.0, half.z), half);
+        }
+        add(objects, [0.8, 0.8, 0.78, 1.0], Placement::Fixed, TextureId::White);
+        let mut robot = Vec::new();
+        urdf_parts(twin, &mut robot);
+        for (m, tint, place) in robot {
+            add(m, tint, place, TextureId::White);
+        }
+        if twin.canister_truth().is_some() {
+            let mut can = Vec::new();
+            canister_parts(&mut can);
+            for (m, tint, place, tex) in can {
+                add(m, tint, place, tex);
+            }
+        }
+        let white = gpu.create_texture(1, 1, &[255, 255, 255, 255]);
+        let regolith =
+            gpu.create_texture(TERRAIN_TEX, TERRAIN_TEX, &regolith_texture(albedo, twin.world().seed));
+        let marker = gpu.create_texture(marker_rgba.0, marker_rgba.1, &marker_rgba.2);
+        Scene { parts, white, regolith, marker }
+    }
+
+    /// The draws of the scene at the twin's current poses.
+    pub fn draws(&self, twin: &Twin) -> Vec<Draw<'_>> {
+        let gt_can = twin.canister_truth();
+        let mut draws = Vec::with_capacity(self.parts.len());
+        for p in &self.parts {
+            let pose = match &p.place {
+                Placement::Fixed => Some(Isometry3::identity()),
+                Placement::Link(l) => twin.link_pose(l),
+                Placement::Canister => gt_can,
+            };
+            let Some(pose) = pose else { continue };
+            let m: Matrix4<f32> = pose.to_homogeneous().cast();
+            draws.push(Draw {
+                mesh: &p.mesh,
+                texture: match p.texture {
+                    TextureId::White => &self.white,
+                    TextureId::Regolith => &self.regolith,
+                    TextureId::Marker => &self.marker,
+                },
+                object: ObjectUniform { model: m.into(), tint: p.tint },
+            });
+        }
+        draws
+    }
+}

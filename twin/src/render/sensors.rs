@@ -1,0 +1,502 @@
+//! Camera sensors rendered from the twin: stereo cameras (greyscale, pinhole with radial and
+//! tangential distortion, exposure noise) and Time-of-Flight cameras (depth, amplitude and point
+//! cloud, range limits, noise growing with range, missing returns at grazing incidence and on dark
+//! or distant surfaces), with their parameters in `assets/rover/sensors.toml`.
+//!
+//! Devices render only when a new frame is due: `capture` returns the last frame until the sensor's
+//! period has passed in simulated time, so a mission pays only for the frames its modules read.
+
+use super::gpu::{Frame, Globals, RenderError, Renderer, Shading};
+use super::scene::Scene;
+use crate::devices::SharedTwin;
+use crate::sim::Twin;
+use framework::camera::{CameraModel, DepthImage, Distortion, GreyImage, Pinhole, StereoModel, TofFrame};
+use framework::config::{ConfigError, Source, read_file};
+use framework::hal::{DeviceError, StereoCamera, TofCamera};
+use framework::time::{Duration, Time};
+use nalgebra::{Isometry3, Matrix4, Point2, Point3, Vector2, Vector3};
+use parking_lot::Mutex;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+use rand_pcg::Pcg64Mcg;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+use std::sync::Arc;
+
+/// One stereo pair's parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StereoConfig {
+    /// Left optical frame (URDF link).
+    pub left_frame: String,
+    /// Right optical frame (URDF link).
+    pub right_frame: String,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Horizontal field of view, degrees.
+    pub hfov_deg: f64,
+    /// Frame rate, Hz.
+    pub rate_hz: f64,
+    /// Exposure noise, grey levels (1-sigma).
+    pub noise_dn: f64,
+    /// Lens distortion.
+    #[serde(default)]
+    pub distortion: Distortion,
+}
+
+/// Time-of-Flight camera parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TofConfig {
+    /// Optical frames, one camera each.
+    pub frames: Vec<String>,
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Horizontal field of view, degrees.
+    pub hfov_deg: f64,
+    /// Vertical field of view, degrees.
+    pub vfov_deg: f64,
+    /// Closest valid range, m.
+    pub min_range_m: f64,
+    /// Farthest valid range, m.
+    pub max_range_m: f64,
+    /// Depth noise, 1-sigma, as a fraction of the depth.
+    pub noise_fraction: f64,
+    /// Returns at a larger incidence angle are missing, degrees.
+    pub max_incidence_deg: f64,
+    /// Returns weaker than this (relative to white at 1 m head-on) are missing.
+    pub min_amplitude: f64,
+    /// Frame rate, Hz.
+    pub rate_hz: f64,
+}
+
+/// All rendered sensors.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SensorConfig {
+    /// Stereo head camera on the pan-tilt unit (tracking, navigation).
+    pub head_stereo: StereoConfig,
+    /// Localization stereo camera fixed on the body (visual odometry).
+    pub loc_stereo: StereoConfig,
+    /// The Time-of-Flight cameras on the pan-tilt unit.
+    pub tof: TofConfig,
+}
+
+impl SensorConfig {
+    /// The shipped file.
+    pub fn default_path() -> std::path::PathBuf {
+        crate::assets_dir().join("rover/sensors.toml")
+    }
+    /// Loads and validates a sensor file.
+    pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
+        let path = path.as_ref();
+        let text = read_file(path)?;
+        let origin = path.display().to_string();
+        let src = Source::new(&origin, &text);
+        let c: SensorConfig = src.parse()?;
+        for (k, s) in [("head_stereo", &c.head_stereo), ("loc_stereo", &c.loc_stereo)] {
+            if s.width == 0
+                || s.height == 0
+                || !(1.0..179.0).contains(&s.hfov_deg)
+                || !s.rate_hz.is_finite()
+                || s.rate_hz <= 0.0
+            {
+                return Err(src.error_at_key(
+                    k,
+                    "needs a positive size, a field of view in (1, 179) degrees and a positive rate",
+                ));
+            }
+        }
+        let t = &c.tof;
+        if !(t.min_range_m > 0.0 && t.max_range_m > t.min_range_m) {
+            return Err(
+                src.error_at_key("tof.max_range_m", "ranges must satisfy 0 < min_range_m < max_range_m")
+            );
+        }
+        if !t.rate_hz.is_finite() || t.rate_hz <= 0.0 || t.frames.is_empty() {
+            return Err(src.error_at_key("tof", "needs at least one frame and a positive rate"));
+        }
+        Ok(c)
+    }
+}
+
+/// Camera model of a ToF configuration (non-square fields of view).
+pub fn tof_model(t: &TofConfig, frame: &str) -> CameraModel {
+    let fx = t.width as f64 / 2.0 / (t.hfov_deg.to_radians() / 2.0).tan();
+    let fy = t.height as f64 / 2.0 / (t.vfov_deg.to_radians() / 2.0).tan();
+    CameraModel {
+        pinhole: Pinhole {
+            width: t.width,
+            height: t.height,
+            fx,
+            fy,
+            cx: t.width as f64 / 2.0,
+            cy: t.height as f64 / 2.0,
+        },
+        distortion: Distortion::default(),
+        frame: frame.to_string(),
+    }
+}
+
+/// Stereo model of a stereo configuration, baseline from the robot description.
+pub fn stereo_model(s: &StereoConfig, twin: &Twin) -> Result<StereoModel, String> {
+    let mech = twin.mechanism();
+    let q = vec![0.0; mech.dof_count()];
+    let rel = mech.transform(&s.left_frame, &s.right_frame, &q).map_err(|e| e.to_string())?;
+    let mut left = CameraModel::from_hfov(s.width, s.height, s.hfov_deg.to_radians(), &s.left_frame);
+    left.distortion = s.distortion;
+    let mut right = left.clone();
+    right.frame = s.right_frame.clone();
+    Ok(StereoModel { left, right, baseline: rel.translation.vector.x })
+}
+
+/// The renderer bound to one twin's scene.
+pub struct SensorRenderer {
+    gpu: Renderer,
+    scene: Scene,
+}
+
+const NEAR: f32 = 0.05;
+const FAR: f32 = 500.0;
+
+fn projection(k: &Pinhole) -> Matrix4<f32> {
+    let (w, h) = (k.width as f32, k.height as f32);
+    let (fx, fy, cx, cy) = (k.fx as f32, k.fy as f32, k.cx as f32, k.cy as f32);
+    let (n, f) = (NEAR, FAR);
+    Matrix4::new(
+        2.0 * fx / w,
+        0.0,
+        2.0 * cx / w - 1.0,
+        0.0,
+        0.0,
+        -2.0 * fy / h,
+        1.0 - 2.0 * cy / h,
+        0.0,
+        0.0,
+        0.0,
+        f / (f - n),
+        -f * n / (f - n),
+        0.0,
+        0.0,
+        1.0,
+        0.0,
+    )
+}
+
+/// The fiducial marker of the canister (AprilTag 36h11), as an RGBA texture: `cell` pixels per
+/// module, the white quiet zone included.
+pub fn marker_texture(id: u32, cell: u32) -> Result<(u32, u32, Vec<u8>), String> {
+    let fam = kornia_apriltag::family::TagFamily::tag36_h11().map_err(|e| e.to_string())?;
+    let code = *fam.code_data.get(id as usize).ok_or_else(|| format!("tag36h11 has no id {id}"))?;
+    let n = fam.total_width;
+    let mut cells = vec![false; n * n]; // true = white
+    let white_width = fam.width_at_border + if fam.reversed_border { 0 } else { 2 };
+    let white_start = (n - white_width) / 2;
+    for i in 0..white_width {
+        for (x, y) in [
+            (white_start + i, white_start),
+            (white_start, white_start + i),
+            (white_start + i, white_start + white_width - 1),
+            (white_start + white_width - 1, white_start + i),
+        ] {
+            cells[y * n + x] = true;
+        }
+    }
+    let start = ((n - fam.width_at_border) / 2) as i64;
+    for i in 0..fam.nbits {
+        if code & (1 << (fam.nbits - i - 1)) != 0 {
+            let (x, y) = ((fam.bit_x[i] as i64 + start) as usize, (fam.bit_y[i] as i64 + start) as usize);
+            cells[y * n + x] = true;
+        }
+    }
+    let side = n as u32 * cell;
+    let mut rgba = Vec::with_capacity((side * side * 4) as usize);
+    for v in 0..side {
+        for u in 0..side {
+            let c = if cells[(v / cell) as usize * n + (u / cell) as usize] { 255 } else { 0 };
+            rgba.extend([c, c, c, 255]);
+        }
+    }
+    Ok((side, side, rgba))
+}
+
+impl SensorRenderer {
+    /// Opens the GPU (or software Vulkan) and uploads the twin's scene.
+    pub fn new(twin: &Twin) -> Result<Self, RenderError> {
+        let gpu = Renderer::new()?;
+        tracing::info!(adapter = %gpu.adapter_info.name, backend = ?gpu.adapter_info.backend, "sensor renderer");
+        let id = twin.world().object("canister").and_then(|c| c.marker_ids.first().copied()).unwrap_or(0);
+        let marker = marker_texture(id, 16).map_err(RenderError::Gpu)?;
+        let scene = Scene::new(&gpu, twin, marker);
+        Ok(SensorRenderer { gpu, scene })
+    }
+
+    /// The adapter in use, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)`.
+    pub fn adapter(&self) -> String {
+        format!("{} ({:?})", self.gpu.adapter_info.name, self.gpu.adapter_info.backend)
+    }
+
+    /// Renders an undistorted pinhole view from `pose` (optical frame in the world).
+    pub fn render(
+        &mut self,
+        twin: &Twin,
+        cam: &CameraModel,
+        pose: &Isometry3<f64>,
+        shading: Shading,
+    ) -> Result<Frame, RenderError> {
+        let view: Matrix4<f32> = pose.inverse().to_homogeneous().cast();
+        let vp = projection(&cam.pinhole) * view;
+        let fwd = pose.rotation * Vector3::z();
+        let sun = &twin.world().sun;
+        let (az, el) = (sun.azimuth_deg.to_radians(), sun.elevation_deg.to_radians());
+        let light = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+        let p = pose.translation.vector;
+        let globals = Globals {
+            view_proj: vp.into(),
+            cam_pos: [p.x as f32, p.y as f32, p.z as f32, 1.0],
+            cam_fwd: [fwd.x as f32, fwd.y as f32, fwd.z as f32, 0.0],
+            light_dir: [light.x as f32, light.y as f32, light.z as f32, 0.3],
+        };
+        let draws = self.scene.draws(twin);
+        self.gpu.render(cam.pinhole.width, cam.pinhole.height, shading, &globals, &draws)
+    }
+
+    /// A greyscale image from `pose` with the camera's distortion, plus exposure noise.
+    pub fn grey(
+        &mut self,
+        twin: &Twin,
+        cam: &CameraModel,
+        pose: &Isometry3<f64>,
+        noise_dn: f64,
+        rng: &mut Pcg64Mcg,
+    ) -> Result<GreyImage, RenderError> {
+        let f = self.render(twin, cam, pose, Shading::Sun)?;
+        let (w, h) = (f.width as usize, f.height as usize);
+        let lum: Vec<f32> = f
+            .rgba
+            .chunks_exact(4)
+            .map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32)
+            .collect();
+        let sample = |x: f64, y: f64| -> f32 {
+            // Bilinear, in pixel-centre coordinates.
+            let (x, y) = (x - 0.5, y - 0.5);
+            if x < 0.0 || y < 0.0 || x > (w - 1) as f64 || y > (h - 1) as f64 {
+                return 0.0;
+            }
+            let (i, j) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
+            let (tx, ty) = ((x - i as f64) as f32, (y - j as f64) as f32);
+            let at = |a: usize, b: usize| lum[b * w + a];
+            (at(i, j) * (1.0 - tx) + at(i + 1, j) * tx) * (1.0 - ty)
+                + (at(i, j + 1) * (1.0 - tx) + at(i + 1, j + 1) * tx) * ty
+        };
+        let k = &cam.pinhole;
+        let mut data = Vec::with_capacity(w * h);
+        for v in 0..h {
+            for u in 0..w {
+                let value = if cam.distortion.is_zero() {
+                    lum[v * w + u]
+                } else {
+                    // The distorted pixel sees the undistorted direction.
+                    let d = Vector2::new((u as f64 + 0.5 - k.cx) / k.fx, (v as f64 + 0.5 - k.cy) / k.fy);
+                    let p = cam.distortion.undistort(d);
+                    sample(k.fx * p.x + k.cx, k.fy * p.y + k.cy)
+                };
+                let n: f64 = if noise_dn > 0.0 {
+                    noise_dn * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng)
+                } else {
+                    0.0
+                };
+                data.push((value as f64 + n).round().clamp(0.0, 255.0) as u8);
+            }
+        }
+        Ok(GreyImage { stamp: twin.time(), frame: cam.frame.clone(), width: f.width, height: f.height, data })
+    }
+
+    /// A Time-of-Flight frame from `pose`.
+    pub fn tof(
+        &mut self,
+        twin: &Twin,
+        cam: &CameraModel,
+        pose: &Isometry3<f64>,
+        cfg: &TofConfig,
+        rng: &mut Pcg64Mcg,
+    ) -> Result<TofFrame, RenderError> {
+        let f = self.render(twin, cam, pose, Shading::Tof)?;
+        let cos_max = cfg.max_incidence_deg.to_radians().cos();
+        let n = (f.width * f.height) as usize;
+        let mut depth = Vec::with_capacity(n);
+        let mut amplitude = Vec::with_capacity(n);
+        let mut points = Vec::new();
+        for (i, (z, px)) in f.range_m.iter().zip(f.rgba.chunks_exact(4)).enumerate() {
+            let amp = px[0] as f64 / 255.0 * 4.0;
+            let cos_i = px[1] as f64 / 255.0;
+            let z = *z as f64;
+            let valid = z > 0.0
+                && z >= cfg.min_range_m
+                && z <= cfg.max_range_m
+                && cos_i >= cos_max
+                && amp >= cfg.min_amplitude;
+            if !valid {
+                depth.push(f32::NAN);
+                amplitude.push(0);
+                continue;
+            }
+            let noise: f64 = <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng);
+            let zn = z * (1.0 + cfg.noise_fraction * noise);
+            depth.push(zn as f32);
+            amplitude.push((amp * 1000.0).min(u16::MAX as f64) as u16);
+            let (u, v) = ((i as u32 % f.width) as f64 + 0.5, (i as u32 / f.width) as f64 + 0.5);
+            let p = cam.unproject(&Point2::new(u, v), zn);
+            points.push(Point3::new(p.x as f32, p.y as f32, p.z as f32));
+        }
+        Ok(TofFrame {
+            depth: DepthImage {
+                stamp: twin.time(),
+                frame: cam.frame.clone(),
+                width: f.width,
+                height: f.height,
+                data: depth,
+            },
+            amplitude,
+            points,
+        })
+    }
+}
+
+/// A renderer shared by the camera devices of one twin.
+pub type SharedRenderer = Arc<Mutex<SensorRenderer>>;
+
+/// Dry-Run stereo camera.
+pub struct DryRunStereo {
+    name: String,
+    twin: SharedTwin,
+    renderer: SharedRenderer,
+    model: StereoModel,
+    period: Duration,
+    noise_dn: f64,
+    rng: Pcg64Mcg,
+    last: Option<(GreyImage, GreyImage)>,
+}
+
+impl DryRunStereo {
+    /// A stereo device named `name` (`head_stereo`, `loc_stereo`).
+    pub fn new(
+        name: &str,
+        twin: SharedTwin,
+        renderer: SharedRenderer,
+        cfg: &StereoConfig,
+        seed: u64,
+    ) -> Result<Self, DeviceError> {
+        let model = stereo_model(cfg, &twin.lock())
+            .map_err(|reason| DeviceError::InvalidCommand { device: name.into(), reason })?;
+        Ok(DryRunStereo {
+            name: name.to_string(),
+            twin,
+            renderer,
+            model,
+            period: Duration::from_hz(cfg.rate_hz),
+            noise_dn: cfg.noise_dn,
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            last: None,
+        })
+    }
+}
+
+fn due(last: Option<Time>, now: Time, period: Duration) -> bool {
+    last.is_none_or(|t| now - t >= period)
+}
+
+impl StereoCamera for DryRunStereo {
+    fn device(&self) -> &str {
+        &self.name
+    }
+    fn model(&self) -> &StereoModel {
+        &self.model
+    }
+    fn capture(&mut self) -> Result<(GreyImage, GreyImage), DeviceError> {
+        let twin = self.twin.lock();
+        if due(self.last.as_ref().map(|l| l.0.stamp), twin.time(), self.period) {
+            let fail =
+                |e: RenderError| DeviceError::Fault { device: self.name.clone(), reason: e.to_string() };
+            let mut r = self.renderer.lock();
+            let mut one = |cam: &CameraModel, rng: &mut Pcg64Mcg| {
+                let pose = twin
+                    .link_pose(&cam.frame)
+                    .ok_or_else(|| RenderError::Gpu(format!("no frame {}", cam.frame)))?;
+                r.grey(&twin, cam, &pose, self.noise_dn, rng)
+            };
+            let left = one(&self.model.left, &mut self.rng).map_err(fail)?;
+            let right = one(&self.model.right, &mut self.rng).map_err(fail)?;
+            self.last = Some((left, right));
+        }
+        Ok(self.last.clone().expect("captured above"))
+    }
+}
+
+/// Dry-Run Time-of-Flight camera.
+pub struct DryRunTof {
+    name: String,
+    twin: SharedTwin,
+    renderer: SharedRenderer,
+    model: CameraModel,
+    cfg: TofConfig,
+    period: Duration,
+    rng: Pcg64Mcg,
+    last: Option<TofFrame>,
+}
+
+impl DryRunTof {
+    /// The ToF camera on optical frame `frame`.
+    pub fn new(
+        name: &str,
+        frame: &str,
+        twin: SharedTwin,
+        renderer: SharedRenderer,
+        cfg: &TofConfig,
+        seed: u64,
+    ) -> Self {
+        DryRunTof {
+            name: name.to_string(),
+            twin,
+            renderer,
+            model: tof_model(cfg, frame),
+            cfg: cfg.clone(),
+            period: Duration::from_hz(cfg.rate_hz),
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            last: None,
+        }
+    }
+}
+
+impl TofCamera for DryRunTof {
+    fn device(&self) -> &str {
+        &self.name
+    }
+    fn model(&self) -> &CameraModel {
+        &self.model
+    }
+    fn range_limits(&self) -> (f64, f64) {
+        (self.cfg.min_range_m, self.cfg.max_range_m)
+    }
+    fn capture(&mut self) -> Result<TofFrame, DeviceError> {
+        let twin = self.twin.lock();
+        if due(self.last.as_ref().map(|l| l.depth.stamp), twin.time(), self.period) {
+            let fail =
+                |e: RenderError| DeviceError::Fault { device: self.name.clone(), reason: e.to_string() };
+            let pose = twin
+                .link_pose(&self.model.frame)
+                .ok_or_else(|| fail(RenderError::Gpu(format!("no frame {}", self.model.frame))))?;
+            let frame = self
+                .renderer
+                .lock()
+                .tof(&twin, &self.model, &pose, &self.cfg, &mut self.rng)
+                .map_err(fail)?;
+            self.last = Some(frame);
+        }
+        Ok(self.last.clone().expect("captured above"))
+    }
+}

@@ -1,0 +1,252 @@
+//! Rendered sensors against geometry (issue: rendered sensors). These tests need a graphics adapter:
+//! a GPU or Mesa's software Vulkan (`scripts/setup.sh` installs it). Without one they fail with the
+//! renderer's message naming the package to install.
+
+use framework::camera::CameraModel;
+use framework::hal::{StereoCamera, TofCamera};
+use framework::time::Duration;
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use parking_lot::Mutex;
+use rand::SeedableRng;
+use rand_pcg::Pcg64Mcg;
+use std::sync::Arc;
+use twin::devices::share;
+use twin::render::sensors::{DryRunStereo, DryRunTof, SensorConfig, TofConfig, stereo_model, tof_model};
+use twin::render::{SensorRenderer, Shading};
+use twin::{Fidelity, StartPose, Twin};
+use worlds::World;
+
+fn world(objects: &str) -> World {
+    let text =
+        format!("name = \"t\"\nseed = 3\n[terrain]\nsize_m = [40.0, 40.0]\nresolution_m = 0.5\n{objects}");
+    World::from_str(&text, "<test>", std::path::Path::new("."), None).unwrap()
+}
+
+/// A twin whose rover stands far from the origin, out of the test cameras' view.
+fn twin(objects: &str) -> Twin {
+    Twin::with_defaults(world(objects), StartPose { x: 15.0, y: 15.0, yaw: 0.0 }, Fidelity::Kinematic)
+        .unwrap()
+}
+
+/// Optical frame at `p` looking along `z` with image-down along `y`.
+fn look(p: Vector3<f64>, z: Vector3<f64>, y: Vector3<f64>) -> Isometry3<f64> {
+    let x = y.cross(&z);
+    let r = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
+    Isometry3::from_parts(Translation3::from(p), UnitQuaternion::from_rotation_matrix(&r))
+}
+
+fn down_at(h: f64) -> Isometry3<f64> {
+    look(Vector3::new(0.0, 0.0, h), -Vector3::z(), -Vector3::y())
+}
+
+fn tof_cfg() -> TofConfig {
+    SensorConfig::load(SensorConfig::default_path()).unwrap().tof
+}
+
+#[test]
+fn tof_image_of_a_flat_plane_equals_the_analytic_depth() {
+    let t = twin("");
+    let mut r = SensorRenderer::new(&t).expect("a graphics adapter (install mesa-vulkan-drivers)");
+    let mut cfg = tof_cfg();
+    // Geometry only: no noise, and no dropping of weak returns from dark regolith far away.
+    cfg.noise_fraction = 0.0;
+    cfg.min_amplitude = 0.0;
+    let cam = tof_model(&cfg, "virtual");
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    for h in [0.7, 2.0, 4.2] {
+        let f = r.tof(&t, &cam, &down_at(h), &cfg, &mut rng).unwrap();
+        assert_eq!(f.depth.valid(), (176 * 144) as usize, "every pixel sees the plane at {h} m");
+        let worst = f.depth.data.iter().map(|d| (*d as f64 - h).abs()).fold(0.0, f64::max);
+        assert!(worst < 1e-3, "depth off by {worst} m at {h} m");
+        assert!(f.points.iter().all(|p| (p.z as f64 - h).abs() < 1e-3));
+        // The corner pixel's point lies on the plane where the ray hits it.
+        let p = f.points[0];
+        let ray = cam.unproject(&Point2::new(0.5, 0.5), h);
+        assert!(((p.x as f64) - ray.x).abs() < 1e-3 && ((p.y as f64) - ray.y).abs() < 1e-3);
+    }
+}
+
+#[test]
+fn tof_range_limits_noise_and_grazing_returns_behave_as_configured() {
+    let t = twin("");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cfg = tof_cfg();
+    let cam = tof_model(&cfg, "virtual");
+    let mut rng = Pcg64Mcg::seed_from_u64(2);
+    assert_eq!(r.tof(&t, &cam, &down_at(cfg.max_range_m + 0.5), &cfg, &mut rng).unwrap().depth.valid(), 0);
+    assert_eq!(r.tof(&t, &cam, &down_at(cfg.min_range_m * 0.8), &cfg, &mut rng).unwrap().depth.valid(), 0);
+    // Noise grows with range: about 1% of the depth.
+    let f = r.tof(&t, &cam, &down_at(4.0), &cfg, &mut rng).unwrap();
+    let n = f.depth.valid() as f64;
+    assert!(n > 20000.0, "{n} valid returns at 4 m");
+    let sd = (f.depth.data.iter().filter(|d| d.is_finite()).map(|d| (*d as f64 - 4.0).powi(2)).sum::<f64>()
+        / n)
+        .sqrt();
+    assert!((sd - 0.04).abs() < 0.004, "noise sd {sd} m at 4 m");
+    // Looking at the ground from 1 m high, 10 degrees below the horizon: far pixels graze.
+    let dir = Vector3::new(1.0, 0.0, -(10f64.to_radians()).tan()).normalize();
+    let pose = look(Vector3::new(-3.0, 0.0, 1.0), dir, dir.cross(&Vector3::y()).normalize());
+    let f = r.tof(&t, &cam, &pose, &cfg, &mut rng).unwrap();
+    let (valid, invalid) = (f.depth.valid(), f.depth.data.len() - f.depth.valid());
+    assert!(valid > 0 && invalid > 0, "valid {valid}, invalid {invalid}");
+    for (i, d) in f.depth.data.iter().enumerate() {
+        if d.is_finite() {
+            let uv = Point2::new((i % 176) as f64 + 0.5, (i / 176) as f64 + 0.5);
+            let ray = pose.rotation * cam.unproject(&uv, 1.0).coords;
+            let incidence = (ray.normalize().dot(&-Vector3::z())).acos().to_degrees();
+            assert!(incidence <= cfg.max_incidence_deg + 1.0, "valid return at {incidence} deg incidence");
+        }
+    }
+}
+
+#[test]
+fn a_box_covers_exactly_the_pixels_its_projected_corners_predict() {
+    let t = twin("[[objects]]\nname = \"lander\"\nkind = \"lander\"\nposition_m = [0.0, 0.0]\n");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
+    let h = 6.0;
+    let pose = down_at(h);
+    let f = r.render(&t, &cam, &pose, Shading::Sun).unwrap();
+    // The lander is a 2 x 2 x 1.5 m box: its top face projects to a rectangle.
+    let corners: Vec<Point2<f64>> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+        .iter()
+        .map(|(x, y)| cam.project(&(pose.inverse() * Point3::new(*x, *y, 1.5))).unwrap())
+        .collect();
+    let (u0, u1) = corners.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.x), b.max(p.x)));
+    let (v0, v1) = corners.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
+    let mut wrong = 0;
+    let mut covered = 0;
+    for v in 0..480 {
+        for u in 0..640 {
+            let (cu, cv) = (u as f64 + 0.5, v as f64 + 0.5);
+            let hit_top = (f.range_m[v * 640 + u] as f64 - (h - 1.5)).abs() < 0.01;
+            covered += hit_top as usize;
+            let inside = cu > u0 && cu < u1 && cv > v0 && cv < v1;
+            let near_edge = (cu - u0).abs() < 1.0
+                || (cu - u1).abs() < 1.0
+                || (cv - v0).abs() < 1.0
+                || (cv - v1).abs() < 1.0;
+            if inside != hit_top && !near_edge {
+                wrong += 1;
+            }
+        }
+    }
+    assert!(covered > 1000, "the box top covers {covered} pixels");
+    assert_eq!(wrong, 0, "{wrong} pixels disagree with the projected corners by more than a pixel");
+}
+
+/// Sum of absolute differences between a left block at (u, v) and the right block shifted by d.
+fn sad(l: &[u8], rt: &[u8], w: usize, u: usize, v: usize, d: usize, half: usize) -> f64 {
+    let mut s = 0.0;
+    for y in v - half..=v + half {
+        for x in u - half..=u + half {
+            s += (l[y * w + x] as f64 - rt[y * w + x - d] as f64).abs();
+        }
+    }
+    s
+}
+
+#[test]
+fn a_point_seen_by_the_stereo_pair_has_disparity_f_b_over_z() {
+    let t = twin("");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "virtual");
+    let (z, b) = (2.5, 0.25);
+    let left_pose = down_at(z);
+    let right_pose = left_pose * Isometry3::translation(b, 0.0, 0.0);
+    let mut rng = Pcg64Mcg::seed_from_u64(4);
+    let l = r.grey(&t, &cam, &left_pose, 0.0, &mut rng).unwrap();
+    let rt = r.grey(&t, &cam, &right_pose, 0.0, &mut rng).unwrap();
+    let expected = cam.pinhole.fx * b / z;
+    let (w, half) = (640usize, 7usize);
+    let mut found = Vec::new();
+    for (u, v) in [(320, 240), (200, 150), (450, 330), (380, 120)] {
+        let costs: Vec<f64> = (0..120).map(|d| sad(&l.data, &rt.data, w, u, v, d, half)).collect();
+        let d = (1..119).min_by(|a, b| costs[*a].total_cmp(&costs[*b])).unwrap();
+        // Sub-pixel by a parabola through the minimum and its neighbours.
+        let (c0, c1, c2) = (costs[d - 1], costs[d], costs[d + 1]);
+        let sub = d as f64 + 0.5 * (c0 - c2) / (c0 - 2.0 * c1 + c2);
+        found.push(sub);
+    }
+    for d in &found {
+        assert!((d - expected).abs() < 0.5, "disparity {d} px, expected f B / Z = {expected} px ({found:?})");
+    }
+    // The device's stereo model from the robot description has the URDF's baseline.
+    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
+    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
+    assert!((m.baseline - 0.25).abs() < 1e-9);
+    assert!((m.disparity(4.0) - m.left.pinhole.fx * m.baseline / 4.0).abs() < 1e-12);
+}
+
+#[test]
+fn the_canister_marker_is_decodable_at_one_metre() {
+    let t = twin(
+        "[[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\nmarker_ids = [7]\n",
+    );
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
+    let base = t.canister_truth().unwrap();
+    // 1 m in front of the marker face (+y of the canister), looking back at it.
+    let face = base * Point3::new(0.0, 0.05, 0.075);
+    let pose = look(face.coords + Vector3::new(0.0, 1.0, 0.0), -Vector3::y(), -Vector3::z());
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let img = r.grey(&t, &cam, &pose, 1.5, &mut rng).unwrap();
+    use kornia_apriltag::family::TagFamilyKind;
+    let size = kornia_image::ImageSize { width: 640, height: 480 };
+    let config = kornia_apriltag::DecodeTagsConfig::new(vec![TagFamilyKind::Tag36H11]).unwrap();
+    let mut decoder = kornia_apriltag::AprilTagDecoder::new(config, size).unwrap();
+    let image = kornia_image::Image::<u8, 1>::new(size, img.data.clone()).unwrap();
+    let found = decoder.decode(&image).unwrap();
+    assert!(
+        found.iter().any(|d| d.id == 7),
+        "tag 7 not decoded; found {:?}",
+        found.iter().map(|d| d.id).collect::<Vec<_>>()
+    );
+    // Its centre projects where the marker is.
+    let d = found.iter().find(|d| d.id == 7).unwrap();
+    let expect = cam.project(&(pose.inverse() * face)).unwrap();
+    assert!(((d.center.x as f64 - expect.x).powi(2) + (d.center.y as f64 - expect.y).powi(2)).sqrt() < 3.0);
+}
+
+#[test]
+fn the_same_scene_and_seed_give_byte_identical_images_and_depth() {
+    let run = || {
+        let t = twin("[[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [0.5, 0.0]\n");
+        let mut r = SensorRenderer::new(&t).unwrap();
+        let cfg = tof_cfg();
+        let cam = tof_model(&cfg, "virtual");
+        let mut rng = Pcg64Mcg::seed_from_u64(11);
+        let tof = r.tof(&t, &cam, &down_at(2.0), &cfg, &mut rng).unwrap();
+        let grey =
+            r.grey(&t, &CameraModel::from_hfov(320, 240, 1.0, "v"), &down_at(1.5), 2.0, &mut rng).unwrap();
+        (tof.depth.data.iter().map(|d| d.to_bits()).collect::<Vec<_>>(), tof.amplitude, grey.data)
+    };
+    assert!(run() == run());
+}
+
+#[test]
+fn devices_render_only_when_a_new_frame_is_due() {
+    let w = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
+    let tw = Twin::with_defaults(w, StartPose { x: 4.5, y: 3.5, yaw: 0.7 }, Fidelity::Kinematic).unwrap();
+    let shared = share(tw);
+    let renderer = Arc::new(Mutex::new(SensorRenderer::new(&shared.lock()).unwrap()));
+    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
+    let mut tof =
+        DryRunTof::new("tof_left", &cfg.tof.frames[0], shared.clone(), renderer.clone(), &cfg.tof, 1);
+    let mut stereo = DryRunStereo::new("head_stereo", shared.clone(), renderer, &cfg.head_stereo, 2).unwrap();
+    // Point the pan-tilt at the ground ahead.
+    let id = shared.lock().start_move("ptu", &[0.0, 0.6], 1.0).unwrap();
+    shared.lock().run_until(Duration::from_secs(3), |t| t.move_status(id).is_over());
+    let a = tof.capture().unwrap();
+    assert!(a.depth.valid() > 1000, "ToF sees the ground: {} valid pixels", a.depth.valid());
+    shared.lock().run_for(Duration::from_millis(100));
+    let b = tof.capture().unwrap();
+    assert_eq!(a.depth.stamp, b.depth.stamp, "not due yet: the same frame");
+    shared.lock().run_for(Duration::from_millis(150));
+    let c = tof.capture().unwrap();
+    assert!(c.depth.stamp > a.depth.stamp);
+    let (l, r) = stereo.capture().unwrap();
+    assert_eq!((l.width, l.height, l.stamp), (640, 480, r.stamp));
+    assert_eq!(l.frame, "head_cam_left_optical");
+    assert_eq!(tof.range_limits(), (0.1, 5.0));
+}

@@ -318,6 +318,10 @@ pub trait DeviceMap {
     fn imu(&self) -> Result<Box<dyn Imu>, DeviceError>;
     /// A joint group by name (`arm`, `ptu`, `gripper`).
     fn joint_group(&self, name: &str) -> Result<Box<dyn JointGroup>, DeviceError>;
+    /// A stereo camera by name (`head_stereo`, `loc_stereo`).
+    fn stereo_camera(&self, name: &str) -> Result<Box<dyn StereoCamera>, DeviceError>;
+    /// A Time-of-Flight camera by name (`tof_left`, `tof_right`).
+    fn tof_camera(&self, name: &str) -> Result<Box<dyn TofCamera>, DeviceError>;
 }
 
 /// Checks that `token` reserves `device` and is still valid.

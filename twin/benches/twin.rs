@@ -47,3 +47,46 @@ fn kinematic_step(b: Bencher<'_, '_>) {
         black_box(t.time())
     });
 }
+
+/// The rover on the Mars yard with its pan-tilt looking at the ground ahead, and the renderer.
+fn sensing() -> (Twin, twin::render::SensorRenderer, twin::render::sensors::SensorConfig) {
+    let world = worlds::World::load(worlds::worlds_dir().join("mars_yard.toml")).expect("mars yard");
+    let mut t = Twin::with_defaults(world, StartPose { x: 3.5, y: 2.0, yaw: 0.6 }, Fidelity::Kinematic)
+        .expect("twin");
+    let id = t.start_move("ptu", &[0.0, 0.5], 1.0).expect("ptu");
+    t.run_until(framework::time::Duration::from_secs(3), |t| t.move_status(id).is_over());
+    let r = twin::render::SensorRenderer::new(&t).expect("a graphics adapter");
+    eprintln!("adapter: {}", r.adapter());
+    let cfg = twin::render::sensors::SensorConfig::load(twin::render::sensors::SensorConfig::default_path())
+        .expect("sensors");
+    (t, r, cfg)
+}
+
+/// Both ToF cameras (176 x 144 each), rendered and read back, noise and validity applied.
+#[divan::bench(sample_count = 20, sample_size = 10)]
+fn tof_pair(b: Bencher<'_, '_>) {
+    use rand::SeedableRng;
+    let (t, mut r, cfg) = sensing();
+    let cams: Vec<_> = cfg.tof.frames.iter().map(|f| twin::render::sensors::tof_model(&cfg.tof, f)).collect();
+    let poses: Vec<_> = cams.iter().map(|c| t.link_pose(&c.frame).expect("frame")).collect();
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
+    b.bench_local(|| {
+        for (c, p) in cams.iter().zip(&poses) {
+            black_box(r.tof(&t, c, p, &cfg.tof, &mut rng).expect("render"));
+        }
+    });
+}
+
+/// One head stereo pair (640 x 480 each, distortion and noise applied).
+#[divan::bench(sample_count = 20, sample_size = 5)]
+fn stereo_pair_640x480(b: Bencher<'_, '_>) {
+    use rand::SeedableRng;
+    let (t, mut r, cfg) = sensing();
+    let m = twin::render::sensors::stereo_model(&cfg.head_stereo, &t).expect("stereo model");
+    let poses = [t.link_pose(&m.left.frame).expect("left"), t.link_pose(&m.right.frame).expect("right")];
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
+    b.bench_local(|| {
+        black_box(r.grey(&t, &m.left, &poses[0], cfg.head_stereo.noise_dn, &mut rng).expect("left"));
+        black_box(r.grey(&t, &m.right, &poses[1], cfg.head_stereo.noise_dn, &mut rng).expect("right"));
+    });
+}

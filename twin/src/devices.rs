@@ -11,7 +11,7 @@ use crate::sim::{JOINT_GROUPS, Twin};
 use framework::exec_context::Mode;
 use framework::hal::{
     BodyTwist, DeviceError, DeviceMap, EncoderReading, Imu, ImuSample, JointGroup, JointLimits, JointState,
-    Locomotor, LocomotorModel, MoveId, MoveStatus, WheelEncoders, check_token,
+    Locomotor, LocomotorModel, MoveId, MoveStatus, StereoCamera, TofCamera, WheelEncoders, check_token,
 };
 use framework::resources::{ReservationToken, Resources};
 use framework::time::Time;
@@ -38,6 +38,9 @@ pub struct DryRunDeviceMap {
     twin: SharedTwin,
     resources: Resources,
     seed: u64,
+    /// The sensor renderer, opened when the first camera is asked for (missions without cameras
+    /// need no graphics adapter).
+    renderer: Mutex<Option<crate::render::sensors::SharedRenderer>>,
 }
 
 impl DryRunDeviceMap {
@@ -48,7 +51,24 @@ impl DryRunDeviceMap {
         for (g, _) in JOINT_GROUPS {
             resources.register(g);
         }
-        DryRunDeviceMap { twin, resources, seed }
+        DryRunDeviceMap { twin, resources, seed, renderer: Mutex::new(None) }
+    }
+
+    fn renderer(&self, device: &str) -> Result<crate::render::sensors::SharedRenderer, DeviceError> {
+        let mut r = self.renderer.lock();
+        if let Some(r) = r.as_ref() {
+            return Ok(r.clone());
+        }
+        let made = crate::render::SensorRenderer::new(&self.twin.lock())
+            .map_err(|e| DeviceError::Fault { device: device.into(), reason: e.to_string() })?;
+        let shared = Arc::new(Mutex::new(made));
+        *r = Some(shared.clone());
+        Ok(shared)
+    }
+
+    fn sensor_config(device: &str) -> Result<crate::render::SensorConfig, DeviceError> {
+        crate::render::SensorConfig::load(crate::render::SensorConfig::default_path())
+            .map_err(|e| DeviceError::InvalidCommand { device: device.into(), reason: e.to_string() })
     }
 }
 
@@ -96,6 +116,49 @@ impl DeviceMap for DryRunDeviceMap {
             joints,
             limits,
         }))
+    }
+    fn stereo_camera(&self, name: &str) -> Result<Box<dyn StereoCamera>, DeviceError> {
+        let cfg = Self::sensor_config(name)?;
+        let c = match name {
+            "head_stereo" => cfg.head_stereo,
+            "loc_stereo" => cfg.loc_stereo,
+            _ => {
+                return Err(DeviceError::InvalidCommand {
+                    device: name.into(),
+                    reason: "no such stereo camera (have: head_stereo, loc_stereo)".into(),
+                });
+            }
+        };
+        let seed = self.seed ^ if name == "head_stereo" { 0x5e } else { 0x10c };
+        Ok(Box::new(crate::render::sensors::DryRunStereo::new(
+            name,
+            self.twin.clone(),
+            self.renderer(name)?,
+            &c,
+            seed,
+        )?))
+    }
+    fn tof_camera(&self, name: &str) -> Result<Box<dyn TofCamera>, DeviceError> {
+        let cfg = Self::sensor_config(name)?;
+        let frame = match name {
+            "tof_left" => cfg.tof.frames.first(),
+            "tof_right" => cfg.tof.frames.get(1),
+            _ => None,
+        }
+        .ok_or_else(|| DeviceError::InvalidCommand {
+            device: name.into(),
+            reason: "no such ToF camera (have: tof_left, tof_right)".into(),
+        })?
+        .clone();
+        let seed = self.seed ^ if name == "tof_left" { 0x70f1 } else { 0x70f2 };
+        Ok(Box::new(crate::render::sensors::DryRunTof::new(
+            name,
+            &frame,
+            self.twin.clone(),
+            self.renderer(name)?,
+            &cfg.tof,
+            seed,
+        )))
     }
 }
 

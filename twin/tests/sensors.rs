@@ -249,4 +249,12 @@ fn devices_render_only_when_a_new_frame_is_due() {
     assert_eq!((l.width, l.height, l.stamp), (640, 480, r.stamp));
     assert_eq!(l.frame, "head_cam_left_optical");
     assert_eq!(tof.range_limits(), (0.1, 5.0));
+    // The device map builds the same devices by name.
+    use framework::hal::DeviceMap;
+    let map = twin::devices::DryRunDeviceMap::new(shared.clone(), framework::resources::Resources::new(), 3);
+    let mut right = map.tof_camera("tof_right").unwrap();
+    assert_eq!(right.model().frame, "tof_right_optical");
+    assert!(right.capture().unwrap().depth.valid() > 1000);
+    assert!(map.stereo_camera("loc_stereo").unwrap().capture().unwrap().0.frame == "loc_cam_left_optical");
+    assert!(map.tof_camera("tof_middle").is_err() && map.stereo_camera("nav").is_err());
 }

@@ -38,7 +38,7 @@ const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Stride between per-object uniforms; 256 = the default `min_uniform_buffer_offset_alignment`.
 const OBJECT_STRIDE: u64 = 256;
-const MAX_OBJECTS: u64 = 512;
+const MAX_OBJECTS: u64 = 1024;
 
 const SHADER: &str = r#"
 struct Globals {
@@ -499,12 +499,15 @@ impl Renderer {
         }
         let t = &self.targets[&(width, height)];
         self.queue.write_buffer(&self.globals_buf, 0, bytemuck::bytes_of(globals));
+        // One upload for all per-draw uniforms (a write per draw costs a staging allocation each).
+        let mut objects = vec![0u8; draws.len() * OBJECT_STRIDE as usize];
         for (i, d) in draws.iter().enumerate() {
-            self.queue.write_buffer(
-                &self.objects_buf,
-                i as u64 * OBJECT_STRIDE,
-                bytemuck::bytes_of(&d.object),
-            );
+            let at = i * OBJECT_STRIDE as usize;
+            let bytes = bytemuck::bytes_of(&d.object);
+            objects[at..at + bytes.len()].copy_from_slice(bytes);
+        }
+        if !objects.is_empty() {
+            self.queue.write_buffer(&self.objects_buf, 0, &objects);
         }
 
         let mut encoder =

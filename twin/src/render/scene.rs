@@ -102,7 +102,6 @@ struct Part {
 #[derive(Clone, Copy)]
 enum TextureId {
     White,
-    Regolith,
     Marker,
 }
 
@@ -116,34 +115,91 @@ enum Placement {
     Canister,
 }
 
+/// A terrain chunk: its bounds and one mesh per level of detail.
+struct Chunk {
+    min: Vector3<f64>,
+    max: Vector3<f64>,
+    lods: Vec<Mesh>,
+}
+
 /// Everything drawable, uploaded.
 pub struct Scene {
+    chunks: Vec<Chunk>,
     parts: Vec<Part>,
     white: wgpu::BindGroup,
     regolith: wgpu::BindGroup,
     marker: wgpu::BindGroup,
 }
 
-fn terrain_mesh(twin: &Twin) -> MeshData {
+/// Cells per side of a terrain chunk (divisible by the coarsest LOD step).
+const CHUNK: usize = 16;
+/// Sample steps of the levels of detail.
+const LOD_STEPS: [usize; 4] = [1, 2, 4, 8];
+/// Distance (m) up to which each level is used; beyond the last, the coarsest.
+const LOD_DISTANCES: [f64; 3] = [5.0, 10.0, 20.0];
+/// Depth of the skirts that hide cracks between chunks of different levels, m.
+const SKIRT_M: f64 = 0.3;
+
+/// One chunk of terrain at one level of detail, with skirts along its border.
+fn terrain_chunk(twin: &Twin, i0: usize, j0: usize, step: usize) -> MeshData {
     let hf = &twin.world().terrain;
+    let (i1, j1) = ((i0 + CHUNK).min(hf.nx - 1), (j0 + CHUNK).min(hf.ny - 1));
     let mut m = MeshData::default();
-    for j in 0..hf.ny {
-        for i in 0..hf.nx {
-            let p = hf.position(i, j);
-            let n = hf.normal(p.x, p.y);
-            m.vertices.push(Vertex {
-                position: [p.x as f32, p.y as f32, hf.at(i, j) as f32],
-                normal: [n.x as f32, n.y as f32, n.z as f32],
-                uv: [(p.x / TERRAIN_TILE_M) as f32, (p.y / TERRAIN_TILE_M) as f32],
-            });
+    let vertex = |i: usize, j: usize, dz: f64| {
+        let p = hf.position(i, j);
+        let n = hf.normal(p.x, p.y);
+        Vertex {
+            position: [p.x as f32, p.y as f32, (hf.at(i, j) - dz) as f32],
+            normal: [n.x as f32, n.y as f32, n.z as f32],
+            uv: [(p.x / TERRAIN_TILE_M) as f32, (p.y / TERRAIN_TILE_M) as f32],
+        }
+    };
+    let is: Vec<usize> = (i0..=i1)
+        .step_by(step)
+        .chain(std::iter::once(i1))
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    let js: Vec<usize> = (j0..=j1)
+        .step_by(step)
+        .chain(std::iter::once(j1))
+        .collect::<std::collections::BTreeSet<_>>()
+        .into_iter()
+        .collect();
+    let nx = is.len();
+    for &j in &js {
+        for &i in &is {
+            m.vertices.push(vertex(i, j, 0.0));
         }
     }
-    for j in 0..hf.ny - 1 {
-        for i in 0..hf.nx - 1 {
-            let k = (j * hf.nx + i) as u32;
-            let nx = hf.nx as u32;
-            m.indices.extend([k, k + 1, k + nx + 1, k, k + nx + 1, k + nx]);
+    for b in 0..js.len() - 1 {
+        for a in 0..nx - 1 {
+            let k = (b * nx + a) as u32;
+            let n = nx as u32;
+            m.indices.extend([k, k + 1, k + n + 1, k, k + n + 1, k + n]);
         }
+    }
+    // Skirts: each border edge gets a quad hanging below it.
+    let border: Vec<(usize, usize)> = is
+        .iter()
+        .map(|&i| (i, j0))
+        .chain(js.iter().map(|&j| (i1, j)))
+        .chain(is.iter().rev().map(|&i| (i, j1)))
+        .chain(js.iter().rev().map(|&j| (i0, j)))
+        .collect();
+    for w in border.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        if a == b {
+            continue;
+        }
+        let base = m.vertices.len() as u32;
+        m.vertices.extend([
+            vertex(a.0, a.1, 0.0),
+            vertex(b.0, b.1, 0.0),
+            vertex(b.0, b.1, SKIRT_M),
+            vertex(a.0, a.1, SKIRT_M),
+        ]);
+        m.indices.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
     }
     m
 }
@@ -239,7 +295,33 @@ impl Scene {
             }
         };
         let albedo = twin.world().regolith.albedo;
-        add(terrain_mesh(twin), [1.0, 1.0, 1.0, 1.0], Placement::Fixed, TextureId::Regolith);
+        let hf = &twin.world().terrain;
+        let mut chunks = Vec::new();
+        for j0 in (0..hf.ny - 1).step_by(CHUNK) {
+            for i0 in (0..hf.nx - 1).step_by(CHUNK) {
+                let (i1, j1) = ((i0 + CHUNK).min(hf.nx - 1), (j0 + CHUNK).min(hf.ny - 1));
+                let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+                for j in j0..=j1 {
+                    for i in i0..=i1 {
+                        lo = lo.min(hf.at(i, j));
+                        hi = hi.max(hf.at(i, j));
+                    }
+                }
+                let (a, b) = (hf.position(i0, j0), hf.position(i1, j1));
+                let lods = LOD_STEPS
+                    .iter()
+                    .map(|&st| {
+                        let m = terrain_chunk(twin, i0, j0, st);
+                        gpu.create_mesh(&m.vertices, &m.indices)
+                    })
+                    .collect();
+                chunks.push(Chunk {
+                    min: Vector3::new(a.x, a.y, lo - SKIRT_M),
+                    max: Vector3::new(b.x, b.y, hi),
+                    lods,
+                });
+            }
+        }
         let mut rocks = MeshData::default();
         for r in &twin.world().rocks {
             let t = Isometry3::from_parts(
@@ -280,13 +362,60 @@ impl Scene {
         let regolith =
             gpu.create_texture(TERRAIN_TEX, TERRAIN_TEX, &regolith_texture(albedo, twin.world().seed));
         let marker = gpu.create_texture(marker_rgba.0, marker_rgba.1, &marker_rgba.2);
-        Scene { parts, white, regolith, marker }
+        Scene { chunks, parts, white, regolith, marker }
     }
 
-    /// The draws of the scene at the twin's current poses.
-    pub fn draws(&self, twin: &Twin) -> Vec<Draw<'_>> {
+    /// The draws of the scene at the twin's current poses, seen by `cam` from `pose` (optical frame in
+    /// the world): terrain chunks outside the view or beyond `max_range` are left out, the others
+    /// drawn at a level of detail chosen by their distance.
+    pub fn draws(
+        &self,
+        twin: &Twin,
+        cam: &framework::camera::CameraModel,
+        pose: &Isometry3<f64>,
+        max_range: f64,
+    ) -> Vec<Draw<'_>> {
+        let identity: [[f32; 4]; 4] = Matrix4::<f32>::identity().into();
+        let inv = pose.inverse();
+        let k = &cam.pinhole;
+        let mut draws = Vec::with_capacity(self.parts.len() + self.chunks.len());
+        for c in &self.chunks {
+            let corners: Vec<Point3<f64>> = (0..8)
+                .map(|b| {
+                    let p = Vector3::new(
+                        if b & 1 == 0 { c.min.x } else { c.max.x },
+                        if b & 2 == 0 { c.min.y } else { c.max.y },
+                        if b & 4 == 0 { c.min.z } else { c.max.z },
+                    );
+                    inv * Point3::from(p)
+                })
+                .collect();
+            // Outside the frustum when every corner is beyond one of its planes.
+            let outside = corners.iter().all(|p| p.z < 0.05)
+                || corners.iter().all(|p| p.x > (k.width as f64 - k.cx) / k.fx * p.z)
+                || corners.iter().all(|p| p.x < -k.cx / k.fx * p.z)
+                || corners.iter().all(|p| p.y > (k.height as f64 - k.cy) / k.fy * p.z)
+                || corners.iter().all(|p| p.y < -k.cy / k.fy * p.z);
+            let nearest = {
+                let o = pose.translation.vector;
+                let q = Vector3::new(
+                    o.x.clamp(c.min.x, c.max.x),
+                    o.y.clamp(c.min.y, c.max.y),
+                    o.z.clamp(c.min.z, c.max.z),
+                );
+                (q - o).norm()
+            };
+            if outside || nearest > max_range {
+                continue;
+            }
+            let lod = LOD_DISTANCES.iter().position(|d| nearest < *d).unwrap_or(LOD_DISTANCES.len());
+            draws.push(Draw {
+                mesh: &c.lods[lod],
+                texture: &self.regolith,
+                object: ObjectUniform { model: identity, tint: [1.0, 1.0, 1.0, 1.0] },
+            });
+        }
         let gt_can = twin.canister_truth();
-        let mut draws = Vec::with_capacity(self.parts.len());
         for p in &self.parts {
             let pose = match &p.place {
                 Placement::Fixed => Some(Isometry3::identity()),
@@ -299,7 +428,6 @@ impl Scene {
                 mesh: &p.mesh,
                 texture: match p.texture {
                     TextureId::White => &self.white,
-                    TextureId::Regolith => &self.regolith,
                     TextureId::Marker => &self.marker,
                 },
                 object: ObjectUniform { model: m.into(), tint: p.tint },

@@ -158,6 +158,8 @@ pub fn stereo_model(s: &StereoConfig, twin: &Twin) -> Result<StereoModel, String
 pub struct SensorRenderer {
     gpu: Renderer,
     scene: Scene,
+    /// Per distorted camera: for each output pixel, where it samples the undistorted render.
+    remaps: Vec<(CameraModel, Vec<[f32; 2]>)>,
 }
 
 const NEAR: f32 = 0.05;
@@ -232,7 +234,7 @@ impl SensorRenderer {
         let id = twin.world().object("canister").and_then(|c| c.marker_ids.first().copied()).unwrap_or(0);
         let marker = marker_texture(id, 16).map_err(RenderError::Gpu)?;
         let scene = Scene::new(&gpu, twin, marker);
-        Ok(SensorRenderer { gpu, scene })
+        Ok(SensorRenderer { gpu, scene, remaps: Vec::new() })
     }
 
     /// The adapter in use, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)`.
@@ -240,13 +242,15 @@ impl SensorRenderer {
         format!("{} ({:?})", self.gpu.adapter_info.name, self.gpu.adapter_info.backend)
     }
 
-    /// Renders an undistorted pinhole view from `pose` (optical frame in the world).
-    pub fn render(
+    /// Renders an undistorted pinhole view from `pose` (optical frame in the world). Terrain farther
+    /// than `max_range` is not drawn.
+    pub fn render_within(
         &mut self,
         twin: &Twin,
         cam: &CameraModel,
         pose: &Isometry3<f64>,
         shading: Shading,
+        max_range: f64,
     ) -> Result<Frame, RenderError> {
         let view: Matrix4<f32> = pose.inverse().to_homogeneous().cast();
         let vp = projection(&cam.pinhole) * view;
@@ -261,8 +265,19 @@ impl SensorRenderer {
             cam_fwd: [fwd.x as f32, fwd.y as f32, fwd.z as f32, 0.0],
             light_dir: [light.x as f32, light.y as f32, light.z as f32, 0.3],
         };
-        let draws = self.scene.draws(twin);
+        let draws = self.scene.draws(twin, cam, pose, max_range);
         self.gpu.render(cam.pinhole.width, cam.pinhole.height, shading, &globals, &draws)
+    }
+
+    /// Renders an undistorted pinhole view from `pose` (optical frame in the world).
+    pub fn render(
+        &mut self,
+        twin: &Twin,
+        cam: &CameraModel,
+        pose: &Isometry3<f64>,
+        shading: Shading,
+    ) -> Result<Frame, RenderError> {
+        self.render_within(twin, cam, pose, shading, f64::INFINITY)
     }
 
     /// A greyscale image from `pose` with the camera's distortion, plus exposure noise.
@@ -281,39 +296,56 @@ impl SensorRenderer {
             .chunks_exact(4)
             .map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32)
             .collect();
-        let sample = |x: f64, y: f64| -> f32 {
+        let sample = |x: f32, y: f32| -> f32 {
             // Bilinear, in pixel-centre coordinates.
             let (x, y) = (x - 0.5, y - 0.5);
-            if x < 0.0 || y < 0.0 || x > (w - 1) as f64 || y > (h - 1) as f64 {
+            if x < 0.0 || y < 0.0 || x > (w - 1) as f32 || y > (h - 1) as f32 {
                 return 0.0;
             }
             let (i, j) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
-            let (tx, ty) = ((x - i as f64) as f32, (y - j as f64) as f32);
+            let (tx, ty) = (x - i as f32, y - j as f32);
             let at = |a: usize, b: usize| lum[b * w + a];
             (at(i, j) * (1.0 - tx) + at(i + 1, j) * tx) * (1.0 - ty)
                 + (at(i, j + 1) * (1.0 - tx) + at(i + 1, j + 1) * tx) * ty
         };
-        let k = &cam.pinhole;
+        let remap = if cam.distortion.is_zero() { None } else { Some(self.remap(cam)) };
+        let normal = StandardNormal;
         let mut data = Vec::with_capacity(w * h);
-        for v in 0..h {
-            for u in 0..w {
-                let value = if cam.distortion.is_zero() {
-                    lum[v * w + u]
-                } else {
-                    // The distorted pixel sees the undistorted direction.
-                    let d = Vector2::new((u as f64 + 0.5 - k.cx) / k.fx, (v as f64 + 0.5 - k.cy) / k.fy);
-                    let p = cam.distortion.undistort(d);
-                    sample(k.fx * p.x + k.cx, k.fy * p.y + k.cy)
-                };
-                let n: f64 = if noise_dn > 0.0 {
-                    noise_dn * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng)
-                } else {
-                    0.0
-                };
-                data.push((value as f64 + n).round().clamp(0.0, 255.0) as u8);
-            }
+        for (i, l) in lum.iter().enumerate() {
+            let value = match remap {
+                None => *l,
+                Some(k) => {
+                    let [x, y] = self.remaps[k].1[i];
+                    sample(x, y)
+                }
+            };
+            let n: f64 = if noise_dn > 0.0 {
+                noise_dn * <StandardNormal as Distribution<f64>>::sample(&normal, rng)
+            } else {
+                0.0
+            };
+            data.push((value as f64 + n + 0.5).clamp(0.0, 255.0) as u8);
         }
         Ok(GreyImage { stamp: twin.time(), frame: cam.frame.clone(), width: f.width, height: f.height, data })
+    }
+
+    /// The index of the remap table of a distorted camera, computed on first use: the distorted pixel
+    /// (u, v) sees the direction of the undistorted pixel the table holds.
+    fn remap(&mut self, cam: &CameraModel) -> usize {
+        if let Some(k) = self.remaps.iter().position(|(c, _)| c == cam) {
+            return k;
+        }
+        let p = &cam.pinhole;
+        let mut table = Vec::with_capacity((p.width * p.height) as usize);
+        for v in 0..p.height {
+            for u in 0..p.width {
+                let d = Vector2::new((u as f64 + 0.5 - p.cx) / p.fx, (v as f64 + 0.5 - p.cy) / p.fy);
+                let n = cam.distortion.undistort(d);
+                table.push([(p.fx * n.x + p.cx) as f32, (p.fy * n.y + p.cy) as f32]);
+            }
+        }
+        self.remaps.push((cam.clone(), table));
+        self.remaps.len() - 1
     }
 
     /// A Time-of-Flight frame from `pose`.
@@ -325,7 +357,9 @@ impl SensorRenderer {
         cfg: &TofConfig,
         rng: &mut Pcg64Mcg,
     ) -> Result<TofFrame, RenderError> {
-        let f = self.render(twin, cam, pose, Shading::Tof)?;
+        // Terrain a little beyond the maximum range cannot return, but may still hide nearer things:
+        // a margin keeps it.
+        let f = self.render_within(twin, cam, pose, Shading::Tof, cfg.max_range_m * 1.5 + 2.0)?;
         let cos_max = cfg.max_incidence_deg.to_radians().cos();
         let n = (f.width * f.height) as usize;
         let mut depth = Vec::with_capacity(n);

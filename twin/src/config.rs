@@ -40,6 +40,8 @@ pub struct PhysicsConfig {
     pub pgs_iterations: usize,
     /// Friction model.
     pub friction_model: FrictionModelName,
+    /// Cell size of the terrain's collision grid, m (the world's own when smaller).
+    pub terrain_cell_m: f64,
 }
 
 /// rapier's friction models.

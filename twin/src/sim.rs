@@ -410,10 +410,16 @@ impl Twin {
 
         // Terrain: parry heightfields are y-up with rows along +z; rotate +90 deg about x so that
         // local y is world z, and flip rows so that row i is world y = +half - i * cell.
+        // The collision grid may be coarser than the world's (physics.terrain_cell_m): contacts
+        // cost per triangle under each wheel.
         let hf = &self.world.terrain;
-        let (nx, ny) = (hf.nx, hf.ny);
-        let heights = Array2::from_fn(ny, nx, |i, j| hf.at(j, ny - 1 - i) as f32);
         let [sx, sy] = hf.size();
+        let cell = c.physics.terrain_cell_m.max(hf.cell);
+        let (nx, ny) = ((sx / cell).round() as usize + 1, (sy / cell).round() as usize + 1);
+        let (cx, cy) = (sx / (nx - 1) as f64, sy / (ny - 1) as f64);
+        let heights = Array2::from_fn(ny, nx, |i, j| {
+            hf.height(hf.origin.x + j as f64 * cx, hf.origin.y + (ny - 1 - i) as f64 * cy) as f32
+        });
         let ground_tag = self.tag("terrain".into(), false, false, false);
         let ground = ColliderBuilder::heightfield_with_flags(
             heights,

@@ -319,7 +319,8 @@ fn a_stowed_canister_stays_in_its_slot_over_rough_ground() {
     let slot = t.link_pose("stow_slot").unwrap();
     t.place_canister(slot * Isometry3::translation(0.0, 0.0, 0.003));
     t.run_for(S(1.0));
-    let rates = t.locomotor_model().wheel_rates(BodyTwist { v: 0.25, omega: 0.05 }).unwrap();
+    // Straight north-east from the start area: clear of the marker table and the lander.
+    let rates = t.locomotor_model().wheel_rates(BodyTwist { v: 0.25, omega: 0.0 }).unwrap();
     t.set_wheel_rates(&rates);
     let start = t.base_pose().translation.vector;
     let mut worst: f64 = 0.0;

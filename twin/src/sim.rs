@@ -1133,14 +1133,7 @@ impl Twin {
     fn count_collisions(&mut self) {
         let Engine::Dynamic(ph) = &self.engine else { return };
         let mut now = std::collections::BTreeSet::new();
-        for pair in ph.narrow_phase.contact_pairs() {
-            if !pair.has_any_active_contact() {
-                continue;
-            }
-            let (Some(a), Some(b)) = (ph.colliders.get(pair.collider1), ph.colliders.get(pair.collider2))
-            else {
-                continue;
-            };
+        for (_, a, b) in active_pairs(ph) {
             let (ta, tb) = (a.user_data as usize, b.user_data as usize);
             let (Some(x), Some(y)) = (self.tags.get(ta), self.tags.get(tb)) else { continue };
             // A collision: a robot part other than a wheel touching a rock or an object, or a wheel a
@@ -1375,14 +1368,7 @@ impl Twin {
         }
         let mut contacts = Vec::new();
         if let Engine::Dynamic(ph) = &self.engine {
-            for pair in ph.narrow_phase.contact_pairs() {
-                if !pair.has_any_active_contact() {
-                    continue;
-                }
-                let (Some(a), Some(b)) = (ph.colliders.get(pair.collider1), ph.colliders.get(pair.collider2))
-                else {
-                    continue;
-                };
+            for (pair, a, b) in active_pairs(ph) {
                 let name = |c: &Collider| {
                     self.tags.get(c.user_data as usize).map(|t| t.name.clone()).unwrap_or_default()
                 };
@@ -1455,6 +1441,14 @@ impl Twin {
         }
         out
     }
+}
+
+/// Contact pairs with at least one active contact, with their two colliders.
+fn active_pairs(ph: &Physics) -> impl Iterator<Item = (&ContactPair, &Collider, &Collider)> {
+    ph.narrow_phase
+        .contact_pairs()
+        .filter(|p| p.has_any_active_contact())
+        .filter_map(|p| Some((p, ph.colliders.get(p.collider1)?, ph.colliders.get(p.collider2)?)))
 }
 
 /// Force-based servo gains of a joint: full effort at the configured error.

@@ -113,7 +113,8 @@ impl CameraModel {
     /// The normalized ray (z = 1) through pixel coordinates.
     pub fn ray(&self, uv: &Point2<f64>) -> Vector2<f64> {
         let k = &self.pinhole;
-        self.distortion.undistort(Vector2::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy))
+        let d = Vector2::new((uv.x - k.cx) / k.fx, (uv.y - k.cy) / k.fy);
+        if self.distortion.is_zero() { d } else { self.distortion.undistort(d) }
     }
     /// The point at depth `z` (optical-frame z, m) seen at pixel coordinates.
     pub fn unproject(&self, uv: &Point2<f64>, z: f64) -> Point3<f64> {

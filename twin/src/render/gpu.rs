@@ -388,7 +388,7 @@ impl Renderer {
             address_mode_v: wgpu::AddressMode::Repeat,
             mag_filter: wgpu::FilterMode::Linear,
             min_filter: wgpu::FilterMode::Linear,
-            mipmap_filter: wgpu::MipmapFilterMode::Nearest,
+            mipmap_filter: wgpu::MipmapFilterMode::Linear,
             ..Default::default()
         });
 
@@ -411,32 +411,55 @@ impl Renderer {
 
     /// Uploads an RGBA8 image (terrain albedo, marker) and returns its group-1 bind group.
     pub fn create_texture(&self, width: u32, height: u32, rgba: &[u8]) -> wgpu::BindGroup {
+        // A full mip chain (box-filtered here): minified texture reads stay in cache, which a
+        // software rasterizer feels most.
+        let levels = 32 - width.max(height).leading_zeros();
         let size = wgpu::Extent3d { width, height, depth_or_array_layers: 1 };
         let texture = self.device.create_texture(&wgpu::TextureDescriptor {
             label: Some("albedo"),
             size,
-            mip_level_count: 1,
+            mip_level_count: levels,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
             format: wgpu::TextureFormat::Rgba8Unorm,
             usage: wgpu::TextureUsages::TEXTURE_BINDING | wgpu::TextureUsages::COPY_DST,
             view_formats: &[],
         });
-        self.queue.write_texture(
-            wgpu::TexelCopyTextureInfo {
-                texture: &texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            rgba,
-            wgpu::TexelCopyBufferLayout {
-                offset: 0,
-                bytes_per_row: Some(4 * width), // no 256 alignment needed for write_texture
-                rows_per_image: Some(height),
-            },
-            size,
-        );
+        let (mut w, mut h, mut level) = (width, height, rgba.to_vec());
+        for mip in 0..levels {
+            self.queue.write_texture(
+                wgpu::TexelCopyTextureInfo {
+                    texture: &texture,
+                    mip_level: mip,
+                    origin: wgpu::Origin3d::ZERO,
+                    aspect: wgpu::TextureAspect::All,
+                },
+                &level,
+                wgpu::TexelCopyBufferLayout {
+                    offset: 0,
+                    bytes_per_row: Some(4 * w), // no 256 alignment needed for write_texture
+                    rows_per_image: Some(h),
+                },
+                wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
+            );
+            let (nw, nh) = ((w / 2).max(1), (h / 2).max(1));
+            let mut next = Vec::with_capacity((nw * nh * 4) as usize);
+            for y in 0..nh {
+                for x in 0..nw {
+                    for c in 0..4 {
+                        let at = |xx: u32, yy: u32| {
+                            level[((yy.min(h - 1) * w + xx.min(w - 1)) * 4 + c) as usize] as u32
+                        };
+                        let sum = at(2 * x, 2 * y)
+                            + at(2 * x + 1, 2 * y)
+                            + at(2 * x, 2 * y + 1)
+                            + at(2 * x + 1, 2 * y + 1);
+                        next.push(((sum + 2) / 4) as u8);
+                    }
+                }
+            }
+            (w, h, level) = (nw, nh, next);
+        }
         let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
         self.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("albedo"),

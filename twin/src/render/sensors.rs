@@ -291,10 +291,11 @@ impl SensorRenderer {
     ) -> Result<GreyImage, RenderError> {
         let f = self.render(twin, cam, pose, Shading::Sun)?;
         let (w, h) = (f.width as usize, f.height as usize);
+        // Luminance (Rec. 601 weights in 8-bit fixed point).
         let lum: Vec<f32> = f
             .rgba
             .chunks_exact(4)
-            .map(|p| 0.299 * p[0] as f32 + 0.587 * p[1] as f32 + 0.114 * p[2] as f32)
+            .map(|p| ((77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32) >> 8) as f32)
             .collect();
         let sample = |x: f32, y: f32| -> f32 {
             // Bilinear, in pixel-centre coordinates.
@@ -319,12 +320,12 @@ impl SensorRenderer {
                     sample(x, y)
                 }
             };
-            let n: f64 = if noise_dn > 0.0 {
-                noise_dn * <StandardNormal as Distribution<f64>>::sample(&normal, rng)
+            let n: f32 = if noise_dn > 0.0 {
+                noise_dn as f32 * <StandardNormal as Distribution<f32>>::sample(&normal, rng)
             } else {
                 0.0
             };
-            data.push((value as f64 + n + 0.5).clamp(0.0, 255.0) as u8);
+            data.push((value + n + 0.5).clamp(0.0, 255.0) as u8);
         }
         Ok(GreyImage { stamp: twin.time(), frame: cam.frame.clone(), width: f.width, height: f.height, data })
     }

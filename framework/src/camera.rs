@@ -145,9 +145,9 @@ impl StereoModel {
     }
 }
 
-/// A greyscale image, row-major, 8 bits.
+/// A single-channel image, row-major, stamped and tied to its optical frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct GreyImage {
+pub struct Image<T> {
     /// Acquisition time.
     pub stamp: Time,
     /// Optical frame.
@@ -157,36 +157,23 @@ pub struct GreyImage {
     /// Height, pixels.
     pub height: u32,
     /// Pixels, `data[v * width + u]`.
-    pub data: Vec<u8>,
+    pub data: Vec<T>,
 }
 
-impl GreyImage {
+impl<T: Copy> Image<T> {
     /// Pixel value.
-    pub fn at(&self, u: u32, v: u32) -> u8 {
+    pub fn at(&self, u: u32, v: u32) -> T {
         self.data[(v * self.width + u) as usize]
     }
 }
+
+/// A greyscale image, 8 bits.
+pub type GreyImage = Image<u8>;
 
 /// A depth image: optical-frame z in metres, NaN where there is no valid return.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct DepthImage {
-    /// Acquisition time.
-    pub stamp: Time,
-    /// Optical frame.
-    pub frame: String,
-    /// Width, pixels.
-    pub width: u32,
-    /// Height, pixels.
-    pub height: u32,
-    /// Depths, m, `data[v * width + u]`.
-    pub data: Vec<f32>,
-}
+pub type DepthImage = Image<f32>;
 
 impl DepthImage {
-    /// Depth at a pixel (NaN if invalid).
-    pub fn at(&self, u: u32, v: u32) -> f32 {
-        self.data[(v * self.width + u) as usize]
-    }
     /// Number of valid pixels.
     pub fn valid(&self) -> usize {
         self.data.iter().filter(|d| d.is_finite()).count()

@@ -1328,31 +1328,37 @@ impl Twin {
         self.collisions
     }
 
+    /// World poses of every link of the mechanism model, in its link order, computed in one pass.
+    fn all_link_poses(&self) -> Vec<Isometry3<f64>> {
+        match &self.engine {
+            Engine::Kinematic(k) => {
+                let q = self.dof_values();
+                self.mech.link_poses(&q).unwrap_or_default().into_iter().map(|p| k.base * p).collect()
+            }
+            Engine::Dynamic(_) => (0..self.links.len()).map(|li| self.link_pose_index(li)).collect(),
+        }
+    }
+
+    /// World poses of every robot link by name (ground truth), computed in one pass.
+    pub fn link_poses(&self) -> Vec<(&str, Isometry3<f64>)> {
+        self.mech.links().iter().map(|l| l.name.as_str()).zip(self.all_link_poses()).collect()
+    }
+
     /// Ground truth: every robot link and the canister, with velocities, and the contacts.
     pub fn ground_truth(&self) -> GroundTruth {
         let mut bodies = Vec::new();
-        let kin_q = self.dof_values();
-        let kin_poses = match &self.engine {
-            Engine::Kinematic(_) => self.mech.link_poses(&kin_q).unwrap_or_default(),
-            _ => Vec::new(),
-        };
+        let poses = self.all_link_poses();
         for (li, l) in self.mech.links().iter().enumerate() {
-            let (pose, linvel, angvel) = match (&self.engine, &self.links[li]) {
-                (Engine::Dynamic(ph), src) => {
-                    let (b, off) = match src {
-                        LinkSource::Body(b) => (*b, Isometry3::identity()),
-                        LinkSource::Attached { body, offset } => (*body, *offset),
-                    };
-                    let body = &ph.bodies[b];
-                    let pose = pose_from_rapier(body.position()) * off;
+            let pose = poses[li];
+            let (linvel, angvel) = match (&self.engine, &self.links[li]) {
+                (Engine::Dynamic(ph), LinkSource::Body(b) | LinkSource::Attached { body: b, .. }) => {
+                    let body = &ph.bodies[*b];
                     let p = point_to_rapier(&Point3::from(pose.translation.vector));
-                    (pose, from_rapier(body.velocity_at_point(p)), from_rapier(body.angvel()))
+                    (from_rapier(body.velocity_at_point(p)), from_rapier(body.angvel()))
                 }
                 (Engine::Kinematic(k), _) => {
-                    let pose = k.base * kin_poses[li];
-                    let twist = k.twist;
-                    let v = k.base.rotation * Vector3::new(twist.v, 0.0, 0.0);
-                    (pose, v, Vector3::new(0.0, 0.0, twist.omega))
+                    let v = k.base.rotation * Vector3::new(k.twist.v, 0.0, 0.0);
+                    (v, Vector3::new(0.0, 0.0, k.twist.omega))
                 }
             };
             bodies.push(BodyTruth { name: l.name.clone(), pose, linvel, angvel });

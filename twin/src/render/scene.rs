@@ -416,10 +416,11 @@ impl Scene {
             });
         }
         let gt_can = twin.canister_truth();
+        let links: std::collections::HashMap<&str, Isometry3<f64>> = twin.link_poses().into_iter().collect();
         for p in &self.parts {
             let pose = match &p.place {
                 Placement::Fixed => Some(Isometry3::identity()),
-                Placement::Link(l) => twin.link_pose(l),
+                Placement::Link(l) => links.get(l.as_str()).copied(),
                 Placement::Canister => gt_can,
             };
             let Some(pose) = pose else { continue };

@@ -138,6 +138,11 @@ impl EventLog {
     pub fn snapshot(&self) -> Vec<Event> {
         self.events.lock().clone()
     }
+    /// The events from index `from` on (a reader keeps its own position), and the count so far.
+    pub fn since(&self, from: usize) -> (Vec<Event>, usize) {
+        let e = self.events.lock();
+        (e.get(from..).map(<[Event]>::to_vec).unwrap_or_default(), e.len())
+    }
     /// Removes and returns the events so far.
     pub fn drain(&self) -> Vec<Event> {
         std::mem::take(&mut *self.events.lock())

@@ -8,7 +8,7 @@
 //! |---|---|
 //! | KAL: clocks, tasks | [`time`], [`clock`], [`executor`] |
 //! | WorkFrame core: system manager, scheduler, watchdog | [`system`], [`executor`] |
-//! | BlackBoard System, Data Interface | [`blackboard`] |
+//! | BlackBoard System, Data Interface | [`blackboard`], [`data`] |
 //! | Messages Passing System | [`message`] |
 //! | Module base: FSM, meta-states, commands, scheduling | [`module`] |
 //! | Modules configuration, execution context | [`config`], [`exec_context`] |
@@ -25,6 +25,7 @@ pub mod camera;
 pub mod clock;
 pub mod config;
 pub mod console;
+pub mod data;
 pub mod estimate;
 pub mod events;
 pub mod exec_context;

@@ -107,6 +107,7 @@ pub const FRAMEWORK_COMMANDS: &[&str] = &[
     "set_param",
     "reload_config",
     "save_config",
+    "inject_fault",
 ];
 
 struct StateEntry<M> {
@@ -566,6 +567,18 @@ pub(crate) struct Cell<M: Module> {
     tracker: AckTracker,
     stats: TaskStats,
     consecutive_overruns: u32,
+    /// A fault injected through the debug queue, raised at the next cycle.
+    injected: Option<InjectedFault>,
+}
+
+/// A fault injected into a module through its debug queue (`inject_fault`), for failure testing.
+#[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InjectedFault {
+    /// The module's next cycle panics (a crash).
+    Panic,
+    /// The module's next cycle returns an error.
+    Error,
 }
 
 fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
@@ -644,6 +657,7 @@ impl<M: Module> Cell<M> {
             tracker: AckTracker::default(),
             stats: TaskStats::default(),
             consecutive_overruns: 0,
+            injected: None,
         })
     }
 
@@ -775,6 +789,12 @@ impl<M: Module> Cell<M> {
                 self.info.name, self.exec
             ));
         }
+        if name == "inject_fault" && m.queue != Queue::Debug {
+            return Outcome::reject(format!(
+                "'inject_fault' is accepted only on the debug queue (module '{}')",
+                self.info.name
+            ));
+        }
         if FRAMEWORK_COMMANDS.contains(&name) {
             return self.framework_command(core, now, name, args);
         }
@@ -865,6 +885,11 @@ impl<M: Module> Cell<M> {
             key: String,
             value: serde_json::Value,
         }
+        #[derive(Deserialize)]
+        #[serde(deny_unknown_fields)]
+        struct Inject {
+            kind: InjectedFault,
+        }
         #[derive(Deserialize, Default)]
         #[serde(deny_unknown_fields)]
         struct Save {
@@ -887,6 +912,17 @@ impl<M: Module> Cell<M> {
         };
         let r: Result<Outcome, Outcome> = (|| match name {
             "ping" => Ok(Outcome::done()),
+            "inject_fault" => {
+                let Inject { kind } = parse(name, args)?;
+                if self.isolated || self.lifecycle != Lifecycle::Run {
+                    return Err(Outcome::reject(format!(
+                        "module '{}' is not running ({}); nothing to inject into",
+                        self.info.name, self.lifecycle
+                    )));
+                }
+                self.injected = Some(kind);
+                Ok(Outcome::Completed(serde_json::json!({ "injected": kind })))
+            }
             "get_state" => Ok(Outcome::Completed(self.state_json())),
             "get_stats" => Ok(Outcome::Completed(serde_json::to_value(&self.stats).unwrap_or_default())),
             "lifecycle" => {
@@ -1028,6 +1064,18 @@ impl<M: Module> Cell<M> {
             l => self.lifecycle_fns.get(&l).copied(),
         };
         let Some(f) = f else { return Duration::ZERO };
+        if let Some(kind) = self.injected.take() {
+            let text = format!("fault injected through the debug queue ({kind:?})");
+            let fault = match kind {
+                InjectedFault::Panic => {
+                    let r = catch_unwind(|| -> () { panic!("{text}") });
+                    Fault::Panic(r.err().map(|p| panic_text(&*p)).unwrap_or(text))
+                }
+                InjectedFault::Error => Fault::Error(text),
+            };
+            self.isolate(core, now, fault);
+            return Duration::ZERO;
+        }
         let mut ctx =
             Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
         let module = &mut self.module;

@@ -258,7 +258,17 @@ impl SystemBuilder {
         self
     }
 
-    /// The blackboard being declared (for tools that read it).
+    /// Problems found so far while registering (configuration errors, duplicate names); the
+    /// system will not start while there is any.
+    pub fn problems(&self) -> &[String] {
+        &self.problems
+    }
+
+    /// The shared devices and their reservations (device maps register their devices here).
+    pub fn resources(&self) -> &Resources {
+        &self.resources
+    }
+    /// The blackboard being declared.
     pub fn board(&self) -> &BlackBoard {
         &self.board
     }

@@ -1,8 +1,14 @@
 //! # gnc: guidance, navigation and control modules
 //!
-//! Will hold the mission's module set (seed 000, section 8): perception from ToF elevation maps,
-//! traversability, path planning, locomotion, wheel/inertial/visual odometry and their fusion,
-//! target and marker tracking, manipulator control with visual servoing, the coordinators and autonomy.
+//! The mission's module set (seed 000, section 8). GNC code sees the world only through the
+//! framework's HAL and blackboard; this crate never depends on `twin` and never reads ground truth.
 //!
-//! Status: skeleton. GNC code sees the world only through the framework's HAL and blackboard; this
-//! crate never depends on `twin` and never reads ground truth.
+//! Today: the HAL-level modules that scenarios command through message passing —
+//! [`locomotion::Locomotion`] (body motion, `goto`, stall detection), [`joints::JointGroupModule`]
+//! (arm, pan-tilt unit, gripper) — and [`odometry::Odometry`] (wheel-inertial dead reckoning).
+//! To come (see DESIGN.md): ToF elevation maps and fusion, traversability, path planning, visual
+//! odometry and localization fusion, target and marker tracking, visual servoing, autonomy.
+
+pub mod joints;
+pub mod locomotion;
+pub mod odometry;

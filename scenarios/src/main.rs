@@ -1,9 +1,11 @@
 //! `rover-twin`: the workbench's command line.
 //!
-//! Today it runs the framework demo (`rover-twin demo`); the scenario runner (`run`), Monte Carlo
-//! sweeps (`sweep`) and file validation (`check`) arrive with the scenarios issue.
-
-mod demo;
+//! - `run SCENARIO.toml`: one headless mission run: `score.json`, `run.rrd`, `run.mcap`;
+//! - `sweep SWEEP.toml`: a Monte Carlo campaign (parallel, shardable), `sweep merge DIR...`;
+//! - `check FILE...`: validates scenario, sweep, world and module configuration files;
+//! - `demo`: the framework demo (four modules of a heading loop).
+//!
+//! Exit status: 0 success, 1 mission failure, 2 bad input, interruption or internal error.
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
@@ -12,8 +14,13 @@ use framework::{
     AckStatus, Command, ConfigSource, Duration, Executor, Lifecycle, LockstepExecutor, RealtimeExecutor,
     SystemBuilder,
 };
+use scenarios::scenario::FidelityName;
+use scenarios::sweep::{self, KeepLogs};
+use scenarios::{check, demo, runner, scenario};
 use std::io::BufRead;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 #[derive(Parser)]
 #[command(
@@ -28,8 +35,86 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
+    /// Run one scenario headless: writes DIR/score.json, DIR/run.rrd and DIR/run.mcap.
+    Run(RunArgs),
+    /// Run a Monte Carlo sweep (or `sweep merge DIR...` to join shards).
+    Sweep(SweepArgs),
+    /// Validate scenario, sweep, world and module configuration files.
+    Check(CheckArgs),
     /// Run the framework demo: four modules of a heading loop exchanging data and commands.
     Demo(DemoArgs),
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    /// The scenario file.
+    scenario: PathBuf,
+    /// Run seed (default: the scenario's run.seed).
+    #[arg(long)]
+    seed: Option<u64>,
+    /// Output folder (default: out/<scenario name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Physics fidelity (default: the scenario's).
+    #[arg(long, value_enum)]
+    fidelity: Option<FidelityName>,
+    /// Override a scenario key, e.g. --set world.seed=7 --set canister.x=5.5 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    sets: Vec<String>,
+    /// No progress line.
+    #[arg(long)]
+    quiet: bool,
+}
+
+#[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true)]
+struct SweepArgs {
+    #[command(subcommand)]
+    merge: Option<SweepCmd>,
+    /// The sweep file.
+    sweep: Option<PathBuf>,
+    /// Number of runs (default: the file's).
+    #[arg(long)]
+    runs: Option<u64>,
+    /// Parallel runs (default: all cores).
+    #[arg(long)]
+    jobs: Option<usize>,
+    /// Run only the K-th of N disjoint slices (1-based), e.g. --shard 2/8.
+    #[arg(long, value_parser = sweep::parse_shard)]
+    shard: Option<(u64, u64)>,
+    /// Output folder (default: out/sweep-<sweep file name>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Which run logs to keep (default: the file's, normally failed runs only).
+    #[arg(long, value_enum)]
+    keep_logs: Option<KeepLogs>,
+    /// Also measure the speed-up: the campaign with 1 job, with all jobs, and as independent
+    /// single-job processes side by side, and report them together.
+    #[arg(long)]
+    bench: bool,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+#[derive(Subcommand)]
+enum SweepCmd {
+    /// Join shard folders into one result (the same an unsharded sweep gives).
+    Merge {
+        /// Shard output folders.
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Output folder.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(clap::Args)]
+struct CheckArgs {
+    /// Files to check.
+    #[arg(required = true)]
+    files: Vec<PathBuf>,
 }
 
 #[derive(clap::Args)]
@@ -58,23 +143,154 @@ fn default_demo_config() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/demo")
 }
 
+/// SIGINT/SIGTERM set this; runs and sweeps stop cleanly, finalizing what they wrote.
+fn interrupt_flag() -> Arc<AtomicBool> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let f = flag.clone();
+    if let Err(e) = ctrlc::set_handler(move || {
+        if f.swap(true, Ordering::SeqCst) {
+            eprintln!("\nsecond interrupt: exiting at once");
+            std::process::exit(2);
+        }
+        eprintln!("\ninterrupted: finishing the logs (interrupt again to exit at once)");
+    }) {
+        eprintln!("warning: cannot install the SIGINT/SIGTERM handler: {e}");
+    }
+    flag
+}
+
 fn main() {
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
         .with_writer(std::io::stderr)
         .init();
     let cli = Cli::parse();
-    let code = match cli.command {
-        Cmd::Demo(a) => match demo_main(&a) {
-            Ok(true) => 0,
-            Ok(false) => 1,
-            Err(e) => {
-                eprintln!("error: {e:#}");
-                2
-            }
-        },
+    let r = match cli.command {
+        Cmd::Demo(a) => demo_main(&a).map(|ok| if ok { 0 } else { 1 }),
+        Cmd::Run(a) => run_main(a),
+        Cmd::Sweep(a) => sweep_main(a),
+        Cmd::Check(a) => Ok(check_main(&a)),
     };
+    let code = r.unwrap_or_else(|e| {
+        eprintln!("error: {e:#}");
+        2
+    });
     std::process::exit(code);
+}
+
+fn parse_sets(sets: &[String]) -> Result<Vec<(String, String)>> {
+    sets.iter()
+        .map(|s| {
+            let (k, v) = s.split_once('=').with_context(|| format!("--set {s}: expected KEY=VALUE"))?;
+            Ok((k.trim().to_string(), v.trim().to_string()))
+        })
+        .collect()
+}
+
+fn run_main(a: RunArgs) -> Result<i32> {
+    let sets = parse_sets(&a.sets)?;
+    let loaded = scenario::load(&a.scenario, &sets)?;
+    let out = a.out.unwrap_or_else(|| PathBuf::from("out").join(&loaded.scenario.name));
+    let opts = runner::RunOptions {
+        seed: a.seed,
+        out: out.clone(),
+        fidelity: a.fidelity,
+        quiet: a.quiet,
+        write_logs: true,
+        interrupt: interrupt_flag(),
+    };
+    let score = runner::run(&loaded, &opts)?;
+    for p in &score.phases {
+        println!(
+            "phase {:<14} {:<10} {}",
+            p.name,
+            format!("{:?}", p.status).to_lowercase(),
+            p.reason.as_deref().unwrap_or("")
+        );
+    }
+    for c in score.criteria.iter().filter(|c| !c.passed) {
+        println!("criterion not met: {}: {} (wanted {})", c.name, c.value, c.limit);
+    }
+    println!(
+        "{}: {} after {:.1} s simulated in {:.1} s ({:.1}x); distance {:.2} m; final position error {}; score: {}",
+        score.scenario,
+        score.outcome.to_uppercase(),
+        score.sim_time_s,
+        score.wall_time_s,
+        score.speed,
+        score.metrics.distance_m,
+        score.metrics.final_position_error_m.map(|e| format!("{e:.3} m")).unwrap_or_else(|| "n/a".into()),
+        out.join("score.json").display()
+    );
+    Ok(match score.outcome.as_str() {
+        "success" => 0,
+        "mission_failure" => 1,
+        _ => 2,
+    })
+}
+
+fn sweep_main(a: SweepArgs) -> Result<i32> {
+    if let Some(SweepCmd::Merge { dirs, out }) = a.merge {
+        let rows = sweep::merge(&dirs, &out)?;
+        let ok = rows.iter().filter(|r| r.success).count();
+        println!(
+            "merged {} runs from {} folders into {}: {ok} succeeded",
+            rows.len(),
+            dirs.len(),
+            out.display()
+        );
+        return Ok(0);
+    }
+    let Some(path) = a.sweep else { bail!("give a sweep file (or `sweep merge DIR... --out DIR`)") };
+    let sw = sweep::load(&path)?;
+    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("sweep").to_string();
+    let out = a.out.unwrap_or_else(|| PathBuf::from("out").join(format!("sweep-{stem}")));
+    let interrupt = interrupt_flag();
+    let opts = sweep::SweepOptions {
+        runs: a.runs,
+        jobs: a.jobs,
+        shard: a.shard,
+        out: out.clone(),
+        keep_logs: a.keep_logs,
+        quiet: a.quiet,
+        interrupt: interrupt.clone(),
+    };
+    if a.bench {
+        scenarios::sweep::bench(&sw, &opts, &path)?;
+        return Ok(0);
+    }
+    let r = sweep::run(&sw, &opts)?;
+    let ok = r.rows.iter().filter(|r| r.success).count();
+    let per_min = r.rows.len() as f64 / r.wall_s * 60.0;
+    println!(
+        "{} runs ({} jobs) in {:.1} s: {:.1} runs per minute; {ok} succeeded; results in {}",
+        r.rows.len(),
+        r.jobs,
+        r.wall_s,
+        per_min,
+        out.display()
+    );
+    if r.interrupted {
+        println!("interrupted: the rows of the finished runs are in {}", out.join("runs.csv").display());
+        return Ok(2);
+    }
+    Ok(0)
+}
+
+fn check_main(a: &CheckArgs) -> i32 {
+    let mut bad = 0;
+    for f in &a.files {
+        let problems = check::check_file(f);
+        if problems.is_empty() {
+            println!("{}: ok", f.display());
+        } else {
+            bad += 1;
+            for p in problems {
+                eprintln!("{p}");
+            }
+        }
+    }
+    if bad > 0 { 2 } else { 0 }
 }
 
 fn demo_system(dir: &Path) -> SystemBuilder {

@@ -85,7 +85,7 @@ impl DeviceMap for DryRunDeviceMap {
         let counts = t.config().encoders.counts_per_rev;
         let wheels = t.locomotor_model().wheels.clone();
         drop(t);
-        Ok(Box::new(DryRunEncoders { twin: self.twin.clone(), counts, wheels }))
+        Ok(Box::new(DryRunEncoders { twin: self.twin.clone(), counts, wheels, last: None }))
     }
     fn imu(&self) -> Result<Box<dyn Imu>, DeviceError> {
         let cfg = self.twin.lock().config().imu.clone();
@@ -219,19 +219,33 @@ pub struct DryRunEncoders {
     twin: SharedTwin,
     counts: u32,
     wheels: Vec<String>,
+    last: Option<EncoderReading>,
 }
+
+/// Device name of the wheel encoders (for fault injection).
+pub const ENCODERS: &str = "encoders";
+/// Device name of the IMU (for fault injection).
+pub const IMU: &str = "imu";
 
 impl WheelEncoders for DryRunEncoders {
     fn read(&mut self) -> EncoderReading {
         let t = self.twin.lock();
+        if t.dropped_out(ENCODERS)
+            && let Some(last) = &self.last
+        {
+            // A dropout: the interface delivers the last reading again (stale stamp).
+            return last.clone();
+        }
         let (angles, rates) = t.wheel_readings();
         let q = std::f64::consts::TAU / self.counts as f64;
-        EncoderReading {
+        let r = EncoderReading {
             stamp: t.time(),
             wheels: self.wheels.clone(),
             angles: angles.iter().map(|a| (a / q).floor() * q).collect(),
             rates,
-        }
+        };
+        self.last = Some(r.clone());
+        r
     }
 }
 
@@ -243,6 +257,7 @@ pub struct DryRunImu {
     accel_bias: Vector3<f64>,
     gyro_bias: Vector3<f64>,
     last: Option<Time>,
+    last_sample: Option<ImuSample>,
 }
 
 impl DryRunImu {
@@ -255,7 +270,7 @@ impl DryRunImu {
         };
         let accel_bias = gauss3(cfg.accel_bias_initial);
         let gyro_bias = gauss3(cfg.gyro_bias_initial);
-        DryRunImu { twin, cfg, rng, accel_bias, gyro_bias, last: None }
+        DryRunImu { twin, cfg, rng, accel_bias, gyro_bias, last: None, last_sample: None }
     }
 
     fn gauss3(&mut self, sigma: f64) -> Vector3<f64> {
@@ -275,6 +290,12 @@ impl Imu for DryRunImu {
         let (f, w, now) = {
             let mut t = self.twin.lock();
             let (f, w) = t.take_imu_average();
+            if t.dropped_out(IMU)
+                && let Some(last) = &self.last_sample
+            {
+                // A dropout: the interface delivers the last sample again (stale stamp).
+                return last.clone();
+            }
             (f, w, t.time())
         };
         let dt = self.last.map(|l| (now - l).as_secs_f64()).unwrap_or(0.0).max(0.0);
@@ -287,11 +308,13 @@ impl Imu for DryRunImu {
         let sqrt_rate = self.cfg.rate_hz.sqrt();
         let na = self.gauss3(self.cfg.accel_noise_density * sqrt_rate);
         let ng = self.gauss3(self.cfg.gyro_noise_density * sqrt_rate);
-        ImuSample {
+        let s = ImuSample {
             stamp: now,
             specific_force: f + self.accel_bias + na,
             angular_rate: w + self.gyro_bias + ng,
-        }
+        };
+        self.last_sample = Some(s.clone());
+        s
     }
     fn period(&self) -> f64 {
         1.0 / self.cfg.rate_hz

@@ -224,6 +224,10 @@ pub struct Twin {
     wheels: Vec<usize>,
     rockers: Vec<usize>,
     wheel_cmd: Vec<f64>,
+    /// Injected faults: wheels whose drive is jammed (the wheel holds still whatever is commanded).
+    stalled: Vec<bool>,
+    /// Injected faults: sensor devices that deliver no new data until the given time.
+    dropouts: BTreeMap<String, Time>,
     /// Reference wheel angles: the integral of the commanded rates (the drives hold position).
     wheel_ref: Vec<f64>,
     servos: Vec<Servo>,
@@ -285,6 +289,8 @@ impl Twin {
             wheels: Vec::new(),
             rockers: Vec::new(),
             wheel_cmd: vec![0.0; WHEELS.len()],
+            stalled: vec![false; WHEELS.len()],
+            dropouts: BTreeMap::new(),
             wheel_ref: vec![0.0; WHEELS.len()],
             servos: Vec::new(),
             groups: BTreeMap::new(),
@@ -749,6 +755,38 @@ impl Twin {
         &self.wheel_cmd
     }
 
+    /// Fault injection: jams (or frees) the drive of wheel `wheel` ([`WHEELS`] name): a jammed wheel
+    /// holds still whatever is commanded, as a seized gearbox does.
+    pub fn set_wheel_stalled(&mut self, wheel: &str, stalled: bool) -> Result<(), String> {
+        let k = WHEELS
+            .iter()
+            .position(|w| *w == wheel)
+            .ok_or_else(|| format!("no wheel '{wheel}' (have: {})", WHEELS.join(", ")))?;
+        self.stalled[k] = stalled;
+        Ok(())
+    }
+
+    /// Which wheels are jammed, [`WHEELS`] order.
+    pub fn stalled_wheels(&self) -> &[bool] {
+        &self.stalled
+    }
+
+    /// Fault injection: sensor device `device` delivers no new data until `until` (its driver keeps
+    /// returning the last reading, or an error for cameras).
+    pub fn set_dropout(&mut self, device: &str, until: Time) {
+        self.dropouts.insert(device.to_string(), until);
+    }
+
+    /// True while an injected dropout of `device` lasts.
+    pub fn dropped_out(&self, device: &str) -> bool {
+        self.dropouts.get(device).is_some_and(|&until| self.time < until)
+    }
+
+    /// Wheel rates in effect: the commands, with jammed wheels at zero.
+    fn effective_wheel_rates(&self) -> Vec<f64> {
+        self.wheel_cmd.iter().zip(&self.stalled).map(|(&c, &s)| if s { 0.0 } else { c }).collect()
+    }
+
     /// Starts a move of a joint group to `targets` at `speed` (fraction of the velocity limits).
     pub fn start_move(&mut self, group: &str, targets: &[f64], speed: f64) -> Result<MoveId, String> {
         let ids = self.groups.get(group).cloned().ok_or_else(|| format!("no joint group '{group}'"))?;
@@ -979,13 +1017,14 @@ impl Twin {
     }
 
     fn step_dynamic(&mut self) {
+        let rates = self.effective_wheel_rates();
         let Engine::Dynamic(ph) = &mut self.engine else { return };
         let c = &self.config;
         let dt = c.physics.dt_s;
         // Wheel drives: a velocity loop with position feedback on the integral of the commanded rate,
         // as motor controllers do; the reference stays within half a radian of the wheel so that a
         // blocked or slipping wheel does not wind it up.
-        for (k, (&w, &cmd)) in self.wheels.iter().zip(&self.wheel_cmd).enumerate() {
+        for (k, (&w, &cmd)) in self.wheels.iter().zip(&rates).enumerate() {
             let q = self.joints[w].q;
             self.wheel_ref[k] = (self.wheel_ref[k] + cmd * dt).clamp(q - 0.5, q + 0.5);
             let target = cmd + c.wheels.position_gain * (self.wheel_ref[k] - q);
@@ -1045,11 +1084,12 @@ impl Twin {
             j.qd = (sv.setpoint - j.q) / dt;
             j.q = sv.setpoint;
         }
-        for (&w, &cmd) in self.wheels.iter().zip(&self.wheel_cmd) {
+        let rates = self.effective_wheel_rates();
+        for (&w, &cmd) in self.wheels.iter().zip(&rates) {
             self.joints[w].qd = cmd;
             self.joints[w].q += cmd * dt;
         }
-        let twist = self.locomotor.body_twist(&self.wheel_cmd);
+        let twist = self.locomotor.body_twist(&rates);
         let Engine::Kinematic(k) = &mut self.engine else { return };
         // Exact unicycle integration over the step.
         let (v, w) = (twist.v, twist.omega);

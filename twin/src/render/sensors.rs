@@ -454,6 +454,12 @@ impl StereoCamera for DryRunStereo {
     }
     fn capture(&mut self) -> Result<(GreyImage, GreyImage), DeviceError> {
         let twin = self.twin.lock();
+        if twin.dropped_out(&self.name) {
+            return Err(DeviceError::Fault {
+                device: self.name.clone(),
+                reason: "no frames (dropout)".into(),
+            });
+        }
         if due(self.last.as_ref().map(|l| l.0.stamp), twin.time(), self.period) {
             let fail =
                 |e: RenderError| DeviceError::Fault { device: self.name.clone(), reason: e.to_string() };
@@ -519,6 +525,12 @@ impl TofCamera for DryRunTof {
     }
     fn capture(&mut self) -> Result<TofFrame, DeviceError> {
         let twin = self.twin.lock();
+        if twin.dropped_out(&self.name) {
+            return Err(DeviceError::Fault {
+                device: self.name.clone(),
+                reason: "no frames (dropout)".into(),
+            });
+        }
         if due(self.last.as_ref().map(|l| l.depth.stamp), twin.time(), self.period) {
             let fail =
                 |e: RenderError| DeviceError::Fault { device: self.name.clone(), reason: e.to_string() };

@@ -1,0 +1,73 @@
+//! The data interface: types that modules publish on the blackboard and that tools (the logger, the
+//! scorer, consoles) know how to show. Each type has one meaning and one way to be logged; new GNC
+//! products (maps, paths, tracks) join here as they arrive.
+
+use nalgebra::{Isometry3, Matrix6, Point3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// A pose estimate with its uncertainty: where `child` is in `frame`.
+///
+/// The covariance is over (x, y, z, roll, pitch, yaw) in `frame`, m^2 and rad^2, small-angle
+/// perturbations of the rotation.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PoseEstimate {
+    /// The reference frame (`odom`: the start pose, drifting; `map`: the localization frame).
+    pub frame: String,
+    /// The estimated frame (usually `base_link`).
+    pub child: String,
+    /// Pose of `child` in `frame`.
+    pub pose: Isometry3<f64>,
+    /// Covariance of (x, y, z, roll, pitch, yaw).
+    pub covariance: Matrix6<f64>,
+    /// Body-frame forward speed and yaw rate at the estimate's time, m/s and rad/s.
+    pub velocity: crate::hal::BodyTwist,
+}
+
+impl PoseEstimate {
+    /// A planar pose (x, y, yaw) in `frame` with a diagonal covariance for those three, the others 0.
+    pub fn planar(frame: &str, x: f64, y: f64, z: f64, yaw: f64) -> Self {
+        PoseEstimate {
+            frame: frame.to_string(),
+            child: "base_link".to_string(),
+            pose: Isometry3::from_parts(
+                nalgebra::Translation3::new(x, y, z),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+            ),
+            covariance: Matrix6::zeros(),
+            velocity: Default::default(),
+        }
+    }
+    /// Position, m.
+    pub fn position(&self) -> Point3<f64> {
+        Point3::from(self.pose.translation.vector)
+    }
+    /// Heading (yaw), rad.
+    pub fn yaw(&self) -> f64 {
+        self.pose.rotation.euler_angles().2
+    }
+    /// Standard deviations of (x, y, z), m.
+    pub fn position_sigma(&self) -> Vector3<f64> {
+        Vector3::new(self.covariance[(0, 0)], self.covariance[(1, 1)], self.covariance[(2, 2)])
+            .map(|v| v.max(0.0).sqrt())
+    }
+}
+
+/// Measured states of a joint group (an arm, a pan-tilt unit, a gripper), in its joint order.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct JointStates {
+    /// The group (device) name.
+    pub group: String,
+    /// One state per joint.
+    pub joints: Vec<crate::hal::JointState>,
+}
+
+/// What a locomotion module is doing: the body twist in force and its mode.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct LocomotionState {
+    /// The twist commanded to the locomotor.
+    pub command: crate::hal::BodyTwist,
+    /// The current manoeuvre (`idle`, `drive`, `goto`, `turn`, `fault`).
+    pub mode: String,
+    /// The goal of the current manoeuvre in the odometry frame, if it has one (x, y), m.
+    pub goal: Option<[f64; 2]>,
+}

@@ -1,0 +1,448 @@
+//! Locomotion: the actuator module that owns the rover's locomotor.
+//!
+//! It turns high-level motion commands into body twists for the HAL locomotor and watches the wheel
+//! encoders for stalled drives:
+//! - `drive {v, omega, duration_s}`: drives open-loop for a time, then stops and completes;
+//! - `goto {x, y, speed?}`: drives to a point of the pose estimate's frame (turning in place first
+//!   when the goal is far off the heading) and completes on arrival within tolerance;
+//! - `turn_to {yaw_deg}`: turns in place to a heading of the estimate's frame;
+//! - `stop`: stops at once (also fails the manoeuvre in progress);
+//! - `recover`: leaves the `fault` state after a stall.
+//!
+//! Each motion command completes (deferred acknowledgement) when the manoeuvre ends; a new one
+//! supersedes the one in progress, which then fails with that reason. A wheel that turns at less
+//! than a fraction of its commanded rate for longer than the stall time puts the module in `fault`:
+//! the rover stops and the manoeuvre fails naming the wheel.
+
+use framework::data::{LocomotionState, PoseEstimate};
+use framework::hal::{BodyTwist, Locomotor, WheelEncoders};
+use framework::module::Request;
+use framework::prelude::*;
+use framework::resources::ReservationToken;
+use serde::{Deserialize, Serialize};
+
+/// Locomotion parameters.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LocomotionParams {
+    /// Cruise speed of `goto`, m/s (clamped to the locomotor's limit).
+    pub speed: f64,
+    /// Largest yaw rate used, rad/s (clamped to the locomotor's limit).
+    pub max_yaw_rate: f64,
+    /// Speed change limit, m/s^2.
+    pub accel: f64,
+    /// Heading gain of `goto` and `turn_to`, 1/s.
+    pub heading_gain: f64,
+    /// `goto` turns in place while the goal is more than this off the heading, degrees.
+    pub turn_in_place_deg: f64,
+    /// Arrival tolerance of `goto`, m.
+    pub goal_tolerance_m: f64,
+    /// Heading tolerance of `turn_to`, degrees.
+    pub heading_tolerance_deg: f64,
+    /// A wheel turning at less than this fraction of its commanded rate is stalling.
+    pub stall_rate_fraction: f64,
+    /// Commanded wheel rates below this are not checked for stalls, rad/s.
+    pub stall_min_rate: f64,
+    /// How long a wheel may stall before the module stops the rover, s.
+    pub stall_time_s: f64,
+}
+
+impl Default for LocomotionParams {
+    fn default() -> Self {
+        LocomotionParams {
+            speed: 0.3,
+            max_yaw_rate: 0.4,
+            accel: 0.5,
+            heading_gain: 1.5,
+            turn_in_place_deg: 35.0,
+            goal_tolerance_m: 0.15,
+            heading_tolerance_deg: 2.0,
+            stall_rate_fraction: 0.2,
+            stall_min_rate: 0.5,
+            stall_time_s: 1.0,
+        }
+    }
+}
+
+/// Arguments of `drive`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DriveArgs {
+    /// Forward speed, m/s.
+    pub v: f64,
+    /// Yaw rate, rad/s.
+    #[serde(default)]
+    pub omega: f64,
+    /// How long, s.
+    pub duration_s: f64,
+}
+
+/// Arguments of `goto`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GotoArgs {
+    /// Goal x in the pose estimate's frame, m.
+    pub x: f64,
+    /// Goal y, m.
+    pub y: f64,
+    /// Cruise speed, m/s (default: the configured one).
+    #[serde(default)]
+    pub speed: Option<f64>,
+    /// Arrival tolerance, m (default: the configured one).
+    #[serde(default)]
+    pub tolerance_m: Option<f64>,
+}
+
+/// Arguments of `turn_to`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TurnToArgs {
+    /// Goal heading in the pose estimate's frame, degrees.
+    pub yaw_deg: f64,
+}
+
+#[derive(Clone, Debug)]
+enum Manoeuvre {
+    Drive { twist: BodyTwist, until: Time },
+    Goto { x: f64, y: f64, speed: f64, tolerance: f64 },
+    TurnTo { yaw: f64 },
+}
+
+/// The locomotion module.
+pub struct Locomotion {
+    locomotor: Box<dyn Locomotor>,
+    encoders: Box<dyn WheelEncoders>,
+    token: Option<ReservationToken>,
+    pose: Option<Reader<PoseEstimate>>,
+    out: Option<Writer<LocomotionState>>,
+    params: LocomotionParams,
+    manoeuvre: Option<Manoeuvre>,
+    pending: Option<Request>,
+    command: BodyTwist,
+    last_cycle: Option<Time>,
+    stall_since: Vec<Option<Time>>,
+    fault: Option<String>,
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+impl Locomotion {
+    /// A locomotion module driving `locomotor` and watching `encoders`.
+    pub fn new(locomotor: Box<dyn Locomotor>, encoders: Box<dyn WheelEncoders>) -> Self {
+        let n = locomotor.model().wheels.len();
+        Locomotion {
+            locomotor,
+            encoders,
+            token: None,
+            pose: None,
+            out: None,
+            params: LocomotionParams::default(),
+            manoeuvre: None,
+            pending: None,
+            command: BodyTwist::default(),
+            last_cycle: None,
+            stall_since: vec![None; n],
+            fault: None,
+        }
+    }
+
+    fn limits(&self) -> (f64, f64) {
+        let m = self.locomotor.model();
+        (self.params.speed.min(m.max_speed), self.params.max_yaw_rate.min(m.max_yaw_rate))
+    }
+
+    /// Starts a manoeuvre for the command being handled, superseding the one in progress.
+    fn start(&mut self, ctx: &mut Ctx<'_>, m: Manoeuvre) -> Outcome {
+        if let Some(reason) = &self.fault {
+            return Outcome::reject(format!("locomotion is in fault ({reason}); send 'recover' first"));
+        }
+        if self.token.is_none() {
+            return Outcome::reject("locomotion does not hold the locomotor (not in Run?)");
+        }
+        if let Some(old) = self.pending.take() {
+            ctx.reply(
+                &old,
+                Outcome::fail(format!(
+                    "superseded by '{}'",
+                    ctx.request().map(|r| r.command().to_string()).unwrap_or_default()
+                )),
+            );
+        }
+        self.manoeuvre = Some(m);
+        self.pending = ctx.request();
+        match ctx.goto("moving") {
+            Ok(()) => Outcome::Accepted,
+            Err(e) => Outcome::reject(e.to_string()),
+        }
+    }
+
+    /// Ends the manoeuvre: stops and answers the pending command.
+    fn finish(&mut self, ctx: &mut Ctx<'_>, outcome: Outcome, state: &str) -> StateResult {
+        self.manoeuvre = None;
+        self.apply(ctx, BodyTwist::default(), true)?;
+        if let Some(req) = self.pending.take() {
+            ctx.reply(&req, outcome);
+        }
+        ctx.goto(state).map_err(|e| ModuleError(e.to_string()))
+    }
+
+    /// Fits a twist into the locomotor's limits: yaw rate first (steering wins), then the speed
+    /// that leaves every wheel within its rate limit.
+    fn saturate(&self, t: BodyTwist) -> BodyTwist {
+        let m = self.locomotor.model();
+        let omega = t.omega.clamp(-m.max_yaw_rate, m.max_yaw_rate);
+        let max_y = m.wheel_positions.iter().map(|p| p.y.abs()).fold(0.0, f64::max);
+        let v_room = (m.max_wheel_rate * m.wheel_radius - omega.abs() * max_y).max(0.0) * 0.999;
+        let vmax = m.max_speed.min(v_room);
+        BodyTwist { v: t.v.clamp(-vmax, vmax), omega }
+    }
+
+    /// Sends a twist to the locomotor, with the acceleration limit unless `hard`.
+    fn apply(&mut self, ctx: &mut Ctx<'_>, want: BodyTwist, hard: bool) -> StateResult {
+        let dt = self.last_cycle.map(|t| (ctx.now() - t).as_secs_f64()).unwrap_or(0.0);
+        let v = if hard {
+            want.v
+        } else {
+            let dv = self.params.accel * dt;
+            want.v.clamp(self.command.v - dv, self.command.v + dv)
+        };
+        let cmd = self.saturate(BodyTwist { v, omega: want.omega });
+        if let Some(token) = &self.token {
+            let r = if cmd == BodyTwist::default() {
+                self.locomotor.stop(token)
+            } else {
+                self.locomotor.drive(token, cmd)
+            };
+            r.map_err(|e| ModuleError(format!("locomotor refused {cmd:?}: {e}")))?;
+        }
+        self.command = cmd;
+        Ok(())
+    }
+
+    /// The twist a manoeuvre asks for now, or the outcome that ends it.
+    fn control(&mut self, ctx: &Ctx<'_>) -> Result<BodyTwist, Outcome> {
+        let (vmax, wmax) = self.limits();
+        let p = &self.params;
+        let pose = self.pose.as_ref().and_then(|r| ctx.read(r));
+        match self.manoeuvre.clone() {
+            None => Ok(BodyTwist::default()),
+            Some(Manoeuvre::Drive { twist, until }) => {
+                if ctx.now() >= until {
+                    Err(Outcome::done())
+                } else {
+                    Ok(twist)
+                }
+            }
+            Some(Manoeuvre::Goto { x, y, speed, tolerance }) => {
+                let Some(est) = pose else {
+                    return Err(Outcome::fail("no pose estimate to steer with"));
+                };
+                let pos = est.value.position();
+                let (dx, dy) = (x - pos.x, y - pos.y);
+                let dist = dx.hypot(dy);
+                if dist <= tolerance {
+                    return Err(Outcome::Completed(serde_json::json!({
+                        "x": pos.x, "y": pos.y, "distance_to_goal_m": dist
+                    })));
+                }
+                let herr = wrap(dy.atan2(dx) - est.value.yaw());
+                let omega = (p.heading_gain * herr).clamp(-wmax, wmax);
+                let v = if herr.abs() > p.turn_in_place_deg.to_radians() {
+                    0.0
+                } else {
+                    // Slow down near the goal and while the heading is still off.
+                    speed.min(vmax).min(0.6 * dist + 0.05) * herr.cos()
+                };
+                Ok(BodyTwist { v, omega })
+            }
+            Some(Manoeuvre::TurnTo { yaw }) => {
+                let Some(est) = pose else {
+                    return Err(Outcome::fail("no pose estimate to steer with"));
+                };
+                let herr = wrap(yaw - est.value.yaw());
+                if herr.abs() <= p.heading_tolerance_deg.to_radians() {
+                    return Err(Outcome::Completed(
+                        serde_json::json!({ "yaw_deg": est.value.yaw().to_degrees() }),
+                    ));
+                }
+                let omega = (p.heading_gain * herr).clamp(-wmax, wmax);
+                // Keep turning at a useful rate near the goal (wheels stick at very low rates).
+                let omega = omega.signum() * omega.abs().max(0.05_f64.min(wmax));
+                Ok(BodyTwist { v: 0.0, omega })
+            }
+        }
+    }
+
+    /// Checks every wheel against its commanded rate; the name of a stalled one.
+    fn stalled_wheel(&mut self, now: Time) -> Option<String> {
+        let reading = self.encoders.read();
+        let model = self.locomotor.model();
+        let want = model.wheel_rates(self.command)?;
+        for (k, (&w, &got)) in want.iter().zip(&reading.rates).enumerate() {
+            let stalling = w.abs() >= self.params.stall_min_rate
+                && (got * w.signum()) < self.params.stall_rate_fraction * w.abs();
+            match (stalling, self.stall_since[k]) {
+                (false, _) => self.stall_since[k] = None,
+                (true, None) => self.stall_since[k] = Some(now),
+                (true, Some(t0)) if (now - t0).as_secs_f64() >= self.params.stall_time_s => {
+                    return Some(model.wheels[k].clone());
+                }
+                _ => {}
+            }
+        }
+        None
+    }
+
+    fn publish(&self, ctx: &mut Ctx<'_>) {
+        let (mode, goal) = match (&self.fault, &self.manoeuvre) {
+            (Some(_), _) => ("fault", None),
+            (None, None) => ("idle", None),
+            (None, Some(Manoeuvre::Drive { .. })) => ("drive", None),
+            (None, Some(Manoeuvre::Goto { x, y, .. })) => ("goto", Some([*x, *y])),
+            (None, Some(Manoeuvre::TurnTo { .. })) => ("turn", None),
+        };
+        if let Some(w) = &self.out {
+            ctx.write(w, LocomotionState { command: self.command, mode: mode.into(), goal });
+        }
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        let now = ctx.now();
+        if let Some(wheel) = self.stalled_wheel(now) {
+            let reason = format!(
+                "wheel '{wheel}' stalled: it turned at under {:.0}% of its commanded rate for {} s",
+                self.params.stall_rate_fraction * 100.0,
+                self.params.stall_time_s
+            );
+            ctx.note(format!("stopping the rover: {reason}"));
+            self.fault = Some(reason.clone());
+            self.stall_since.iter_mut().for_each(|s| *s = None);
+            self.finish(ctx, Outcome::fail(reason), "fault")?;
+        } else {
+            match self.control(ctx) {
+                Ok(twist) => self.apply(ctx, twist, false)?,
+                Err(outcome) => self.finish(ctx, outcome, "idle")?,
+            }
+        }
+        self.last_cycle = Some(now);
+        self.publish(ctx);
+        Ok(())
+    }
+}
+
+impl Module for Locomotion {
+    type Params = LocomotionParams;
+    const KIND: ModuleKind = ModuleKind::Actuator;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.pose = Some(d.reads("odometry/pose"));
+        self.out = Some(d.writes("locomotion/state"));
+        d.state("idle", |m, ctx| m.cycle(ctx));
+        d.state("moving", |m, ctx| m.cycle(ctx));
+        d.state("fault", |m, ctx| {
+            m.last_cycle = Some(ctx.now());
+            m.publish(ctx);
+            Ok(())
+        });
+        d.transition("idle", "moving")
+            .transition("moving", "idle")
+            .transition("moving", "moving")
+            .transition("moving", "fault")
+            .transition("idle", "fault")
+            .transition("fault", "idle");
+        d.command("drive", |m, ctx, a: DriveArgs| {
+            let (vmax, wmax) = m.limits();
+            if !(a.v.abs() <= vmax && a.omega.abs() <= wmax && a.duration_s >= 0.0 && a.duration_s.is_finite()) {
+                return Outcome::reject(format!(
+                    "drive v={} m/s omega={} rad/s for {} s is outside |v|<={vmax}, |omega|<={wmax}, duration>=0",
+                    a.v, a.omega, a.duration_s
+                ));
+            }
+            let until = ctx.now() + Duration::from_secs_f64(a.duration_s);
+            m.start(ctx, Manoeuvre::Drive { twist: BodyTwist { v: a.v, omega: a.omega }, until })
+        });
+        d.command("goto", |m, ctx, a: GotoArgs| {
+            let speed = a.speed.unwrap_or(m.params.speed);
+            let tolerance = a.tolerance_m.unwrap_or(m.params.goal_tolerance_m);
+            if !(a.x.is_finite() && a.y.is_finite() && speed > 0.0 && tolerance > 0.0) {
+                return Outcome::reject(
+                    "goto needs a finite goal, a positive speed and a positive tolerance",
+                );
+            }
+            m.start(ctx, Manoeuvre::Goto { x: a.x, y: a.y, speed, tolerance })
+        });
+        d.command("turn_to", |m, ctx, a: TurnToArgs| {
+            if !a.yaw_deg.is_finite() {
+                return Outcome::reject("yaw_deg must be finite");
+            }
+            m.start(ctx, Manoeuvre::TurnTo { yaw: wrap(a.yaw_deg.to_radians()) })
+        });
+        d.command("stop", |m, ctx, _: ()| {
+            if let Some(old) = m.pending.take() {
+                ctx.reply(&old, Outcome::fail("stopped by command"));
+            }
+            m.manoeuvre = None;
+            if let Err(e) = m.apply(ctx, BodyTwist::default(), true) {
+                return Outcome::fail(e.0);
+            }
+            if ctx.state() == "moving" {
+                let _ = ctx.goto("idle");
+            }
+            Outcome::done()
+        });
+        d.command("recover", |m, ctx, _: ()| {
+            if m.fault.take().is_none() {
+                return Outcome::reject("locomotion is not in fault");
+            }
+            match ctx.goto("idle") {
+                Ok(()) => Outcome::done(),
+                Err(e) => Outcome::fail(e.to_string()),
+            }
+        });
+    }
+
+    fn configure(&mut self, p: &LocomotionParams) -> Result<(), String> {
+        for (k, v) in [
+            ("speed", p.speed),
+            ("max_yaw_rate", p.max_yaw_rate),
+            ("accel", p.accel),
+            ("heading_gain", p.heading_gain),
+            ("goal_tolerance_m", p.goal_tolerance_m),
+            ("heading_tolerance_deg", p.heading_tolerance_deg),
+            ("stall_time_s", p.stall_time_s),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{k} must be positive, got {v}"));
+            }
+        }
+        if !(0.0..1.0).contains(&p.stall_rate_fraction) {
+            return Err(format!("stall_rate_fraction must be in [0, 1), got {}", p.stall_rate_fraction));
+        }
+        self.params = p.clone();
+        Ok(())
+    }
+
+    fn on_transition(&mut self, ctx: &mut Ctx<'_>, _from: Lifecycle, to: Lifecycle) -> Result<(), String> {
+        match to {
+            Lifecycle::Run if self.token.is_none() => {
+                let device = self.locomotor.device().to_string();
+                self.token = Some(ctx.acquire(&device).map_err(|e| e.to_string())?);
+            }
+            Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown => {
+                // Leaving Run stops the rover; the manoeuvre in progress fails.
+                self.manoeuvre = None;
+                if let Some(req) = self.pending.take() {
+                    ctx.reply(&req, Outcome::fail(format!("locomotion left Run for {to}")));
+                }
+                if let Some(token) = &self.token {
+                    let _ = self.locomotor.stop(token);
+                }
+                self.command = BodyTwist::default();
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,320 @@
+//! Wheel-inertial odometry: the rover's dead-reckoning pose estimate from its wheel encoders and IMU.
+//!
+//! - Distance travelled comes from the encoders (skid-steer kinematics of the locomotor model, with
+//!   the wheel radius this estimator believes in: `wheel_radius_scale` disperses that belief).
+//! - Heading comes from the gyro (rate about the world vertical from the body rates and the tilt),
+//!   minus a gyro bias learned whenever the wheels stand still (zero-velocity updates).
+//! - Roll and pitch come from the accelerometer's gravity direction, low-pass filtered; distance is
+//!   projected along the tilted heading, so the estimate climbs slopes in 3D.
+//! - The covariance of (x, y, yaw) is propagated with along-track and cross-track slip per metre and
+//!   the gyro's noise; z, roll and pitch carry their own simple variances.
+//!
+//! A sensor that stops delivering (the same stamp again) is noticed: without the IMU the heading
+//! falls back to the wheels (with a much larger heading noise), without encoders the position holds
+//! and its uncertainty grows. Both are reported once as notes.
+//!
+//! The initial pose is what the operator knows of the start (a parameter set from the scenario); the
+//! estimate is published in frame `map` as `odometry/pose`.
+
+use framework::data::PoseEstimate;
+use framework::hal::{EncoderReading, Imu, ImuSample, LocomotorModel, WheelEncoders};
+use framework::prelude::*;
+use nalgebra::{Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// Odometry parameters.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OdometryParams {
+    /// Start pose known to the operator: x, y, z (m) and yaw (degrees) in `map`.
+    pub initial_pose: [f64; 4],
+    /// Standard deviations of the start pose: position (m) and yaw (degrees).
+    pub initial_sigma: [f64; 2],
+    /// Believed wheel radius as a fraction of the locomotor model's (calibration error).
+    pub wheel_radius_scale: f64,
+    /// Along-track slip noise, m per m travelled (1 sigma).
+    pub along_sigma_per_m: f64,
+    /// Cross-track slip noise, m per m travelled (1 sigma).
+    pub cross_sigma_per_m: f64,
+    /// Gyro angle random walk, rad/sqrt(s).
+    pub gyro_noise: f64,
+    /// Heading noise per radian turned when the heading comes from the wheels, rad/rad.
+    pub wheel_yaw_sigma_per_rad: f64,
+    /// Time constant of the tilt (roll/pitch) low-pass filter, s.
+    pub tilt_time_constant_s: f64,
+    /// Wheels turning slower than this are standing still (for bias learning), rad/s.
+    pub still_wheel_rate: f64,
+    /// Gain of the gyro bias update per zero-velocity cycle (0 disables learning).
+    pub bias_gain: f64,
+    /// A sensor whose stamp does not advance for this long is reported as silent, s.
+    pub silent_after_s: f64,
+}
+
+impl Default for OdometryParams {
+    fn default() -> Self {
+        OdometryParams {
+            initial_pose: [0.0, 0.0, 0.0, 0.0],
+            initial_sigma: [0.02, 0.5],
+            wheel_radius_scale: 1.0,
+            along_sigma_per_m: 0.02,
+            cross_sigma_per_m: 0.02,
+            gyro_noise: 0.002,
+            wheel_yaw_sigma_per_rad: 0.15,
+            tilt_time_constant_s: 0.5,
+            still_wheel_rate: 0.01,
+            bias_gain: 0.01,
+            silent_after_s: 0.2,
+        }
+    }
+}
+
+/// The odometry module.
+pub struct Odometry {
+    encoders: Box<dyn WheelEncoders>,
+    imu: Box<dyn Imu>,
+    model: LocomotorModel,
+    params: OdometryParams,
+    out: Option<Writer<PoseEstimate>>,
+    state: Option<OdoState>,
+}
+
+struct OdoState {
+    x: f64,
+    y: f64,
+    z: f64,
+    roll: f64,
+    pitch: f64,
+    yaw: f64,
+    /// Covariance of (x, y, yaw).
+    p: Matrix3<f64>,
+    var_z: f64,
+    var_tilt: f64,
+    bias: Vector3<f64>,
+    last_enc: EncoderReading,
+    last_imu: ImuSample,
+    enc_silent: bool,
+    imu_silent: bool,
+}
+
+impl Odometry {
+    /// Odometry from `encoders` and `imu`, with the locomotor `model` (wheel geometry).
+    pub fn new(encoders: Box<dyn WheelEncoders>, imu: Box<dyn Imu>, model: LocomotorModel) -> Self {
+        Odometry { encoders, imu, model, params: OdometryParams::default(), out: None, state: None }
+    }
+
+    fn init(&mut self, enc: EncoderReading, imu: ImuSample) -> OdoState {
+        let [x, y, z, yaw_deg] = self.params.initial_pose;
+        let [sp, sy] = self.params.initial_sigma;
+        let (roll, pitch) = tilt_from_gravity(&imu.specific_force).unwrap_or((0.0, 0.0));
+        OdoState {
+            x,
+            y,
+            z,
+            roll,
+            pitch,
+            yaw: yaw_deg.to_radians(),
+            p: Matrix3::from_diagonal(&Vector3::new(sp * sp, sp * sp, sy.to_radians().powi(2))),
+            var_z: sp * sp,
+            var_tilt: 0.01f64.powi(2),
+            bias: Vector3::zeros(),
+            last_enc: enc,
+            last_imu: imu,
+            enc_silent: false,
+            imu_silent: false,
+        }
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        let now = ctx.now();
+        let enc = self.encoders.read();
+        let imu = self.imu.read();
+        let Some(mut s) = self.state.take() else {
+            let s = self.init(enc, imu);
+            self.state = Some(s);
+            self.publish(ctx, now, Default::default());
+            return Ok(());
+        };
+        let p = self.params.clone();
+        // Fresh data? A sensor repeating its stamp is silent.
+        let enc_fresh = enc.stamp > s.last_enc.stamp;
+        let imu_fresh = imu.stamp > s.last_imu.stamp;
+        let silent = |fresh: bool, last: Time| !fresh && (now - last).as_secs_f64() >= p.silent_after_s;
+        let (enc_silent, imu_silent) =
+            (silent(enc_fresh, s.last_enc.stamp), silent(imu_fresh, s.last_imu.stamp));
+        if enc_silent != s.enc_silent {
+            ctx.note(if enc_silent {
+                "wheel encoders silent: holding the position, uncertainty growing"
+            } else {
+                "wheel encoders back"
+            });
+            s.enc_silent = enc_silent;
+        }
+        if imu_silent != s.imu_silent {
+            ctx.note(if imu_silent { "IMU silent: heading from the wheels" } else { "IMU back" });
+            s.imu_silent = imu_silent;
+        }
+
+        // Wheel motion since the last fresh reading.
+        let (ds, dyaw_wheels, dt_enc, rates) = if enc_fresh {
+            let dt = (enc.stamp - s.last_enc.stamp).as_secs_f64();
+            let r = self.params.wheel_radius_scale;
+            let dq: Vec<f64> = enc.angles.iter().zip(&s.last_enc.angles).map(|(a, b)| (a - b) * r).collect();
+            let twist = self.model.body_twist(&dq);
+            (twist.v, twist.omega, dt, enc.rates.clone())
+        } else {
+            (0.0, 0.0, 0.0, vec![0.0; self.model.wheels.len()])
+        };
+        let still = enc_fresh && rates.iter().all(|w| w.abs() < p.still_wheel_rate);
+
+        // Attitude and heading change from the IMU.
+        let (dyaw, yaw_var) = if imu_fresh && !imu_silent {
+            let dt = (imu.stamp - s.last_imu.stamp).as_secs_f64();
+            if still && p.bias_gain > 0.0 {
+                s.bias += p.bias_gain * (imu.angular_rate - s.bias);
+            }
+            let w = imu.angular_rate - s.bias;
+            if let Some((roll, pitch)) = tilt_from_gravity(&imu.specific_force) {
+                let a = (dt / p.tilt_time_constant_s).min(1.0);
+                s.roll += a * wrap(roll - s.roll);
+                s.pitch += a * wrap(pitch - s.pitch);
+            }
+            // Rate of yaw (about the world vertical) from body rates, ZYX Euler kinematics.
+            let (sr, cr) = s.roll.sin_cos();
+            let yaw_rate = (w.y * sr + w.z * cr) / s.pitch.cos().max(0.2);
+            let dyaw = if still { 0.0 } else { yaw_rate * dt };
+            (dyaw, p.gyro_noise.powi(2) * dt)
+        } else if enc_fresh {
+            (dyaw_wheels, (p.wheel_yaw_sigma_per_rad * dyaw_wheels).powi(2))
+        } else {
+            (0.0, 0.0)
+        };
+
+        // Propagate: advance along the mid-step heading, tilted by the pitch.
+        let yaw_mid = s.yaw + 0.5 * dyaw;
+        let (sy, cy) = yaw_mid.sin_cos();
+        let cp = s.pitch.cos();
+        s.x += ds * cp * cy;
+        s.y += ds * cp * sy;
+        s.z -= ds * s.pitch.sin();
+        s.yaw = wrap(s.yaw + dyaw);
+        let f = Matrix3::new(1.0, 0.0, -ds * cp * sy, 0.0, 1.0, ds * cp * cy, 0.0, 0.0, 1.0);
+        let (sa, sc) = (p.along_sigma_per_m * ds.abs(), p.cross_sigma_per_m * ds.abs());
+        let rot = Matrix3::new(cy, -sy, 0.0, sy, cy, 0.0, 0.0, 0.0, 1.0);
+        let q_body = Matrix3::from_diagonal(&Vector3::new(sa * sa, sc * sc, yaw_var));
+        s.p = f * s.p * f.transpose() + rot * q_body * rot.transpose();
+        s.var_z += (sa * s.pitch.sin()).powi(2) + (ds * s.var_tilt.sqrt()).powi(2);
+        if enc_silent {
+            // Unknown motion while the encoders are silent: as if driving at 0.1 m/s blind.
+            let grow = (0.1 * 0.02f64).powi(2);
+            s.p[(0, 0)] += grow;
+            s.p[(1, 1)] += grow;
+        }
+        if enc_fresh {
+            s.last_enc = enc;
+        }
+        if imu_fresh {
+            s.last_imu = imu;
+        }
+        self.state = Some(s);
+        let vel = if dt_enc > 0.0 {
+            framework::hal::BodyTwist { v: ds / dt_enc, omega: dyaw / dt_enc }
+        } else {
+            Default::default()
+        };
+        self.publish(ctx, now, vel);
+        Ok(())
+    }
+
+    fn publish(&self, ctx: &mut Ctx<'_>, now: Time, velocity: framework::hal::BodyTwist) {
+        let (Some(s), Some(w)) = (&self.state, &self.out) else { return };
+        let mut cov = Matrix6::zeros();
+        for (i, a) in [0usize, 1, 5].iter().enumerate() {
+            for (j, b) in [0usize, 1, 5].iter().enumerate() {
+                cov[(*a, *b)] = s.p[(i, j)];
+            }
+        }
+        cov[(2, 2)] = s.var_z;
+        cov[(3, 3)] = s.var_tilt;
+        cov[(4, 4)] = s.var_tilt;
+        let est = PoseEstimate {
+            frame: "map".into(),
+            child: "base_link".into(),
+            pose: nalgebra::Isometry3::from_parts(
+                Translation3::new(s.x, s.y, s.z),
+                UnitQuaternion::from_euler_angles(s.roll, s.pitch, s.yaw),
+            ),
+            covariance: cov,
+            velocity,
+        };
+        ctx.write_stamped(w, est, now);
+    }
+}
+
+/// Roll and pitch of the body from the specific force measured at rest (it points up, body frame).
+fn tilt_from_gravity(f: &Vector3<f64>) -> Option<(f64, f64)> {
+    let n = f.norm();
+    if !(n > 5.0 && n < 15.0) {
+        return None; // not dominated by gravity: do not trust it for tilt
+    }
+    let roll = f.y.atan2(f.z);
+    let pitch = (-f.x).atan2(f.y.hypot(f.z));
+    Some((roll, pitch))
+}
+
+fn wrap(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+impl Module for Odometry {
+    type Params = OdometryParams;
+    const KIND: ModuleKind = ModuleKind::Sensor;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.out = Some(d.writes("odometry/pose"));
+        d.state("estimating", |m, ctx| m.cycle(ctx));
+        d.command("reset", |m, _ctx, pose: [f64; 4]| {
+            if pose.iter().any(|v| !v.is_finite()) {
+                return Outcome::reject("reset needs a finite [x, y, z, yaw_deg]");
+            }
+            m.params.initial_pose = pose;
+            m.state = None;
+            Outcome::done()
+        });
+    }
+
+    fn configure(&mut self, p: &OdometryParams) -> Result<(), String> {
+        if p.initial_pose.iter().chain(&p.initial_sigma).any(|v| !v.is_finite()) {
+            return Err("initial_pose and initial_sigma must be finite".into());
+        }
+        if !(p.wheel_radius_scale > 0.5 && p.wheel_radius_scale < 1.5) {
+            return Err(format!("wheel_radius_scale must be in (0.5, 1.5), got {}", p.wheel_radius_scale));
+        }
+        if p.tilt_time_constant_s.is_nan()
+            || p.tilt_time_constant_s <= 0.0
+            || !(0.0..=1.0).contains(&p.bias_gain)
+        {
+            return Err("tilt_time_constant_s must be positive and bias_gain in [0, 1]".into());
+        }
+        self.params = p.clone();
+        self.state = None;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tilt_from_gravity_on_level_and_pitched_ground() {
+        let (r, p) = tilt_from_gravity(&Vector3::new(0.0, 0.0, 9.81)).unwrap();
+        assert!(r.abs() < 1e-12 && p.abs() < 1e-12);
+        // Nose up by 10 degrees: gravity's reaction has a component along -x... the specific force
+        // at rest is R^T * (0, 0, g): x = -g sin(pitch) for pitch positive nose-down (ZYX).
+        let pitch = 10f64.to_radians();
+        let f = Vector3::new(-9.81 * pitch.sin(), 0.0, 9.81 * pitch.cos());
+        let (_, p) = tilt_from_gravity(&f).unwrap();
+        assert!((p - pitch).abs() < 1e-9);
+        assert!(tilt_from_gravity(&Vector3::new(0.0, 0.0, 30.0)).is_none());
+    }
+}

@@ -1,0 +1,781 @@
+//! The run logger (seed 000, 7 and 8: the Logger external module): records a run into a Rerun
+//! recording (`run.rrd`, for a person) and an MCAP file (`run.mcap`, for tools), at the rates of the
+//! scenario's `[logging]` table.
+//!
+//! What it records:
+//! - ground truth from the twin: every robot link, the canister, the terrain and rocks (once);
+//! - blackboard slots whose type it knows (pose estimates, joint states, locomotion state), as soon
+//!   as a module publishes them; other slots as plain JSON in the MCAP;
+//! - framework events (lifecycle and FSM changes, watchdog isolations, notes), every message and
+//!   acknowledgement, and scheduler statistics;
+//! - errors over time (estimate vs truth) as plots, and the score at the end.
+//!
+//! Both files are valid whenever the run ends: [`RunLogger::finish`] writes the MCAP summary and the
+//! Rerun footer; dropping the logger (an unwinding panic) does the same.
+//!
+//! Entity tree of the `.rrd` (timeline `sim_time`): `world/terrain`, `world/rocks`,
+//! `world/truth/<link>`, `world/truth/canister`, `world/truth/track`, `world/estimate/base_link`,
+//! `world/estimate/uncertainty`, `world/estimate/track`, `plots/...`, `modules/<name>`, `logs/...`,
+//! `score`. MCAP topics and schemas are listed in `docs/logging.md`.
+
+use crate::scenario::{LoggingSettings, Scenario};
+use crate::score::{LogFiles, Score};
+use anyhow::{Context, Result};
+use base64::Engine;
+use framework::data::{JointStates, LocomotionState, PoseEstimate};
+use framework::system::Core;
+use framework::{Duration, Time};
+use mcap::records::MessageHeader;
+use nalgebra::{Isometry3, UnitQuaternion};
+use rerun::{Quaternion, Transform3D};
+use std::collections::BTreeMap;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+use twin::Twin;
+
+/// Simulated-time timeline of the recording.
+pub const TIMELINE: &str = "sim_time";
+
+// ---------------------------------------------------------------------------------------------
+// Foxglove JSON schemas (github.com/foxglove/schemas, jsonschema) and our own.
+
+const TIME: &str = r#"{"type":"object","title":"time","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,"maximum":999999999}}}"#;
+const VEC3: &str = r#"{"title":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}}"#;
+const VEC2: &str = r#"{"title":"foxglove.Vector2","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"}}}"#;
+const QUAT: &str = r#"{"title":"foxglove.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}"#;
+const PEF: &str = r#"{"title":"foxglove.PackedElementField","type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer","minimum":0},"type":{"title":"foxglove.NumericType","oneOf":[{"title":"UNKNOWN","const":0},{"title":"UINT8","const":1},{"title":"INT8","const":2},{"title":"UINT16","const":3},{"title":"INT16","const":4},{"title":"UINT32","const":5},{"title":"INT32","const":6},{"title":"FLOAT32","const":7},{"title":"FLOAT64","const":8}]}}}"#;
+
+fn pose_schema() -> String {
+    format!(
+        r#"{{"title":"foxglove.Pose","type":"object","properties":{{"position":{VEC3},"orientation":{QUAT}}}}}"#
+    )
+}
+
+fn foxglove_schema(name: &str) -> String {
+    let body = match name {
+        "foxglove.FrameTransform" => format!(
+            r#""timestamp":{TIME},"parent_frame_id":{{"type":"string"}},"child_frame_id":{{"type":"string"}},"translation":{VEC3},"rotation":{QUAT}"#
+        ),
+        "foxglove.PoseInFrame" => {
+            format!(r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{}"#, pose_schema())
+        }
+        "foxglove.Grid" => format!(
+            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"column_count":{{"type":"integer","minimum":0}},"cell_size":{VEC2},"row_stride":{{"type":"integer","minimum":0}},"cell_stride":{{"type":"integer","minimum":0}},"fields":{{"type":"array","items":{PEF}}},"data":{{"type":"string","contentEncoding":"base64"}}"#,
+            pose_schema()
+        ),
+        "foxglove.Log" => format!(
+            r#""timestamp":{TIME},"level":{{"title":"foxglove.LogLevel","oneOf":[{{"title":"UNKNOWN","const":0}},{{"title":"DEBUG","const":1}},{{"title":"INFO","const":2}},{{"title":"WARNING","const":3}},{{"title":"ERROR","const":4}},{{"title":"FATAL","const":5}}]}},"message":{{"type":"string"}},"name":{{"type":"string"}},"file":{{"type":"string"}},"line":{{"type":"integer","minimum":0}}"#
+        ),
+        _ => unreachable!("known schema"),
+    };
+    format!(
+        r#"{{"title":"{name}","$comment":"after https://github.com/foxglove/schemas","type":"object","properties":{{{body}}}}}"#
+    )
+}
+
+/// JSON schema of a message type of ours (documented in `docs/logging.md`).
+fn own_schema(name: &str, description: &str, properties: &str) -> String {
+    format!(
+        r#"{{"title":"{name}","description":"{description}","type":"object","properties":{{{properties}}}}}"#
+    )
+}
+
+fn stamp_json(t: Time) -> serde_json::Value {
+    let ns = t.as_nanos().max(0) as u64;
+    serde_json::json!({ "sec": ns / 1_000_000_000, "nsec": ns % 1_000_000_000 })
+}
+
+fn pose_json(p: &Isometry3<f64>) -> serde_json::Value {
+    let q = p.rotation.quaternion();
+    serde_json::json!({
+        "position": { "x": p.translation.x, "y": p.translation.y, "z": p.translation.z },
+        "orientation": { "x": q.i, "y": q.j, "z": q.k, "w": q.w }
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+
+struct Mcap {
+    writer: mcap::Writer<BufWriter<std::fs::File>>,
+    channels: BTreeMap<String, u16>,
+    schemas: BTreeMap<String, u16>,
+    seq: u32,
+    last_log_time: u64,
+}
+
+impl Mcap {
+    fn create(path: &Path) -> Result<Self> {
+        let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_threads(0)
+            .profile("")
+            .create(BufWriter::new(file))?;
+        Ok(Mcap { writer, channels: BTreeMap::new(), schemas: BTreeMap::new(), seq: 0, last_log_time: 0 })
+    }
+
+    fn channel(&mut self, topic: &str, schema_name: &str, schema: impl FnOnce() -> String) -> Result<u16> {
+        if let Some(&c) = self.channels.get(topic) {
+            return Ok(c);
+        }
+        let sid = match self.schemas.get(schema_name) {
+            Some(&s) => s,
+            None => {
+                let s = self.writer.add_schema(schema_name, "jsonschema", schema().as_bytes())?;
+                self.schemas.insert(schema_name.to_string(), s);
+                s
+            }
+        };
+        let c = self.writer.add_channel(sid, topic, "json", &BTreeMap::new())?;
+        self.channels.insert(topic.to_string(), c);
+        Ok(c)
+    }
+
+    fn write(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: impl FnOnce() -> String,
+        t: Time,
+        msg: &serde_json::Value,
+    ) -> Result<()> {
+        let ch = self.channel(topic, schema_name, schema)?;
+        // Log times never go backwards (events may carry earlier stamps; theirs is in the message).
+        let log_time = (t.as_nanos().max(0) as u64).max(self.last_log_time);
+        self.last_log_time = log_time;
+        self.seq += 1;
+        self.writer.write_to_known_channel(
+            &MessageHeader { channel_id: ch, sequence: self.seq, log_time, publish_time: log_time },
+            &serde_json::to_vec(msg)?,
+        )?;
+        Ok(())
+    }
+
+    fn foxglove(&mut self, topic: &str, name: &str, t: Time, msg: &serde_json::Value) -> Result<()> {
+        self.write(topic, name, || foxglove_schema(name), t, msg)
+    }
+
+    fn finish(mut self) -> Result<()> {
+        self.writer.finish()?;
+        Ok(())
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+
+fn rr_transform(p: &Isometry3<f64>) -> Transform3D {
+    let q = p.rotation.quaternion();
+    Transform3D::from_translation_rotation(
+        [p.translation.x as f32, p.translation.y as f32, p.translation.z as f32],
+        Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
+    )
+}
+
+fn blueprint() -> rerun::blueprint::Blueprint {
+    use rerun::blueprint::{
+        Blueprint, ContainerLike, Horizontal, Spatial3DView, Tabs, TextLogView, TimePanel, TimeSeriesView,
+        Vertical,
+    };
+    Blueprint::new(
+        Horizontal::new(vec![
+            ContainerLike::from(Spatial3DView::new("World: truth and estimate").with_origin("/world")),
+            ContainerLike::from(
+                Vertical::new(vec![
+                    ContainerLike::from(Tabs::new(vec![
+                        ContainerLike::from(
+                            TimeSeriesView::new("Estimate errors").with_origin("/plots/errors"),
+                        ),
+                        ContainerLike::from(TimeSeriesView::new("Motion").with_origin("/plots/motion")),
+                        ContainerLike::from(TimeSeriesView::new("Joints").with_origin("/plots/joints")),
+                        ContainerLike::from(TimeSeriesView::new("Scheduler").with_origin("/plots/scheduler")),
+                    ])),
+                    ContainerLike::from(
+                        TextLogView::new("Framework events and messages").with_origin("/logs"),
+                    ),
+                ])
+                .with_row_shares(vec![1.0, 1.0]),
+            ),
+        ])
+        .with_column_shares(vec![2.0, 1.0]),
+    )
+    .with_time_panel(TimePanel::new().with_timeline(TIMELINE))
+}
+
+/// Records one run.
+pub struct RunLogger {
+    settings: LoggingSettings,
+    mcap: Option<Mcap>,
+    rrd: Option<rerun::RecordingStream>,
+    rrd_path: PathBuf,
+    mcap_path: PathBuf,
+    next_truth: Time,
+    next_slots: Time,
+    next_stats: Time,
+    slot_seq: BTreeMap<String, u64>,
+    truth_track: Vec<[f32; 3]>,
+    est_track: Vec<[f32; 3]>,
+    next_track: Time,
+    last_stats: BTreeMap<String, (u64, i64)>,
+    events_seen: usize,
+}
+
+fn period(hz: f64) -> Option<Duration> {
+    (hz > 0.0).then(|| Duration::from_hz(hz))
+}
+
+impl RunLogger {
+    /// Opens `out/run.rrd` and `out/run.mcap` (as the scenario asks) and logs what never changes:
+    /// the terrain, the rocks, the robot's link geometry.
+    pub fn create(out: &Path, s: &Scenario, twin: &Twin, core: &Core) -> Result<Self> {
+        let rrd_path = out.join("run.rrd");
+        let mcap_path = out.join("run.mcap");
+        let rrd = if s.logging.rrd {
+            let rec = rerun::RecordingStreamBuilder::new("rover-twin")
+                .recording_name(s.name.clone())
+                .with_blueprint(blueprint())
+                .save(&rrd_path)
+                .with_context(|| format!("creating {}", rrd_path.display()))?;
+            rec.set_log_time_enabled(false);
+            Some(rec)
+        } else {
+            None
+        };
+        let mcap = if s.logging.mcap { Some(Mcap::create(&mcap_path)?) } else { None };
+        let mut l = RunLogger {
+            settings: s.logging.clone(),
+            mcap,
+            rrd,
+            rrd_path,
+            mcap_path,
+            next_truth: Time::ZERO,
+            next_slots: Time::ZERO,
+            next_stats: Time::ZERO,
+            slot_seq: BTreeMap::new(),
+            truth_track: Vec::new(),
+            est_track: Vec::new(),
+            next_track: Time::ZERO,
+            last_stats: BTreeMap::new(),
+            events_seen: 0,
+        };
+        l.statics(s, twin, core)?;
+        Ok(l)
+    }
+
+    fn statics(&mut self, s: &Scenario, twin: &Twin, core: &Core) -> Result<()> {
+        let world = twin.world();
+        let hf = &world.terrain;
+        // Terrain mesh, decimated to at most ~200 x 200 vertices for the viewer.
+        let step = hf.nx.max(hf.ny).div_ceil(200).max(1);
+        let (nx, ny) = ((hf.nx - 1) / step + 1, (hf.ny - 1) / step + 1);
+        let (lo, hi) = hf.height_range();
+        let mut verts = Vec::with_capacity(nx * ny);
+        let mut colors = Vec::with_capacity(nx * ny);
+        for j in 0..ny {
+            for i in 0..nx {
+                let (ii, jj) = ((i * step).min(hf.nx - 1), (j * step).min(hf.ny - 1));
+                let p = hf.position(ii, jj);
+                let h = hf.at(ii, jj);
+                verts.push([p.x as f32, p.y as f32, h as f32]);
+                let shade = if hi > lo { (h - lo) / (hi - lo) } else { 0.5 };
+                let c = (120.0 + 100.0 * shade) as u8;
+                colors.push([c, (c as f32 * 0.75) as u8, (c as f32 * 0.55) as u8]);
+            }
+        }
+        let mut tris = Vec::new();
+        for j in 0..ny - 1 {
+            for i in 0..nx - 1 {
+                let a = (j * nx + i) as u32;
+                let (b, c, d) = (a + 1, a + nx as u32, a + nx as u32 + 1);
+                tris.push([a, b, d]);
+                tris.push([a, d, c]);
+            }
+        }
+        let rock_centers: Vec<[f32; 3]> = world
+            .rocks
+            .iter()
+            .map(|r| [r.position.x as f32, r.position.y as f32, (r.position.z + r.height * 0.4) as f32])
+            .collect();
+        let rock_half: Vec<[f32; 3]> = world
+            .rocks
+            .iter()
+            .map(|r| [(r.diameter / 2.0) as f32, (r.diameter / 2.0) as f32, (r.height * 0.6) as f32])
+            .collect();
+        if let Some(rec) = &self.rrd {
+            rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())?;
+            rec.log_static(
+                "world/terrain",
+                &rerun::Mesh3D::new(verts).with_triangle_indices(tris).with_vertex_colors(colors),
+            )?;
+            rec.log_static(
+                "world/rocks",
+                &rerun::Ellipsoids3D::from_centers_and_half_sizes(rock_centers, rock_half)
+                    .with_fill_mode(rerun::FillMode::Solid)
+                    .with_colors([[110u8, 95, 80]]),
+            )?;
+            self.robot_geometry(rec)?;
+            rec.log_static(
+                "scenario",
+                &rerun::TextDocument::from_markdown(format!(
+                    "# {}\n\n{}\n\nWorld `{}` (seed {}), {} phases, {} timed events.",
+                    s.name,
+                    s.description,
+                    world.name,
+                    world.seed,
+                    s.phases.len(),
+                    s.events.len()
+                )),
+            )?;
+            for m in core.modules() {
+                rec.log_static(
+                    format!("modules/{}", m.name),
+                    &rerun::TextLog::new(format!(
+                        "{} module '{}' registered",
+                        format!("{:?}", m.kind).to_lowercase(),
+                        m.name
+                    ))
+                    .with_level(rerun::TextLogLevel::DEBUG),
+                )?;
+            }
+        }
+        if let Some(m) = &mut self.mcap {
+            // The terrain as a Foxglove grid of float32 heights (once), rocks as JSON.
+            let mut bytes = Vec::with_capacity(hf.heights.len() * 4);
+            for h in &hf.heights {
+                bytes.extend_from_slice(&(*h as f32).to_le_bytes());
+            }
+            let origin = Isometry3::translation(hf.origin.x, hf.origin.y, 0.0);
+            m.foxglove(
+                "/world/terrain",
+                "foxglove.Grid",
+                Time::ZERO,
+                &serde_json::json!({
+                    "timestamp": stamp_json(Time::ZERO), "frame_id": "world", "pose": pose_json(&origin),
+                    "column_count": hf.nx, "cell_size": { "x": hf.cell, "y": hf.cell },
+                    "row_stride": hf.nx * 4, "cell_stride": 4,
+                    "fields": [{ "name": "height", "offset": 0, "type": 7 }],
+                    "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
+                }),
+            )?;
+            let rocks: Vec<_> = world
+                .rocks
+                .iter()
+                .map(|r| serde_json::json!({ "x": r.position.x, "y": r.position.y, "z": r.position.z, "yaw": r.yaw, "diameter_m": r.diameter, "height_m": r.height }))
+                .collect();
+            m.write(
+                "/world/rocks",
+                "rover_twin.Rocks",
+                || own_schema("rover_twin.Rocks", "Rocks of the world (positions on the ground, world frame, m)", r#""rocks":{"type":"array","items":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"yaw":{"type":"number"},"diameter_m":{"type":"number"},"height_m":{"type":"number"}}}}"#),
+                Time::ZERO,
+                &serde_json::json!({ "rocks": rocks }),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// The robot drawn from its description: each link's URDF visuals, static, under the link's
+    /// entity (which gets the link's pose every truth tick).
+    fn robot_geometry(&self, rec: &rerun::RecordingStream) -> Result<()> {
+        let robot = urdf_rs::read_file(twin::rover_urdf()).context("reading the robot description")?;
+        for link in &robot.links {
+            for (k, v) in link.visual.iter().enumerate() {
+                let o = &v.origin;
+                let pose = Isometry3::from_parts(
+                    nalgebra::Translation3::new(o.xyz[0], o.xyz[1], o.xyz[2]),
+                    UnitQuaternion::from_euler_angles(o.rpy[0], o.rpy[1], o.rpy[2]),
+                );
+                let path = format!("world/truth/{}/visual_{k}", link.name);
+                let color = v
+                    .material
+                    .as_ref()
+                    .and_then(|m| m.color.as_ref())
+                    .map(|c| {
+                        [(c.rgba[0] * 255.0) as u8, (c.rgba[1] * 255.0) as u8, (c.rgba[2] * 255.0) as u8]
+                    })
+                    .unwrap_or([180, 180, 185]);
+                rec.log_static(path.as_str(), &rr_transform(&pose))?;
+                match &v.geometry {
+                    urdf_rs::Geometry::Box { size } => rec.log_static(
+                        path.as_str(),
+                        &rerun::Boxes3D::from_half_sizes([[
+                            size[0] as f32 / 2.0,
+                            size[1] as f32 / 2.0,
+                            size[2] as f32 / 2.0,
+                        ]])
+                        .with_fill_mode(rerun::FillMode::Solid)
+                        .with_colors([color]),
+                    )?,
+                    urdf_rs::Geometry::Cylinder { radius, length } => rec.log_static(
+                        path.as_str(),
+                        &rerun::Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
+                            .with_fill_mode(rerun::FillMode::Solid)
+                            .with_colors([color]),
+                    )?,
+                    urdf_rs::Geometry::Sphere { radius } => rec.log_static(
+                        path.as_str(),
+                        &rerun::Ellipsoids3D::from_radii([*radius as f32])
+                            .with_fill_mode(rerun::FillMode::Solid)
+                            .with_colors([color]),
+                    )?,
+                    _ => {}
+                }
+            }
+        }
+        rec.log_static(
+            "world/truth/canister/body",
+            &rerun::Boxes3D::from_centers_and_half_sizes([[0.0f32, 0.0, 0.075]], [[0.05f32, 0.05, 0.075]])
+                .with_fill_mode(rerun::FillMode::Solid)
+                .with_colors([[230u8, 230, 235]]),
+        )?;
+        Ok(())
+    }
+
+    /// Logs what is due at `now`.
+    pub fn tick(&mut self, now: Time, twin: &Twin, core: &Core) -> Result<()> {
+        if let Some(rec) = &self.rrd {
+            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
+        }
+        if let Some(p) = period(self.settings.truth_hz)
+            && now >= self.next_truth
+        {
+            self.next_truth = now + p;
+            self.truth(now, twin)?;
+        }
+        if let Some(p) = period(self.settings.slots_hz)
+            && now >= self.next_slots
+        {
+            self.next_slots = now + p;
+            self.slots(now, twin, core)?;
+        }
+        if self.settings.events {
+            self.events(now, core)?;
+        }
+        if let Some(p) = period(self.settings.stats_hz)
+            && now >= self.next_stats
+        {
+            self.next_stats = now + p;
+            self.stats(now, core)?;
+        }
+        Ok(())
+    }
+
+    fn truth(&mut self, now: Time, twin: &Twin) -> Result<()> {
+        let poses = twin.link_poses();
+        let canister = twin.canister_truth();
+        if let Some(rec) = &self.rrd {
+            for (name, pose) in &poses {
+                rec.log(format!("world/truth/{name}"), &rr_transform(pose))?;
+            }
+            if let Some(c) = &canister {
+                rec.log("world/truth/canister", &rr_transform(c))?;
+            }
+            let b = twin.base_pose();
+            let tilt = (b.rotation * nalgebra::Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees();
+            rec.log("plots/motion/tilt_deg", &rerun::Scalars::single(tilt))?;
+            rec.log("plots/motion/collisions", &rerun::Scalars::single(twin.collisions() as f64))?;
+            if now >= self.next_track {
+                self.next_track = now + Duration::from_secs(1);
+                let t = b.translation;
+                self.truth_track.push([t.x as f32, t.y as f32, t.z as f32 + 0.05]);
+                if self.truth_track.len() % 5 == 1 || self.truth_track.len() < 5 {
+                    rec.log(
+                        "world/truth/track",
+                        &rerun::LineStrips3D::new([self.truth_track.clone()])
+                            .with_colors([[40u8, 200, 60]])
+                            .with_radii([0.02_f32]),
+                    )?;
+                }
+            }
+        }
+        if let Some(m) = &mut self.mcap {
+            for (name, pose) in &poses {
+                let q = pose.rotation.quaternion();
+                m.foxglove(
+                    "/tf",
+                    "foxglove.FrameTransform",
+                    now,
+                    &serde_json::json!({
+                        "timestamp": stamp_json(now), "parent_frame_id": "world", "child_frame_id": name,
+                        "translation": { "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z },
+                        "rotation": { "x": q.i, "y": q.j, "z": q.k, "w": q.w },
+                    }),
+                )?;
+            }
+            if let Some(c) = &canister {
+                m.foxglove(
+                    "/truth/canister",
+                    "foxglove.PoseInFrame",
+                    now,
+                    &serde_json::json!({ "timestamp": stamp_json(now), "frame_id": "world", "pose": pose_json(c) }),
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    fn slots(&mut self, now: Time, twin: &Twin, core: &Core) -> Result<()> {
+        for name in core.board.names() {
+            let Some(slot) = core.board.slot(&name) else { continue };
+            let seq = slot.seq();
+            if seq == 0 || self.slot_seq.get(&name) == Some(&seq) {
+                continue;
+            }
+            self.slot_seq.insert(name.clone(), seq);
+            let any = slot.as_any();
+            if let Some(cell) = any.downcast_ref::<framework::blackboard::SlotCell<PoseEstimate>>()
+                && let Some(s) = cell.latest()
+            {
+                self.pose_estimate(&name, s.stamp, &s.value, twin)?;
+            } else if let Some(cell) = any.downcast_ref::<framework::blackboard::SlotCell<JointStates>>()
+                && let Some(s) = cell.latest()
+                && let Some(rec) = &self.rrd
+            {
+                for j in &s.value.joints {
+                    rec.log(
+                        format!("plots/joints/{}/{}", s.value.group, j.name),
+                        &rerun::Scalars::single(j.position),
+                    )?;
+                }
+            } else if let Some(cell) = any.downcast_ref::<framework::blackboard::SlotCell<LocomotionState>>()
+                && let Some(s) = cell.latest()
+                && let Some(rec) = &self.rrd
+            {
+                rec.log("plots/motion/commanded_speed_m_s", &rerun::Scalars::single(s.value.command.v))?;
+                rec.log(
+                    "plots/motion/commanded_yaw_rate_rad_s",
+                    &rerun::Scalars::single(s.value.command.omega),
+                )?;
+                if let Some([x, y]) = s.value.goal {
+                    let z = twin.world().ground_height(x, y) as f32;
+                    rec.log(
+                        "world/estimate/goal",
+                        &rerun::Points3D::new([[x as f32, y as f32, z + 0.1]])
+                            .with_radii([0.12_f32])
+                            .with_colors([[255u8, 200, 0]])
+                            .with_labels([s.value.mode.clone()]),
+                    )?;
+                }
+            }
+            // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.
+            if let (Some(m), Some(json)) = (&mut self.mcap, slot.to_json()) {
+                let type_name = slot.type_name();
+                m.write(
+                    &format!("/slots/{name}"),
+                    &format!("rover_twin.Slot<{type_name}>"),
+                    || {
+                        own_schema(
+                            &format!("rover_twin.Slot<{type_name}>"),
+                            "A blackboard record: the value with its clock stamp (ns) and sequence number",
+                            r#""value":{},"stamp":{"type":"integer"},"seq":{"type":"integer"}"#,
+                        )
+                    },
+                    now,
+                    &json,
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    fn pose_estimate(&mut self, slot: &str, stamp: Time, e: &PoseEstimate, twin: &Twin) -> Result<()> {
+        let truth = twin.base_pose();
+        let err =
+            (e.pose.translation.x - truth.translation.x).hypot(e.pose.translation.y - truth.translation.y);
+        let sig = e.position_sigma();
+        if let Some(rec) = &self.rrd {
+            let base = format!("world/estimate/{}", slot.replace('/', "_"));
+            rec.log(base.as_str(), &rr_transform(&e.pose))?;
+            rec.log(
+                format!("{base}/uncertainty"),
+                &rerun::Ellipsoids3D::from_half_sizes([[3.0 * sig.x as f32, 3.0 * sig.y as f32, 0.05_f32]])
+                    .with_colors([[60u8, 140, 255]]),
+            )?;
+            rec.log(
+                format!("{base}/heading"),
+                &rerun::Arrows3D::from_vectors([[0.5f32, 0.0, 0.0]]).with_colors([[60u8, 140, 255]]),
+            )?;
+            rec.log(format!("plots/errors/{slot}/position_error_m"), &rerun::Scalars::single(err))?;
+            rec.log(
+                format!("plots/errors/{slot}/sigma_3_m"),
+                &rerun::Scalars::single(3.0 * sig.x.hypot(sig.y)),
+            )?;
+            let yaw_err = (e.yaw() - truth.rotation.euler_angles().2 + std::f64::consts::PI)
+                .rem_euclid(std::f64::consts::TAU)
+                - std::f64::consts::PI;
+            rec.log(
+                format!("plots/errors/{slot}/yaw_error_deg"),
+                &rerun::Scalars::single(yaw_err.to_degrees()),
+            )?;
+            let p = e.pose.translation;
+            if self
+                .est_track
+                .last()
+                .is_none_or(|l| ((l[0] - p.x as f32).powi(2) + (l[1] - p.y as f32).powi(2)).sqrt() > 0.25)
+            {
+                self.est_track.push([p.x as f32, p.y as f32, p.z as f32 + 0.05]);
+                if self.est_track.len() % 5 == 1 || self.est_track.len() < 5 {
+                    rec.log(
+                        "world/estimate/track",
+                        &rerun::LineStrips3D::new([self.est_track.clone()])
+                            .with_colors([[60u8, 140, 255]])
+                            .with_radii([0.02_f32]),
+                    )?;
+                }
+            }
+        }
+        if let Some(m) = &mut self.mcap {
+            m.foxglove(
+                &format!("/estimate/{slot}"),
+                "foxglove.PoseInFrame",
+                stamp,
+                &serde_json::json!({ "timestamp": stamp_json(stamp), "frame_id": e.frame, "pose": pose_json(&e.pose) }),
+            )?;
+        }
+        Ok(())
+    }
+
+    fn events(&mut self, now: Time, core: &Core) -> Result<()> {
+        use framework::events::EventKind as K;
+        let (new, count) = core.events.since(self.events_seen);
+        self.events_seen = count;
+        for e in new {
+            let (level, rr_level, module) = match &e.kind {
+                K::ModuleIsolated { module, .. } => (4, rerun::TextLogLevel::ERROR, Some(module.clone())),
+                K::MessageRejected { module, .. } | K::Overrun { module, .. } => {
+                    (3, rerun::TextLogLevel::WARN, Some(module.clone()))
+                }
+                K::ModuleLifecycle { module, .. }
+                | K::ModuleState { module, .. }
+                | K::MetaStateSwitched { module, .. }
+                | K::Note { module, .. } => (2, rerun::TextLogLevel::INFO, Some(module.clone())),
+                K::ReservationOverridden { .. } => (3, rerun::TextLogLevel::WARN, None),
+                K::SystemState { .. } => (2, rerun::TextLogLevel::INFO, None),
+            };
+            let text = serde_json::to_string(&e.kind)?;
+            if let Some(rec) = &self.rrd {
+                rec.log("logs/events", &rerun::TextLog::new(text.clone()).with_level(rr_level))?;
+                if let Some(m) = &module {
+                    rec.log(format!("modules/{m}"), &rerun::TextLog::new(text.clone()).with_level(rr_level))?;
+                }
+            }
+            if let Some(m) = &mut self.mcap {
+                m.foxglove(
+                    "/events",
+                    "foxglove.Log",
+                    now,
+                    &serde_json::json!({ "timestamp": stamp_json(e.stamp), "level": level, "message": text, "name": module.unwrap_or_else(|| "system".into()), "file": "", "line": 0 }),
+                )?;
+            }
+        }
+        for msg in core.post.take_trace() {
+            let from = core.post.name(msg.sender).to_string();
+            let to = core.post.name(msg.recipient).to_string();
+            let (kind, what) = match &msg.body {
+                framework::message::Body::Command { name, args } => {
+                    ("command", format!("{from} -> {to}: {name} {args}"))
+                }
+                framework::message::Body::Ack(a) => (
+                    "ack",
+                    format!("{from} -> {to}: ack of {}: {}", a.command, serde_json::to_string(&a.status)?),
+                ),
+            };
+            if let Some(rec) = &self.rrd {
+                rec.log(
+                    "logs/messages",
+                    &rerun::TextLog::new(what.clone()).with_level(rerun::TextLogLevel::DEBUG),
+                )?;
+            }
+            if let Some(m) = &mut self.mcap {
+                m.write(
+                    "/messages",
+                    "rover_twin.Message",
+                    || own_schema("rover_twin.Message", "A message of the message-passing system (command or acknowledgement)", r#""id":{"type":"integer"},"stamp":{"type":"integer"},"from":{"type":"string"},"to":{"type":"string"},"queue":{"type":"string"},"kind":{"type":"string","enum":["command","ack"]},"body":{}"#),
+                    now,
+                    &serde_json::json!({ "id": serde_json::to_value(msg.id)?, "stamp": msg.stamp.as_nanos(), "from": from, "to": to, "queue": format!("{:?}", msg.queue).to_lowercase(), "kind": kind, "body": msg.body }),
+                )?;
+            }
+        }
+        Ok(())
+    }
+
+    fn stats(&mut self, now: Time, core: &Core) -> Result<()> {
+        let reports = framework::system::module_reports(core);
+        if let Some(rec) = &self.rrd {
+            for r in &reports {
+                let (c0, e0) = self.last_stats.get(&r.name).copied().unwrap_or((0, 0));
+                let cycles = r.stats.cycles - c0;
+                if cycles > 0 {
+                    let mean_us = (r.stats.exec_total_ns - e0) as f64 / cycles as f64 / 1e3;
+                    rec.log(
+                        format!("plots/scheduler/{}/exec_mean_us", r.name),
+                        &rerun::Scalars::single(mean_us),
+                    )?;
+                }
+                rec.log(
+                    format!("plots/scheduler/{}/overruns", r.name),
+                    &rerun::Scalars::single(r.stats.overruns as f64),
+                )?;
+                self.last_stats.insert(r.name.clone(), (r.stats.cycles, r.stats.exec_total_ns));
+            }
+        }
+        if let Some(m) = &mut self.mcap {
+            m.write(
+                "/scheduler/stats",
+                "rover_twin.ModuleReports",
+                || {
+                    own_schema(
+                        "rover_twin.ModuleReports",
+                        "Per-module lifecycle, FSM state, context and task statistics",
+                        r#""modules":{"type":"array","items":{"type":"object"}}"#,
+                    )
+                },
+                now,
+                &serde_json::json!({ "modules": reports }),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Logs the score (if any) and finalizes both files; returns where they are.
+    pub fn finish(mut self, score: Option<&Score>) -> Result<LogFiles> {
+        let mut files = LogFiles::default();
+        if let Some(s) = score {
+            let t = Time::from_secs_f64(s.sim_time_s);
+            if let Some(rec) = &self.rrd {
+                rec.set_time(TIMELINE, std::time::Duration::from_nanos(t.as_nanos().max(0) as u64));
+                let mut md = format!(
+                    "# {}: {}\n\n| phase | status | start (s) | end (s) | reason |\n|---|---|---|---|---|\n",
+                    s.scenario, s.outcome
+                );
+                for p in &s.phases {
+                    let f = |v: Option<f64>| v.map(|v| format!("{v:.1}")).unwrap_or_default();
+                    md += &format!(
+                        "| {} | {:?} | {} | {} | {} |\n",
+                        p.name,
+                        p.status,
+                        f(p.start_s),
+                        f(p.end_s),
+                        p.reason.as_deref().unwrap_or("")
+                    );
+                }
+                md += "\n| criterion | passed | value | limit |\n|---|---|---|---|\n";
+                for c in &s.criteria {
+                    md += &format!("| {} | {} | {} | {} |\n", c.name, c.passed, c.value, c.limit);
+                }
+                rec.log("score", &rerun::TextDocument::from_markdown(md))?;
+            }
+            if let Some(m) = &mut self.mcap {
+                m.write("/score", "rover_twin.Score", || own_schema("rover_twin.Score", "The run's score (score.json)", r#""scenario":{"type":"string"},"success":{"type":"boolean"},"phases":{"type":"array"},"criteria":{"type":"array"},"metrics":{"type":"object"}"#), t, &serde_json::to_value(s)?)?;
+            }
+        }
+        if let Some(m) = self.mcap.take() {
+            m.finish()?;
+            files.mcap = Some(self.mcap_path.display().to_string());
+        }
+        if let Some(rec) = self.rrd.take() {
+            rec.flush_blocking().map_err(|e| anyhow::anyhow!("flushing {}: {e}", self.rrd_path.display()))?;
+            drop(rec); // the last handle: the file sink writes its footer
+            files.rrd = Some(self.rrd_path.display().to_string());
+        }
+        Ok(files)
+    }
+}

@@ -1,0 +1,237 @@
+//! The sweep report: one self-contained HTML page with SVG plots (plotters) — success rate by
+//! dispersed parameter, metric histograms, and the rover tracks over the yard.
+
+use crate::sweep::{Campaign, METRICS, Row, Summary, SweepFile, metric_values};
+use anyhow::Result;
+use plotters::prelude::*;
+use std::fmt::Write as _;
+use std::path::Path;
+
+const W: u32 = 560;
+const H: u32 = 340;
+
+fn svg(
+    draw: impl FnOnce(&DrawingArea<SVGBackend<'_>, plotters::coord::Shift>) -> Result<()>,
+) -> Result<String> {
+    let mut buf = String::new();
+    {
+        let root = SVGBackend::with_string(&mut buf, (W, H)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| anyhow::anyhow!("{e}"))?;
+        draw(&root)?;
+        root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
+    }
+    Ok(buf)
+}
+
+fn range(v: &[f64]) -> (f64, f64) {
+    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+    let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    if hi - lo < 1e-9 { (lo - 0.5, hi + 0.5) } else { (lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo)) }
+}
+
+macro_rules! plot_err {
+    ($e:expr) => {
+        $e.map_err(|e| anyhow::anyhow!("plot: {e}"))?
+    };
+}
+
+/// Success (1) or failure (0) of each run against a dispersed parameter, with the success rate of
+/// equal-count bins drawn over it.
+fn success_by_parameter(key: &str, rows: &[Row], k: usize) -> Result<Option<String>> {
+    let pts: Vec<(f64, f64)> = rows
+        .iter()
+        .filter_map(|r| {
+            r.values
+                .get(k)?
+                .trim_matches('"')
+                .parse::<f64>()
+                .ok()
+                .map(|x| (x, if r.success { 1.0 } else { 0.0 }))
+        })
+        .collect();
+    if pts.is_empty() {
+        return Ok(None);
+    }
+    let (x0, x1) = range(&pts.iter().map(|p| p.0).collect::<Vec<_>>());
+    let mut sorted = pts.clone();
+    sorted.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let bins = (sorted.len() / 5).clamp(1, 8);
+    let per = sorted.len().div_ceil(bins);
+    let rate: Vec<(f64, f64)> = sorted
+        .chunks(per)
+        .map(|c| {
+            (
+                c.iter().map(|p| p.0).sum::<f64>() / c.len() as f64,
+                c.iter().map(|p| p.1).sum::<f64>() / c.len() as f64,
+            )
+        })
+        .collect();
+    Ok(Some(svg(|root| {
+        let mut ch = plot_err!(
+            ChartBuilder::on(root)
+                .caption(format!("success by {key}"), ("sans-serif", 16))
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(40)
+                .build_cartesian_2d(x0..x1, -0.05..1.05)
+        );
+        plot_err!(ch.configure_mesh().x_desc(key).y_desc("success").draw());
+        plot_err!(ch.draw_series(pts.iter().map(|&(x, y)| Circle::new(
+            (x, y),
+            3,
+            if y > 0.5 { GREEN.filled() } else { RED.filled() }
+        ))));
+        plot_err!(ch.draw_series(LineSeries::new(rate.clone(), BLUE.stroke_width(2))));
+        Ok(())
+    })?))
+}
+
+fn histogram(name: &str, values: &[f64]) -> Result<String> {
+    let (x0, x1) = range(values);
+    let n = 12usize;
+    let w = (x1 - x0) / n as f64;
+    let mut counts = vec![0u32; n];
+    for v in values {
+        counts[(((v - x0) / w) as usize).min(n - 1)] += 1;
+    }
+    let top = counts.iter().copied().max().unwrap_or(1).max(1);
+    svg(|root| {
+        let mut ch = plot_err!(
+            ChartBuilder::on(root)
+                .caption(name, ("sans-serif", 16))
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(40)
+                .build_cartesian_2d(x0..x1, 0u32..top + 1)
+        );
+        plot_err!(ch.configure_mesh().x_desc(name).y_desc("runs").draw());
+        plot_err!(ch.draw_series(counts.iter().enumerate().map(|(i, &c)| {
+            let a = x0 + i as f64 * w;
+            Rectangle::new([(a, 0), (a + w, c)], BLUE.mix(0.6).filled())
+        })));
+        Ok(())
+    })
+}
+
+/// Reads a run's `track.csv` (t, x, y).
+fn track(dir: &Path, index: u64) -> Vec<(f64, f64)> {
+    let p = dir.join("runs").join(format!("{index:05}")).join("track.csv");
+    let Ok(mut r) = csv::Reader::from_path(p) else { return Vec::new() };
+    r.records()
+        .filter_map(|rec| {
+            let rec = rec.ok()?;
+            Some((rec.get(1)?.parse().ok()?, rec.get(2)?.parse().ok()?))
+        })
+        .collect()
+}
+
+fn tracks(dir: &Path, rows: &[Row]) -> Result<Option<String>> {
+    let all: Vec<(bool, Vec<(f64, f64)>)> =
+        rows.iter().map(|r| (r.success, track(dir, r.index))).filter(|t| !t.1.is_empty()).collect();
+    if all.is_empty() {
+        return Ok(None);
+    }
+    let xs: Vec<f64> = all.iter().flat_map(|t| t.1.iter().map(|p| p.0)).collect();
+    let ys: Vec<f64> = all.iter().flat_map(|t| t.1.iter().map(|p| p.1)).collect();
+    let ((x0, x1), (y0, y1)) = (range(&xs), range(&ys));
+    // Equal scales on both axes.
+    let span = (x1 - x0).max(y1 - y0);
+    let (cx, cy) = ((x0 + x1) / 2.0, (y0 + y1) / 2.0);
+    Ok(Some(svg(|root| {
+        let mut ch = plot_err!(
+            ChartBuilder::on(root)
+                .caption("rover tracks (truth; green: success, red: failure)", ("sans-serif", 16))
+                .margin(10)
+                .x_label_area_size(30)
+                .y_label_area_size(40)
+                .build_cartesian_2d(cx - span * 0.8..cx + span * 0.8, cy - span / 2.0..cy + span / 2.0)
+        );
+        plot_err!(ch.configure_mesh().x_desc("east (m)").y_desc("north (m)").draw());
+        for (ok, t) in &all {
+            let c = if *ok { GREEN.mix(0.7) } else { RED.mix(0.7) };
+            plot_err!(ch.draw_series(LineSeries::new(t.clone(), c.stroke_width(1))));
+        }
+        Ok(())
+    })?))
+}
+
+fn esc(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+}
+
+/// Writes `report.html` into `out`.
+pub fn write(
+    out: &Path,
+    sweep: &SweepFile,
+    rows: &[Row],
+    summary: &Summary,
+    campaign: Option<&Campaign>,
+) -> Result<()> {
+    let mut h = String::new();
+    let title = campaign.map(|c| c.sweep_file.clone()).unwrap_or_else(|| sweep.sweep.scenario.clone());
+    writeln!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>Sweep report: {}</title>",
+        esc(&title)
+    )?;
+    writeln!(
+        h,
+        "<style>body{{font-family:sans-serif;margin:2em}} svg{{margin:4px;border:1px solid #ddd}} td,th{{padding:2px 8px;text-align:right}}</style></head><body>"
+    )?;
+    writeln!(
+        h,
+        "<h1>Sweep report</h1><p>Sweep {} over scenario <code>{}</code>, master seed {}.</p>",
+        esc(&title),
+        esc(&sweep.sweep.scenario),
+        sweep.sweep.master_seed
+    )?;
+    let [lo, hi] = summary.success_rate_ci95;
+    writeln!(
+        h,
+        "<p><b>{} / {} runs succeeded</b>: success rate {:.1}% (95% CI {:.1}% - {:.1}%){}.</p>",
+        summary.successes,
+        summary.runs,
+        summary.success_rate * 100.0,
+        lo * 100.0,
+        hi * 100.0,
+        if summary.partial { " — partial: not every planned run finished" } else { "" }
+    )?;
+    writeln!(
+        h,
+        "<h2>Metrics</h2><table><tr><th>metric</th><th>n</th><th>mean</th><th>min</th><th>p5</th><th>p50</th><th>p95</th><th>max</th></tr>"
+    )?;
+    for (name, m) in &summary.metrics {
+        writeln!(
+            h,
+            "<tr><td>{name}</td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td><td>{:.4}</td></tr>",
+            m.n, m.mean, m.min, m.p5, m.p50, m.p95, m.max
+        )?;
+    }
+    writeln!(h, "</table><h2>Success by parameter</h2>")?;
+    for (k, d) in sweep.dispersions.iter().enumerate() {
+        if let Some(s) = success_by_parameter(&d.key, rows, k)? {
+            h.push_str(&s);
+        }
+    }
+    writeln!(h, "<h2>Metric histograms</h2>")?;
+    for (k, name) in METRICS.iter().enumerate() {
+        let v = metric_values(rows, k);
+        if v.len() >= 2 {
+            h.push_str(&histogram(name, &v)?);
+        }
+    }
+    if let Some(t) = tracks(out, rows)? {
+        writeln!(h, "<h2>Tracks</h2>")?;
+        h.push_str(&t);
+    }
+    writeln!(h, "<h2>Failed runs</h2><ul>")?;
+    for r in rows.iter().filter(|r| !r.success) {
+        writeln!(h, "<li>run {} ({}): <code>{}</code></li>", r.index, esc(&r.outcome), esc(&r.reproduce))?;
+    }
+    writeln!(h, "</ul></body></html>")?;
+    std::fs::write(out.join("report.html"), h)?;
+    Ok(())
+}

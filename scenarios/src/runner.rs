@@ -1,0 +1,724 @@
+//! The scenario runner: builds the twin and the module system of a scenario, steps them in lockstep,
+//! plays the ground plan and the timed events through message passing, scores the run and keeps its
+//! logs complete whatever happens.
+//!
+//! Time: the executor's simulated clock and the twin advance together. Before each executor tick to
+//! time `t`, the twin is stepped to `t`, so modules running at `t` read sensors stamped `t` and their
+//! commands act from `t` on.
+
+use crate::faults::{self, TwinFaults};
+use crate::logger::RunLogger;
+use crate::scenario::{FidelityName, Loaded, OnFailure, Scenario};
+use crate::score::{CriterionResult, LogFiles, Metrics, PhaseResult, PhaseStatus, Score};
+use anyhow::{Context, Result, anyhow};
+use framework::data::PoseEstimate;
+use framework::hal::DeviceMap;
+use framework::{
+    AckStatus, Command, ConfigSource, Duration, Endpoint, Executor, Lifecycle, LockstepExecutor, MessageId,
+    SystemBuilder, Time,
+};
+use gnc::joints::JointGroupModule;
+use gnc::locomotion::Locomotion;
+use gnc::odometry::Odometry;
+use nalgebra::{Isometry3, Vector3};
+use parking_lot::Mutex;
+use std::collections::{BTreeMap, HashSet};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use twin::devices::{DryRunDeviceMap, SharedTwin};
+use twin::{Fidelity, StartPose, Twin, TwinConfig};
+
+/// Options of one run.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Seed (default: the scenario's `run.seed`).
+    pub seed: Option<u64>,
+    /// Output folder (created).
+    pub out: PathBuf,
+    /// Fidelity (default: the scenario's).
+    pub fidelity: Option<FidelityName>,
+    /// No progress line.
+    pub quiet: bool,
+    /// Write the Rerun and MCAP logs (sweeps may turn them off).
+    pub write_logs: bool,
+    /// Set to stop the run (SIGINT/SIGTERM): it ends as aborted, logs finalized.
+    pub interrupt: Arc<AtomicBool>,
+}
+
+/// Module configuration defaults shipped with the runner.
+pub fn module_config_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/modules")
+}
+
+/// Modules of the system a scenario runs, in registration order.
+pub const MODULES: &[&str] = &["odometry", "locomotion", "arm", "ptu", "gripper", faults::NAME];
+
+/// Builds a module's configuration: its default file with the scenario's `[modules.<name>]` merged
+/// over it and the run's purpose (Debug/Mission) applied.
+fn module_config(name: &str, s: &Scenario, scenario_path: &Path, extra: toml::Table) -> Result<ConfigSource> {
+    let path = module_config_dir().join(format!("{name}.toml"));
+    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let mut doc: toml::Table =
+        toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
+    let mut context = toml::Table::new();
+    context.insert("mode".into(), "dry-run".into());
+    context.insert(
+        "purpose".into(),
+        match s.run.purpose {
+            framework::Purpose::Debug => "debug",
+            framework::Purpose::Mission => "mission",
+        }
+        .into(),
+    );
+    let mut fw = toml::Table::new();
+    fw.insert("context".into(), toml::Value::Table(context));
+    let mut over = toml::Table::new();
+    over.insert("framework".into(), toml::Value::Table(fw));
+    crate::scenario::merge(&mut doc, over);
+    crate::scenario::merge(&mut doc, extra);
+    let mut origin = path.display().to_string();
+    if let Some(t) = s.modules.get(name) {
+        crate::scenario::merge(&mut doc, t.clone());
+        origin = format!("{origin} with [modules.{name}] of {}", scenario_path.display());
+    }
+    Ok(ConfigSource::inline(origin, toml::to_string(&doc)?))
+}
+
+/// The twin of a scenario.
+pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
+    let s = &loaded.scenario;
+    let wpath = loaded.world_path();
+    let mut world = match s.world.seed {
+        Some(seed) => worlds::World::load_with_seed(&wpath, seed),
+        None => worlds::World::load(&wpath),
+    }?;
+    if let Some(f) = s.world.friction {
+        world.regolith.friction = f;
+    }
+    if let Some(c) = &s.canister {
+        let z = world.ground_height(c.x, c.y);
+        let Some(obj) = world.objects.iter_mut().find(|o| o.name == "canister") else {
+            return Err(anyhow!(
+                "{}: the scenario places a canister but world {} has none",
+                loaded.path.display(),
+                wpath.display()
+            ));
+        };
+        obj.position = nalgebra::Point3::new(c.x, c.y, z);
+        obj.yaw = c.yaw_deg.to_radians();
+    }
+    let cpath = TwinConfig::default_path();
+    let text = std::fs::read_to_string(&cpath).with_context(|| format!("reading {}", cpath.display()))?;
+    let mut doc: toml::Table = toml::from_str(&text)?;
+    crate::scenario::merge(&mut doc, s.twin.clone());
+    let origin = if s.twin.is_empty() {
+        cpath.display().to_string()
+    } else {
+        format!("{} with [twin] of {}", cpath.display(), loaded.path.display())
+    };
+    let config = TwinConfig::from_str(&toml::to_string(&doc)?, &origin)?;
+    let fid = match fidelity {
+        FidelityName::Dynamic => Fidelity::Dynamic,
+        FidelityName::Kinematic => Fidelity::Kinematic,
+    };
+    let start = StartPose { x: s.rover.x, y: s.rover.y, yaw: s.rover.yaw_deg.to_radians() };
+    Ok(Twin::new(world, config, &twin::rover_urdf(), start, fid)?)
+}
+
+/// Builds the module system of a scenario over `twin`.
+fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: bool) -> Result<SystemBuilder> {
+    let s = &loaded.scenario;
+    for name in s.modules.keys() {
+        if !MODULES.contains(&name.as_str()) {
+            let files = [crate::scenario::FileText {
+                origin: loaded.path.display().to_string(),
+                text: std::fs::read_to_string(&loaded.path).unwrap_or_default(),
+            }];
+            return Err(crate::scenario::locate(
+                &["modules".into(), name.clone()],
+                &files,
+                &loaded.overrides,
+                format!("no module '{name}' in this system (it has: {})", MODULES.join(", ")),
+            )
+            .into());
+        }
+    }
+    let mut b = SystemBuilder::new();
+    // Every message and acknowledgement is traced for the logger.
+    b.trace_messages(log_messages);
+    let map = DryRunDeviceMap::new(twin.clone(), b.resources().clone(), seed);
+    let model = map.locomotor()?.model().clone();
+    let ground_z = twin.lock().world().ground_height(s.rover.x, s.rover.y);
+    let mut odo_extra = toml::Table::new();
+    let mut params = toml::Table::new();
+    // What the operator knows of the start: the planned pose and the terrain map's height there.
+    params.insert(
+        "initial_pose".into(),
+        toml::Value::Array(vec![s.rover.x.into(), s.rover.y.into(), ground_z.into(), s.rover.yaw_deg.into()]),
+    );
+    odo_extra.insert("params".into(), toml::Value::Table(params));
+    let p = &loaded.path;
+    for name in MODULES {
+        let extra = if *name == "odometry" { odo_extra.clone() } else { Default::default() };
+        add_module(&mut b, name, &map, twin, model.clone(), module_config(name, s, p, extra)?)?;
+    }
+    b.endpoint("ground").endpoint("events");
+    Ok(b)
+}
+
+/// Registers module `name` of the runner's system, with its devices from `map`.
+fn add_module(
+    b: &mut SystemBuilder,
+    name: &str,
+    map: &DryRunDeviceMap,
+    twin: &SharedTwin,
+    model: framework::hal::LocomotorModel,
+    config: ConfigSource,
+) -> Result<()> {
+    match name {
+        "odometry" => b.add(name, Odometry::new(map.encoders()?, map.imu()?, model), config),
+        "locomotion" => b.add(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
+        "arm" | "ptu" | "gripper" => b.add(name, JointGroupModule::new(map.joint_group(name)?), config),
+        faults::NAME => b.add(name, TwinFaults::new(twin.clone()), config),
+        other => return Err(anyhow!("no module '{other}' in the runner's system")),
+    };
+    Ok(())
+}
+
+/// Checks a module configuration file by registering its module (named by the file) against a
+/// kinematic twin of the flat yard: every problem the system would find at start-up.
+pub fn check_module_config(name: &str, path: &Path) -> std::result::Result<(), Vec<String>> {
+    let fail = |e: anyhow::Error| {
+        vec![format!("{}: cannot build module '{name}' to check it: {e:#}", path.display())]
+    };
+    let world =
+        worlds::World::load(worlds::worlds_dir().join("flat_yard.toml")).map_err(|e| fail(e.into()))?;
+    let start = StartPose { x: 0.0, y: 0.0, yaw: 0.0 };
+    let twin = Twin::with_defaults(world, start, Fidelity::Kinematic).map_err(|e| fail(e.into()))?;
+    let twin = twin::devices::share(twin);
+    let mut b = SystemBuilder::new();
+    let map = DryRunDeviceMap::new(twin.clone(), b.resources().clone(), 1);
+    let model = map.locomotor().map_err(|e| fail(e.into()))?.model().clone();
+    add_module(&mut b, name, &map, &twin, model, ConfigSource::file(path)).map_err(fail)?;
+    if b.problems().is_empty() { Ok(()) } else { Err(b.problems().to_vec()) }
+}
+
+#[derive(Debug)]
+struct PhaseRun {
+    status: Option<PhaseStatus>,
+    start: Option<Time>,
+    end: Option<Time>,
+    reason: Option<String>,
+}
+
+/// Plays the ground plan: each phase's steps in order, each awaited.
+struct Sequencer {
+    phases: Vec<crate::scenario::Phase>,
+    runs: Vec<PhaseRun>,
+    idx: usize,
+    step: usize,
+    current: Option<(MessageId, Time)>,
+    modules: HashSet<String>,
+    /// Set when the mission ends early: Hold (abort) or Safe.
+    end: Option<Lifecycle>,
+}
+
+impl Sequencer {
+    fn new(phases: &[crate::scenario::Phase], modules: HashSet<String>) -> Self {
+        Sequencer {
+            phases: phases.to_vec(),
+            runs: phases
+                .iter()
+                .map(|_| PhaseRun { status: None, start: None, end: None, reason: None })
+                .collect(),
+            idx: 0,
+            step: 0,
+            current: None,
+            modules,
+            end: None,
+        }
+    }
+
+    fn finished(&self) -> bool {
+        self.idx >= self.phases.len() || self.end.is_some()
+    }
+
+    fn current_name(&self) -> &str {
+        self.phases.get(self.idx).map(|p| p.name.as_str()).unwrap_or("-")
+    }
+
+    fn fail(&mut self, now: Time, reason: String, ground: &Endpoint) {
+        let p = &self.phases[self.idx];
+        if let Some((_, _)) = self.current.take() {
+            // Stop what the failed step was doing (modules without `stop` refuse it harmlessly).
+            let to = &p.steps[self.step].to;
+            let _ = ground.send(Command::new(to.clone(), "stop"));
+        }
+        let r = &mut self.runs[self.idx];
+        r.status = Some(PhaseStatus::Failed);
+        r.end = Some(now);
+        r.reason = Some(reason);
+        match p.on_failure {
+            OnFailure::Continue => {}
+            OnFailure::Abort => self.end = Some(Lifecycle::Hold),
+            OnFailure::Safe => self.end = Some(Lifecycle::Safe),
+        }
+        self.idx += 1;
+        self.step = 0;
+    }
+
+    fn update(&mut self, now: Time, ground: &Endpoint) {
+        while !self.finished() {
+            let p = &self.phases[self.idx];
+            if self.runs[self.idx].start.is_none() {
+                if let Some(missing) = p.steps.iter().find(|s| !self.modules.contains(&s.to)) {
+                    let r = &mut self.runs[self.idx];
+                    r.status = Some(PhaseStatus::NotRun);
+                    r.reason =
+                        Some(format!("needs module '{}', which this system does not have yet", missing.to));
+                    self.idx += 1;
+                    continue;
+                }
+                self.runs[self.idx].start = Some(now);
+                self.step = 0;
+            }
+            if self.step >= p.steps.len() {
+                let r = &mut self.runs[self.idx];
+                r.status = Some(PhaseStatus::Succeeded);
+                r.end = Some(now);
+                self.idx += 1;
+                self.step = 0;
+                continue;
+            }
+            let st = &p.steps[self.step];
+            match self.current {
+                None => {
+                    let args = st
+                        .args
+                        .as_ref()
+                        .map(|a| serde_json::to_value(a).unwrap_or_default())
+                        .unwrap_or(serde_json::Value::Null);
+                    let cmd = Command::new(st.to.clone(), st.command.clone()).json(args).on(st.queue.into());
+                    match ground.send(cmd) {
+                        Ok(id) => self.current = Some((id, now + Duration::from_secs_f64(st.timeout_s))),
+                        Err(e) => {
+                            let reason = format!(
+                                "step {} ({}.{}): cannot send: {e}",
+                                self.step + 1,
+                                st.to,
+                                st.command
+                            );
+                            self.fail(now, reason, ground);
+                        }
+                    }
+                    return;
+                }
+                Some((id, deadline)) => {
+                    let what = format!("step {} ({}.{})", self.step + 1, st.to, st.command);
+                    match ground.status(id) {
+                        Some(AckStatus::Completed(_)) => {
+                            self.current = None;
+                            self.step += 1;
+                            continue;
+                        }
+                        Some(AckStatus::Rejected(r)) => {
+                            self.fail(now, format!("{what} refused: {r}"), ground)
+                        }
+                        Some(AckStatus::Failed(r)) => self.fail(now, format!("{what} failed: {r}"), ground),
+                        _ if now >= deadline => {
+                            let reason = format!("{what} did not complete within {} s", st.timeout_s);
+                            self.fail(now, reason, ground)
+                        }
+                        _ => {}
+                    }
+                    return;
+                }
+            }
+        }
+    }
+
+    /// Ends the plan at `now` (time limit or abort): the phase under way fails, later ones are not run.
+    fn close(&mut self, now: Time, reason: &str) {
+        for (i, r) in self.runs.iter_mut().enumerate() {
+            if r.status.is_none() {
+                if r.start.is_some() {
+                    r.status = Some(PhaseStatus::Failed);
+                    r.end = Some(now);
+                    r.reason = Some(reason.to_string());
+                } else {
+                    r.status = Some(PhaseStatus::NotRun);
+                    r.reason = Some(if i < self.idx {
+                        "skipped".into()
+                    } else {
+                        format!("mission ended first ({reason})")
+                    });
+                }
+            }
+        }
+    }
+
+    fn results(&self) -> Vec<PhaseResult> {
+        self.phases
+            .iter()
+            .zip(&self.runs)
+            .map(|(p, r)| {
+                let status = r.status.clone().unwrap_or(PhaseStatus::NotRun);
+                PhaseResult {
+                    name: p.name.clone(),
+                    success: status == PhaseStatus::Succeeded,
+                    status,
+                    start_s: r.start.map(Time::as_secs_f64),
+                    end_s: r.end.map(Time::as_secs_f64),
+                    reason: r.reason.clone(),
+                }
+            })
+            .collect()
+    }
+}
+
+/// Ground-truth metrics accumulated during the run.
+#[derive(Default)]
+struct Scorer {
+    last_sample: Option<Time>,
+    last_xy: Option<(f64, f64)>,
+    distance: f64,
+    max_tilt: f64,
+    err_sq_sum: f64,
+    err_n: u64,
+    final_err: Option<f64>,
+    anchor: Option<(f64, f64)>,
+    travel_after: f64,
+    /// (t, x, y) of the base at 1 Hz, for reports.
+    track: Vec<(f64, f64, f64)>,
+}
+
+impl Scorer {
+    fn sample(&mut self, now: Time, base: &Isometry3<f64>, est: Option<&PoseEstimate>, after: Option<f64>) {
+        let tilt = (base.rotation * Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees();
+        self.max_tilt = self.max_tilt.max(tilt);
+        if self.last_sample.is_some_and(|t| (now - t).as_secs_f64() < 0.1 - 1e-9) {
+            return;
+        }
+        self.last_sample = Some(now);
+        let (x, y) = (base.translation.x, base.translation.y);
+        let t = now.as_secs_f64();
+        if self.track.last().is_none_or(|l| t - l.0 >= 1.0 - 1e-9) {
+            self.track.push((t, x, y));
+        }
+        if let Some((px, py)) = self.last_xy {
+            self.distance += (x - px).hypot(y - py);
+        }
+        self.last_xy = Some((x, y));
+        if let Some(e) = est {
+            let err = (e.pose.translation.x - x).hypot(e.pose.translation.y - y);
+            self.err_sq_sum += err * err;
+            self.err_n += 1;
+            self.final_err = Some(err);
+        }
+        if let Some(a) = after
+            && now.as_secs_f64() >= a
+        {
+            let (ax, ay) = *self.anchor.get_or_insert((x, y));
+            self.travel_after = self.travel_after.max((x - ax).hypot(y - ay));
+        }
+    }
+}
+
+/// True when the canister rests in the stowage slot (and the gripper does not hold it).
+fn canister_stowed(t: &Twin) -> bool {
+    let (Some(slot), Some(can)) = (t.link_pose("stow_slot"), t.canister_truth()) else { return false };
+    let rel = slot.inverse() * can;
+    !t.holding_canister()
+        && rel.translation.x.hypot(rel.translation.y) < 0.04
+        && rel.translation.z.abs() < 0.05
+}
+
+fn check_criteria(
+    s: &Scenario,
+    phases: &[PhaseResult],
+    m: &Metrics,
+    sc: &Scorer,
+    final_state: Lifecycle,
+    twin: &Twin,
+) -> Vec<CriterionResult> {
+    let c = &s.criteria;
+    let mut out = Vec::new();
+    let mut add = |name: String, passed: bool, value: String, limit: String| {
+        out.push(CriterionResult { name, passed, value, limit })
+    };
+    let required: Vec<String> =
+        c.required_phases.clone().unwrap_or_else(|| s.phases.iter().map(|p| p.name.clone()).collect());
+    for r in required {
+        let p = phases.iter().find(|p| p.name == r);
+        let status = p.map(|p| format!("{:?}", p.status).to_lowercase()).unwrap_or_default();
+        add(format!("phase '{r}' succeeds"), p.is_some_and(|p| p.success), status, "succeeded".into());
+    }
+    let want = c.final_state.unwrap_or(Lifecycle::Run);
+    add("final system state".into(), final_state == want, final_state.to_string(), want.to_string());
+    if let Some(lim) = c.max_tilt_deg {
+        add(
+            "max tilt".into(),
+            m.max_tilt_deg <= lim,
+            format!("{:.2} deg", m.max_tilt_deg),
+            format!("<= {lim} deg"),
+        );
+    }
+    if let Some(lim) = c.max_collisions {
+        add("collisions".into(), m.collisions <= lim, m.collisions.to_string(), format!("<= {lim}"));
+    }
+    if let Some(lim) = c.max_final_position_error_m {
+        let v = m.final_position_error_m;
+        add(
+            "final position error".into(),
+            v.is_some_and(|v| v <= lim),
+            v.map(|v| format!("{v:.3} m")).unwrap_or_else(|| "no estimate".into()),
+            format!("<= {lim} m"),
+        );
+    }
+    if let Some(g) = &c.goal {
+        let b = twin.base_pose().translation;
+        let d = (b.x - g.x).hypot(b.y - g.y);
+        add(
+            format!("rover ends within {} m of ({}, {})", g.tolerance_m, g.x, g.y),
+            d <= g.tolerance_m,
+            format!("{d:.3} m"),
+            format!("<= {} m", g.tolerance_m),
+        );
+    }
+    if let Some(want) = c.canister_stowed {
+        add(
+            "canister stowed".into(),
+            m.canister_stowed == want,
+            m.canister_stowed.to_string(),
+            want.to_string(),
+        );
+    }
+    if let Some(t) = &c.max_travel_after {
+        add(
+            format!("travel after {} s", t.after_s),
+            sc.anchor.is_some() && sc.travel_after <= t.max_m,
+            if sc.anchor.is_some() { format!("{:.3} m", sc.travel_after) } else { "run ended before".into() },
+            format!("<= {} m", t.max_m),
+        );
+    }
+    out
+}
+
+/// Runs a scenario; the score is also written to `out/score.json`. An `Err` is bad input found
+/// before the run started (nothing was simulated).
+pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
+    #[allow(clippy::disallowed_methods)] // the runner (not a module) measures its own wall time
+    let wall0 = std::time::Instant::now();
+    let s = &loaded.scenario;
+    let seed = opts.seed.unwrap_or(s.run.seed);
+    let fidelity = opts.fidelity.unwrap_or(s.run.fidelity);
+    std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
+    let twin = twin::devices::share(build_twin(loaded, fidelity)?);
+    let log_messages = opts.write_logs && s.logging.events && (s.logging.rrd || s.logging.mcap);
+    let builder = build_system(loaded, &twin, seed, log_messages)?;
+    let base = Duration::from_secs_f64(s.run.base_period_s);
+    let mut ex = LockstepExecutor::new(builder, base)?;
+    let logger = Arc::new(Mutex::new(if opts.write_logs && (s.logging.rrd || s.logging.mcap) {
+        Some(RunLogger::create(&opts.out, s, &twin.lock(), ex.core())?)
+    } else {
+        None
+    }));
+    // Under lockstep a hung module blocks the simulation: finalize the logs and leave, naming it.
+    {
+        let logger = logger.clone();
+        let out = opts.out.clone();
+        ex.on_hang(Arc::new(move |module, busy| {
+            let reason = format!("module '{module}' hung (busy for {busy}); run aborted");
+            eprintln!("error: {reason}");
+            if let Some(l) = logger.lock().take() {
+                let _ = l.finish(None);
+            }
+            let _ = std::fs::write(out.join("ABORTED"), format!("{reason}\n"));
+            std::process::exit(2);
+        }));
+    }
+    ex.walk_to(Lifecycle::Run).context("bringing the system to Run")?;
+    let ground = ex.endpoint("ground")?;
+    let events_ep = ex.endpoint("events")?;
+    let modules: HashSet<String> = ex.core().modules().iter().map(|m| m.name.clone()).collect();
+    let mut seq = Sequencer::new(&s.phases, modules);
+    let mut pending_events: Vec<_> = s.events.iter().collect();
+    pending_events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
+    let mut pending_events = std::collections::VecDeque::from(pending_events);
+    let pose_reader = ex.core().board.reader::<PoseEstimate>("odometry/pose").ok().flatten();
+    let mut scorer = Scorer::default();
+    let limit = Time::from_secs_f64(s.run.time_limit_s);
+    let settle = Time::from_secs_f64(s.run.settle_s);
+    let after = s.criteria.max_travel_after.as_ref().map(|t| t.after_s);
+    let mut abort: Option<String> = None;
+    let mut timed_out = false;
+    #[allow(clippy::disallowed_methods)]
+    let mut last_progress = std::time::Instant::now();
+    loop {
+        if opts.interrupt.load(Ordering::SeqCst) {
+            abort = Some("interrupted (SIGINT/SIGTERM)".into());
+            break;
+        }
+        let next = ex.now() + base;
+        {
+            let mut t = twin.lock();
+            while t.time() < next {
+                t.step();
+            }
+        }
+        ex.tick();
+        let now = ex.now();
+        while pending_events.front().is_some_and(|e| Time::from_secs_f64(e.at_s) <= now) {
+            let e = pending_events.pop_front().expect("checked");
+            let args =
+                e.args.as_ref().map(|a| serde_json::to_value(a).unwrap_or_default()).unwrap_or_default();
+            if let Err(err) =
+                events_ep.send(Command::new(e.to.clone(), e.command.clone()).json(args).on(e.queue.into()))
+            {
+                ex.core().events.raise(
+                    now,
+                    framework::events::EventKind::Note {
+                        module: "events".into(),
+                        text: format!("timed event {}.{} at {} s not sent: {err}", e.to, e.command, e.at_s),
+                    },
+                );
+            }
+        }
+        if now >= settle {
+            seq.update(now, &ground);
+        }
+        {
+            let t = twin.lock();
+            let est = pose_reader.as_ref().and_then(|r| r.read());
+            scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
+            if let Some(l) = logger.lock().as_mut()
+                && let Err(e) = l.tick(now, &t, ex.core())
+            {
+                abort = Some(format!("logging failed: {e:#}"));
+            }
+        }
+        if abort.is_some() {
+            break;
+        }
+        #[allow(clippy::disallowed_methods)]
+        let wall_now = std::time::Instant::now();
+        if !opts.quiet && (wall_now - last_progress).as_secs_f64() >= 0.5 {
+            last_progress = wall_now;
+            let wall = (wall_now - wall0).as_secs_f64();
+            eprint!(
+                "\r[{}] t = {:7.1} s  phase: {:<16} speed: {:5.1}x   ",
+                s.name,
+                now.as_secs_f64(),
+                seq.current_name(),
+                now.as_secs_f64() / wall.max(1e-9)
+            );
+            let _ = std::io::stderr().flush();
+        }
+        if seq.finished() {
+            break;
+        }
+        if now >= limit {
+            timed_out = true;
+            break;
+        }
+    }
+    if !opts.quiet {
+        eprintln!();
+    }
+    let now = ex.now();
+    if let Some(reason) = &abort {
+        seq.close(now, reason);
+    } else if timed_out {
+        seq.close(now, &format!("time limit of {} s reached", s.run.time_limit_s));
+    }
+    if let Some(to) = seq.end {
+        // The plan asked for Hold (abort) or Safe; a refusal is recorded, the state is what it is.
+        if let Err(e) = ex.transition(to) {
+            ex.core().events.raise(
+                now,
+                framework::events::EventKind::Note {
+                    module: "runner".into(),
+                    text: format!("could not go to {to}: {e}"),
+                },
+            );
+        }
+    }
+    let final_state = ex.system_state();
+    let phases = seq.results();
+    let reports = ex.reports();
+    let t = twin.lock();
+    let est = pose_reader.as_ref().and_then(|r| r.read());
+    scorer.last_sample = None;
+    scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
+    let metrics = Metrics {
+        distance_m: scorer.distance,
+        final_position_error_m: scorer.final_err,
+        position_error_rms_m: (scorer.err_n > 0).then(|| (scorer.err_sq_sum / scorer.err_n as f64).sqrt()),
+        canister_stowed: canister_stowed(&t),
+        collisions: t.collisions(),
+        max_tilt_deg: scorer.max_tilt,
+        final_state: final_state.to_string(),
+        isolated_modules: ex
+            .core()
+            .events
+            .snapshot()
+            .into_iter()
+            .filter_map(|e| match e.kind {
+                framework::events::EventKind::ModuleIsolated { module, fault } => {
+                    Some((module, serde_json::to_string(&fault).unwrap_or_default()))
+                }
+                _ => None,
+            })
+            .collect(),
+        module_cpu_s: reports.iter().map(|r| (r.name.clone(), r.stats.exec_total_ns as f64 * 1e-9)).collect(),
+    };
+    let criteria = check_criteria(s, &phases, &metrics, &scorer, final_state, &t);
+    let success = abort.is_none() && criteria.iter().all(|c| c.passed);
+    let wall = wall0.elapsed().as_secs_f64();
+    let mut score = Score {
+        scenario: s.name.clone(),
+        scenario_file: loaded.path.display().to_string(),
+        seed,
+        overrides: loaded.overrides.iter().cloned().collect::<BTreeMap<_, _>>(),
+        fidelity: format!("{fidelity:?}").to_lowercase(),
+        success,
+        outcome: if abort.is_some() {
+            "aborted"
+        } else if success {
+            "success"
+        } else {
+            "mission_failure"
+        }
+        .into(),
+        abort_reason: abort,
+        sim_time_s: now.as_secs_f64(),
+        wall_time_s: wall,
+        speed: now.as_secs_f64() / wall.max(1e-9),
+        phases,
+        criteria,
+        metrics,
+        logs: LogFiles::default(),
+    };
+    drop(t);
+    if let Some(l) = logger.lock().take() {
+        score.logs = l.finish(Some(&score))?;
+    }
+    let _ = ex.walk_to(Lifecycle::Shutdown);
+    let mut track = String::from("t_s,x_m,y_m\n");
+    for (t, x, y) in &scorer.track {
+        track += &format!("{t:.3},{x:.4},{y:.4}\n");
+    }
+    std::fs::write(opts.out.join("track.csv"), track)?;
+    write_score(&opts.out, &score)?;
+    Ok(score)
+}
+
+/// Writes `score.json` (atomically: a reader never sees half a file).
+pub fn write_score(out: &Path, score: &Score) -> Result<()> {
+    let tmp = out.join("score.json.tmp");
+    std::fs::write(&tmp, serde_json::to_string_pretty(score)? + "\n")?;
+    std::fs::rename(&tmp, out.join("score.json"))?;
+    Ok(())
+}

@@ -120,7 +120,10 @@ pub struct Locomotion {
     pending: Option<Request>,
     command: BodyTwist,
     last_cycle: Option<Time>,
-    stall_since: Vec<Option<Time>>,
+    /// Per wheel: seconds of stall evidence, a leaky integral (grows while the wheel lags its
+    /// command, decays at half that rate otherwise), so a jammed wheel that the others drag in
+    /// jerks is still caught while brief sticking in skid turns is not.
+    stall_evidence: Vec<f64>,
     fault: Option<String>,
 }
 
@@ -143,7 +146,7 @@ impl Locomotion {
             pending: None,
             command: BodyTwist::default(),
             last_cycle: None,
-            stall_since: vec![None; n],
+            stall_evidence: vec![0.0; n],
             fault: None,
         }
     }
@@ -280,16 +283,14 @@ impl Locomotion {
         let reading = self.encoders.read();
         let model = self.locomotor.model();
         let want = model.wheel_rates(self.command)?;
+        let dt = self.last_cycle.map(|t| (now - t).as_secs_f64()).unwrap_or(0.0);
         for (k, (&w, &got)) in want.iter().zip(&reading.rates).enumerate() {
             let stalling = w.abs() >= self.params.stall_min_rate
                 && (got * w.signum()) < self.params.stall_rate_fraction * w.abs();
-            match (stalling, self.stall_since[k]) {
-                (false, _) => self.stall_since[k] = None,
-                (true, None) => self.stall_since[k] = Some(now),
-                (true, Some(t0)) if (now - t0).as_secs_f64() >= self.params.stall_time_s => {
-                    return Some(model.wheels[k].clone());
-                }
-                _ => {}
+            let e = &mut self.stall_evidence[k];
+            *e = if stalling { *e + dt } else { (*e - 0.5 * dt).max(0.0) };
+            if *e >= self.params.stall_time_s {
+                return Some(model.wheels[k].clone());
             }
         }
         None
@@ -318,7 +319,7 @@ impl Locomotion {
             );
             ctx.note(format!("stopping the rover: {reason}"));
             self.fault = Some(reason.clone());
-            self.stall_since.iter_mut().for_each(|s| *s = None);
+            self.stall_evidence.iter_mut().for_each(|s| *s = 0.0);
             self.finish(ctx, Outcome::fail(reason), "fault")?;
         } else {
             match self.control(ctx) {

@@ -204,7 +204,10 @@ fn run_main(a: RunArgs) -> Result<i32> {
         println!(
             "phase {:<14} {:<10} {}",
             p.name,
-            format!("{:?}", p.status).to_lowercase(),
+            serde_json::to_value(&p.status)
+                .ok()
+                .and_then(|v| v.as_str().map(String::from))
+                .unwrap_or_default(),
             p.reason.as_deref().unwrap_or("")
         );
     }

@@ -452,7 +452,10 @@ fn check_criteria(
         c.required_phases.clone().unwrap_or_else(|| s.phases.iter().map(|p| p.name.clone()).collect());
     for r in required {
         let p = phases.iter().find(|p| p.name == r);
-        let status = p.map(|p| format!("{:?}", p.status).to_lowercase()).unwrap_or_default();
+        let status = p
+            .and_then(|p| serde_json::to_value(&p.status).ok())
+            .and_then(|v| v.as_str().map(String::from))
+            .unwrap_or_default();
         add(format!("phase '{r}' succeeds"), p.is_some_and(|p| p.success), status, "succeeded".into());
     }
     let want = c.final_state.unwrap_or(Lifecycle::Run);
@@ -645,6 +648,31 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             );
         }
     }
+    // Watch the rover a little longer after the plan ended (did it really stop?): the modules run
+    // on in whatever state the plan left them, the plan sends nothing more.
+    if abort.is_none() && !timed_out {
+        let until = ex.now() + Duration::from_secs_f64(s.run.observe_s);
+        while ex.now() < until && !opts.interrupt.load(Ordering::SeqCst) {
+            let next = ex.now() + base;
+            let mut t = twin.lock();
+            while t.time() < next {
+                t.step();
+            }
+            drop(t);
+            ex.tick();
+            let now = ex.now();
+            let t = twin.lock();
+            let est = pose_reader.as_ref().and_then(|r| r.read());
+            scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
+            if let Some(l) = logger.lock().as_mut()
+                && let Err(e) = l.tick(now, &t, ex.core())
+            {
+                abort = Some(format!("logging failed: {e:#}"));
+                break;
+            }
+        }
+    }
+    let now = ex.now();
     let final_state = ex.system_state();
     let phases = seq.results();
     let reports = ex.reports();

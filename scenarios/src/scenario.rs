@@ -98,6 +98,8 @@ pub struct RunSettings {
     pub purpose: framework::Purpose,
     /// Time the rover stands still before the first phase (settling, gyro bias learning), s.
     pub settle_s: f64,
+    /// Time the run goes on after the plan ended, to see the rover come to rest, s.
+    pub observe_s: f64,
 }
 
 impl Default for RunSettings {
@@ -109,6 +111,7 @@ impl Default for RunSettings {
             base_period_s: 0.01,
             purpose: framework::Purpose::Mission,
             settle_s: 2.0,
+            observe_s: 2.0,
         }
     }
 }
@@ -529,7 +532,7 @@ pub fn deserialize_located<T: serde::de::DeserializeOwned>(
                 serde_path_to_error::Segment::Unknown => "?".into(),
             })
             .collect();
-        let message = e.inner().to_string();
+        let message = e.inner().message().to_string();
         // An unknown field is reported at its table; point at the field itself.
         if let Some(field) = message.strip_prefix("unknown field `").and_then(|r| r.split('`').next())
             && parts.last().map(String::as_str) != Some(field)
@@ -593,8 +596,10 @@ fn validate(s: &Scenario, files: &[FileText], overrides: &[(String, String)]) ->
     };
     positive("run.time_limit_s", s.run.time_limit_s)?;
     positive("run.base_period_s", s.run.base_period_s)?;
-    if !(s.run.settle_s >= 0.0 && s.run.settle_s.is_finite()) {
-        return err("run.settle_s", format!("must be >= 0, got {}", s.run.settle_s));
+    for (k, v) in [("run.settle_s", s.run.settle_s), ("run.observe_s", s.run.observe_s)] {
+        if !(v >= 0.0 && v.is_finite()) {
+            return err(k, format!("must be >= 0, got {v}"));
+        }
     }
     if let Some(f) = s.world.friction
         && !(f.is_finite() && f >= 0.0)

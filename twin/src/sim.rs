@@ -1018,6 +1018,7 @@ impl Twin {
 
     fn step_dynamic(&mut self) {
         let rates = self.effective_wheel_rates();
+        let stalled = self.stalled.clone();
         let Engine::Dynamic(ph) = &mut self.engine else { return };
         let c = &self.config;
         let dt = c.physics.dt_s;
@@ -1031,7 +1032,11 @@ impl Twin {
             if let Some(h) = self.joints[w].handle
                 && let Some(j) = ph.impulse_joints.get_mut(h, true)
             {
-                j.data.set_motor_velocity(JointAxis::AngX, target as f32, c.wheels.velocity_gain as f32);
+                // A jammed drive is seized: it holds whatever torque the other wheels put on it.
+                let max = if stalled[k] { 100.0 * c.wheels.max_torque_nm } else { c.wheels.max_torque_nm };
+                j.data
+                    .set_motor_velocity(JointAxis::AngX, target as f32, c.wheels.velocity_gain as f32)
+                    .set_motor_max_force(JointAxis::AngX, max as f32);
             }
         }
         for sv in &mut self.servos {

@@ -32,6 +32,9 @@ pub struct OdometryParams {
     pub initial_sigma: [f64; 2],
     /// Believed wheel radius as a fraction of the locomotor model's (calibration error).
     pub wheel_radius_scale: f64,
+    /// Where the rover turns about when it skid-steers, m ahead of `base_link` (a calibration: the
+    /// mass distribution, not the wheel layout, sets it); turning moves `base_link` sideways.
+    pub turn_center_x_m: f64,
     /// Along-track slip noise, m per m travelled (1 sigma).
     pub along_sigma_per_m: f64,
     /// Cross-track slip noise, m per m travelled (1 sigma).
@@ -56,6 +59,7 @@ impl Default for OdometryParams {
             initial_pose: [0.0, 0.0, 0.0, 0.0],
             initial_sigma: [0.02, 0.5],
             wheel_radius_scale: 1.0,
+            turn_center_x_m: 0.0,
             along_sigma_per_m: 0.02,
             cross_sigma_per_m: 0.02,
             gyro_noise: 0.002,
@@ -193,8 +197,10 @@ impl Odometry {
         let yaw_mid = s.yaw + 0.5 * dyaw;
         let (sy, cy) = yaw_mid.sin_cos();
         let cp = s.pitch.cos();
-        s.x += ds * cp * cy;
-        s.y += ds * cp * sy;
+        // Turning about a centre ahead of base_link moves base_link to the right of the heading.
+        let side = -dyaw * p.turn_center_x_m;
+        s.x += ds * cp * cy - side * sy;
+        s.y += ds * cp * sy + side * cy;
         s.z -= ds * s.pitch.sin();
         s.yaw = wrap(s.yaw + dyaw);
         let f = Matrix3::new(1.0, 0.0, -ds * cp * sy, 0.0, 1.0, ds * cp * cy, 0.0, 0.0, 1.0);
@@ -285,6 +291,12 @@ impl Module for Odometry {
     fn configure(&mut self, p: &OdometryParams) -> Result<(), String> {
         if p.initial_pose.iter().chain(&p.initial_sigma).any(|v| !v.is_finite()) {
             return Err("initial_pose and initial_sigma must be finite".into());
+        }
+        if p.turn_center_x_m.is_nan() || p.turn_center_x_m.abs() >= 2.0 {
+            return Err(format!(
+                "turn_center_x_m must be within 2 m of base_link, got {}",
+                p.turn_center_x_m
+            ));
         }
         if !(p.wheel_radius_scale > 0.5 && p.wheel_radius_scale < 1.5) {
             return Err(format!("wheel_radius_scale must be in (0.5, 1.5), got {}", p.wheel_radius_scale));

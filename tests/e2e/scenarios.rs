@@ -1,0 +1,385 @@
+//! End-to-end: `rover-twin run`, `check` and `sweep` as a user runs them, with their files read back
+//! (score.json, MCAP with the mcap crate, the Rerun recording with rerun's own decoder).
+
+#![allow(clippy::disallowed_methods)] // the tests time out their child processes on the wall clock
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn rover_twin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_rover-twin"))
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn data(name: &str) -> PathBuf {
+    root().join("tests/e2e/data").join(name)
+}
+
+fn show(o: &Output) -> String {
+    format!(
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn run(scenario: &Path, out: &Path, extra: &[&str]) -> Output {
+    rover_twin().arg("run").arg(scenario).arg("--out").arg(out).arg("--quiet").args(extra).output().unwrap()
+}
+
+fn score(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
+}
+
+/// Messages per topic of an MCAP file, checking CRCs, the summary and monotonic log times.
+fn read_mcap(path: &Path) -> BTreeMap<String, Vec<serde_json::Value>> {
+    let bytes = std::fs::read(path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
+    let stats = summary.stats.as_ref().expect("statistics");
+    assert!(!summary.chunk_indexes.is_empty(), "chunk indexes");
+    let mut out: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
+    let mut last = 0u64;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        assert!(m.log_time >= last, "log times go backwards on {}", m.channel.topic);
+        last = m.log_time;
+        let schema = m.channel.schema.as_ref().expect("every channel has a schema");
+        assert_eq!(schema.encoding, "jsonschema");
+        serde_json::from_slice::<serde_json::Value>(&schema.data).expect("schema is JSON");
+        out.entry(m.channel.topic.clone()).or_default().push(serde_json::from_slice(&m.data).unwrap());
+    }
+    assert_eq!(stats.message_count, out.values().map(|v| v.len() as u64).sum::<u64>());
+    out
+}
+
+/// Entity paths of a Rerun recording's data store.
+fn rrd_entities(path: &Path) -> BTreeSet<String> {
+    use rerun::external::re_log_encoding::DecoderApp;
+    use rerun::log::{Chunk, LogMsg};
+    let reader = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+    let mut out = BTreeSet::new();
+    for msg in DecoderApp::decode_lazy(reader) {
+        if let LogMsg::ArrowMsg(store, arrow) = msg.unwrap()
+            && store.is_recording()
+        {
+            out.insert(Chunk::from_arrow_msg(&arrow).unwrap().entity_path().to_string());
+        }
+    }
+    out
+}
+
+#[test]
+fn a_short_run_succeeds_scores_and_writes_valid_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("short.toml"), dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+    let s = score(dir.path());
+    assert_eq!(s["success"], true);
+    assert_eq!(s["scenario"], "short");
+    for k in ["seed", "sim_time_s", "wall_time_s", "phases", "metrics"] {
+        assert!(s.get(k).is_some(), "score.json lacks {k}");
+    }
+    let m = &s["metrics"];
+    for k in [
+        "distance_m",
+        "final_position_error_m",
+        "position_error_rms_m",
+        "canister_stowed",
+        "collisions",
+        "max_tilt_deg",
+        "module_cpu_s",
+    ] {
+        assert!(m.get(k).is_some(), "metrics lack {k}");
+    }
+    assert!(m["distance_m"].as_f64().unwrap() > 2.5, "{m}");
+    assert!(m["module_cpu_s"]["locomotion"].as_f64().unwrap() > 0.0);
+    let phases = s["phases"].as_array().unwrap();
+    assert_eq!(phases.len(), 2);
+    assert!(phases.iter().all(|p| p["success"] == true && p["end_s"].as_f64() >= p["start_s"].as_f64()));
+
+    // MCAP: Foxglove schemas, counts that match the configured rates.
+    let topics = read_mcap(&dir.path().join("run.mcap"));
+    let sim = s["sim_time_s"].as_f64().unwrap();
+    let tf = &topics["/tf"];
+    let links = tf.iter().filter(|m| m["child_frame_id"] == "base_link").count();
+    // Truth at 10 Hz (defaults) over the run.
+    assert!((links as f64 - sim * 10.0).abs() <= 2.0, "{links} base_link transforms over {sim} s");
+    assert!(topics["/estimate/odometry/pose"].len() as f64 >= sim * 10.0 - 2.0);
+    assert_eq!(topics["/world/terrain"].len(), 1);
+    assert!(topics["/events"].iter().any(|e| e["message"].as_str().unwrap().contains("module_lifecycle")));
+    assert!(topics["/messages"].iter().any(|m| m["kind"] == "ack"));
+    assert_eq!(topics["/score"].len(), 1);
+    // Rerun: the entity tree.
+    let ents = rrd_entities(&dir.path().join("run.rrd"));
+    for e in [
+        "/world/terrain",
+        "/world/truth/base_link",
+        "/world/truth/arm_link_1",
+        "/world/estimate/odometry_pose",
+        "/logs/events",
+        "/score",
+    ] {
+        assert!(ents.contains(e), "{e} missing from the recording: {ents:?}");
+    }
+    assert!(ents.iter().any(|e| e.starts_with("/plots/errors/")), "{ents:?}");
+}
+
+#[test]
+fn the_same_seed_gives_the_same_score_and_trajectory() {
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    for d in [&a, &b] {
+        let o = run(&data("short.toml"), d.path(), &["--seed", "42"]);
+        assert!(o.status.code().is_some_and(|c| c < 2), "{}", show(&o));
+    }
+    let strip = |mut v: serde_json::Value| {
+        let o = v.as_object_mut().unwrap();
+        o.remove("wall_time_s");
+        o.remove("speed");
+        o.remove("logs");
+        o["metrics"].as_object_mut().unwrap().remove("module_cpu_s");
+        v
+    };
+    assert_eq!(strip(score(a.path())), strip(score(b.path())));
+    let tf = |d: &Path| read_mcap(&d.join("run.mcap")).remove("/tf").unwrap();
+    assert_eq!(tf(a.path()), tf(b.path()), "ground-truth trajectories differ");
+    // Another seed changes the noise, hence the estimate.
+    let c = tempfile::tempdir().unwrap();
+    run(&data("short.toml"), c.path(), &["--seed", "43"]);
+    assert_ne!(
+        score(a.path())["metrics"]["final_position_error_m"],
+        score(c.path())["metrics"]["final_position_error_m"]
+    );
+}
+
+#[test]
+fn exit_codes_tell_success_mission_failure_and_bad_input() {
+    let dir = tempfile::tempdir().unwrap();
+    // An unreachable goal: the plan runs, the criterion fails.
+    let o =
+        run(&data("short.toml"), dir.path(), &["--fidelity", "kinematic", "--set", "criteria.goal.x=9.0"]);
+    assert_eq!(o.status.code(), Some(1), "{}", show(&o));
+    let s = score(dir.path());
+    assert_eq!(s["outcome"], "mission_failure");
+    assert!(s["criteria"].as_array().unwrap().iter().any(|c| c["passed"] == false));
+    // A misspelt override names itself.
+    let o = run(&data("short.toml"), dir.path(), &["--set", "run.time_limt_s=3"]);
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--set run.time_limt_s=3") && err.contains("unknown field"), "{err}");
+    // A missing module: that phase is not run, and not a success.
+    let o = run(
+        &root().join("scenarios/canister_acquisition_flat.toml"),
+        dir.path(),
+        &["--fidelity", "kinematic"],
+    );
+    assert_eq!(o.status.code(), Some(1), "{}", show(&o));
+    let s = score(dir.path());
+    let locate = s["phases"].as_array().unwrap().iter().find(|p| p["name"] == "locate").unwrap().clone();
+    assert_eq!(locate["status"], "not_run");
+    assert_eq!(locate["success"], false);
+    assert!(locate["reason"].as_str().unwrap().contains("perception"));
+}
+
+#[test]
+fn bad_scenario_files_give_exact_locations() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = std::fs::read_to_string(data("short.toml"))
+        .unwrap()
+        .replace("../../../scenarios", &root().join("scenarios").display().to_string());
+    let cases: &[(&str, &str, &str)] = &[
+        // (replace, with, expected "file:line" + text)
+        ("timeout_s = 10.0 }", "timeout_s = 10.0, speeed = 1 }", ":20:"),
+        ("time_limit_s = 60.0", "time_limit_s = -1.0", ":16:"),
+        ("file = \"flat_yard.toml\"", "file = 7", ":7:"),
+    ];
+    for (i, (from, to, at)) in cases.iter().enumerate() {
+        let p = dir.path().join(format!("bad{i}.toml"));
+        assert!(base.contains(from), "{from}");
+        std::fs::write(&p, base.replacen(from, to, 1)).unwrap();
+        for cmd in [vec!["check"], vec!["run", "--quiet", "--out", "/nonexistent/never"]] {
+            let o = rover_twin().args(&cmd).arg(&p).output().unwrap();
+            assert_eq!(o.status.code(), Some(2), "{}", show(&o));
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(err.contains(&format!("bad{i}.toml{at}")), "case {i} ({cmd:?}): {err}");
+        }
+    }
+    let o = rover_twin()
+        .arg("check")
+        .arg(root().join("scenarios/traverse.toml"))
+        .arg(root().join("worlds/mars_yard.toml"))
+        .arg(root().join("scenarios/canister_sweep.toml"))
+        .arg(root().join("scenarios/config/modules/arm.toml"))
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+    // A module configuration with a pose outside the joint limits.
+    let arm = dir.path().join("arm.toml");
+    std::fs::write(&arm, "[framework]\nperiod_s = 0.1\n[params.poses]\nbad = [9.0, 0, 0, 0, 0, 0]\n")
+        .unwrap();
+    let o = rover_twin().arg("check").arg(&arm).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("arm.toml"), "{}", show(&o));
+}
+
+fn csv_rows(dir: &Path) -> Vec<Vec<String>> {
+    let mut r = csv::Reader::from_path(dir.join("runs.csv")).unwrap();
+    // Drop the wall-clock column (last).
+    r.records()
+        .map(|rec| {
+            let v: Vec<String> = rec.unwrap().iter().map(String::from).collect();
+            v[..v.len() - 1].to_vec()
+        })
+        .collect()
+}
+
+#[test]
+fn sweeps_do_not_depend_on_jobs_or_sharding() {
+    let (one, two, s1, s2, merged) = (
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+        tempfile::tempdir().unwrap(),
+    );
+    let sweep = |out: &Path, extra: &[&str]| {
+        let o = rover_twin()
+            .arg("sweep")
+            .arg(data("sweep.toml"))
+            .arg("--quiet")
+            .arg("--out")
+            .arg(out)
+            .args(extra)
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+        String::from_utf8_lossy(&o.stdout).to_string()
+    };
+    let text = sweep(one.path(), &["--jobs", "1"]);
+    assert!(text.contains("runs per minute"), "{text}");
+    sweep(two.path(), &["--jobs", "2"]);
+    sweep(s1.path(), &["--shard", "1/2"]);
+    sweep(s2.path(), &["--shard", "2/2"]);
+    let rows = csv_rows(one.path());
+    assert_eq!(rows.len(), 6);
+    assert_eq!(rows, csv_rows(two.path()));
+    assert_eq!(csv_rows(s1.path()).len() + csv_rows(s2.path()).len(), 6);
+    let o = rover_twin()
+        .args(["sweep", "merge"])
+        .arg(s1.path())
+        .arg(s2.path())
+        .arg("--out")
+        .arg(merged.path())
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+    assert_eq!(rows, csv_rows(merged.path()));
+    let summary = |d: &Path| {
+        serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(d.join("summary.json")).unwrap())
+            .unwrap()
+    };
+    assert_eq!(summary(one.path()), summary(merged.path()));
+    assert_eq!(summary(one.path())["runs"], 6);
+    assert!(std::fs::read_to_string(merged.path().join("report.html")).unwrap().contains("<svg"));
+    // Each run reproduces on its own with the command in its row.
+    let header: Vec<String> = csv::Reader::from_path(one.path().join("runs.csv"))
+        .unwrap()
+        .headers()
+        .unwrap()
+        .iter()
+        .map(String::from)
+        .collect();
+    let rep = header.iter().position(|h| h == "reproduce").unwrap();
+    let d = tempfile::tempdir().unwrap();
+    let args: Vec<String> = rows[3][rep].split(" --").skip(1).map(|a| a.replace('\'', "")).collect();
+    let mut cmd = rover_twin();
+    cmd.arg("run")
+        .arg(rows[3][rep].split_whitespace().nth(2).unwrap())
+        .arg("--quiet")
+        .arg("--out")
+        .arg(d.path());
+    for a in args {
+        let (k, v) = a.split_once(' ').unwrap();
+        cmd.arg(format!("--{k}")).arg(v);
+    }
+    let o = cmd.current_dir(root()).output().unwrap();
+    assert!(o.status.code().is_some_and(|c| c < 2), "{}", show(&o));
+    let dist = header.iter().position(|h| h == "distance_m").unwrap();
+    let s = score(d.path());
+    assert_eq!(format!("{:.6}", s["metrics"]["distance_m"].as_f64().unwrap()), rows[3][dist]);
+}
+
+fn interrupt(pid: u32) {
+    let st = Command::new("kill").args(["-INT", &pid.to_string()]).status().unwrap();
+    assert!(st.success());
+}
+
+#[test]
+fn sigint_during_a_sweep_keeps_the_finished_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = rover_twin()
+        .arg("sweep")
+        .arg(data("sweep.toml"))
+        .args(["--runs", "400", "--jobs", "1", "--quiet", "--out"])
+        .arg(dir.path())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while csv_rows_or_empty(dir.path()).len() < 2 {
+        assert!(t0.elapsed() < Duration::from_secs(120), "no rows written");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    interrupt(child.id());
+    let st = child.wait().unwrap();
+    assert_eq!(st.code(), Some(2));
+    let rows = csv_rows(dir.path());
+    assert!(rows.len() >= 2 && rows.len() < 400, "{} rows", rows.len());
+    assert!(rows.iter().all(|r| r.len() == rows[0].len() && (r[5] == "true" || r[5] == "false")));
+    let s: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
+    assert_eq!(s["partial"], true);
+    assert_eq!(s["runs"].as_u64().unwrap() as usize, rows.len());
+}
+
+fn csv_rows_or_empty(dir: &Path) -> Vec<csv::StringRecord> {
+    csv::Reader::from_path(dir.join("runs.csv"))
+        .map(|mut r| r.records().filter_map(Result::ok).collect())
+        .unwrap_or_default()
+}
+
+#[test]
+fn sigint_during_a_run_leaves_complete_valid_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = rover_twin()
+        .arg("run")
+        .arg(root().join("scenarios/traverse.toml"))
+        .args(["--quiet", "--out"])
+        .arg(dir.path())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while !dir.path().join("run.mcap").exists() {
+        assert!(t0.elapsed() < Duration::from_secs(120), "the run wrote nothing");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // Let it run a few simulated tens of seconds.
+    std::thread::sleep(Duration::from_secs(3));
+    interrupt(child.id());
+    assert_eq!(child.wait().unwrap().code(), Some(2));
+    let s = score(dir.path());
+    assert_eq!(s["outcome"], "aborted");
+    assert!(s["abort_reason"].as_str().unwrap().contains("interrupted"));
+    assert_eq!(s["success"], false);
+    let topics = read_mcap(&dir.path().join("run.mcap"));
+    assert!(topics["/tf"].len() > 100);
+    assert_eq!(topics["/score"].len(), 1);
+    assert!(rrd_entities(&dir.path().join("run.rrd")).contains("/world/truth/base_link"));
+}

@@ -24,4 +24,10 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 step "cargo test"
 cargo test --workspace --locked
 
+step "logs read by the official readers (python mcap, rerun-sdk)"
+logs="$(mktemp -d)"
+trap 'rm -rf "$logs"' EXIT
+cargo run --locked -q -p scenarios --bin rover-twin -- run tests/e2e/data/short.toml --out "$logs" --quiet
+scripts/validate_logs.sh "$logs"
+
 echo; echo "all checks passed"

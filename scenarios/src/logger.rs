@@ -201,21 +201,74 @@ fn blueprint() -> rerun::blueprint::Blueprint {
     .with_time_panel(TimePanel::new().with_timeline(TIMELINE))
 }
 
-/// Records one run.
-pub struct RunLogger {
-    settings: LoggingSettings,
+/// What the run loop hands the logging thread: owned snapshots, cheap to take.
+enum Item {
+    Truth {
+        now: Time,
+        poses: Vec<(String, Isometry3<f64>)>,
+        canister: Option<Isometry3<f64>>,
+        base: Isometry3<f64>,
+        collisions: u64,
+    },
+    Slots {
+        now: Time,
+        base: Isometry3<f64>,
+        records: Vec<SlotRecord>,
+    },
+    Events {
+        now: Time,
+        events: Vec<framework::events::Event>,
+        messages: Vec<(String, String, framework::message::Message)>,
+    },
+    Stats {
+        now: Time,
+        reports: Vec<framework::system::ModuleReport>,
+    },
+    Finish {
+        score: Option<Box<Score>>,
+        reply: std::sync::mpsc::Sender<Result<LogFiles>>,
+    },
+}
+
+/// A blackboard record, with its typed value when the logger knows the type.
+struct SlotRecord {
+    name: String,
+    type_name: &'static str,
+    json: Option<serde_json::Value>,
+    known: Known,
+}
+
+enum Known {
+    Pose(Time, Box<PoseEstimate>),
+    Joints(JointStates),
+    Locomotion(LocomotionState, Option<f64>),
+    Other,
+}
+
+/// The logging thread's side: owns the files and does all the encoding.
+struct Writer {
     mcap: Option<Mcap>,
     rrd: Option<rerun::RecordingStream>,
     rrd_path: PathBuf,
     mcap_path: PathBuf,
-    next_truth: Time,
-    next_slots: Time,
-    next_stats: Time,
-    slot_seq: BTreeMap<String, u64>,
     truth_track: Vec<[f32; 3]>,
     est_track: Vec<[f32; 3]>,
     next_track: Time,
     last_stats: BTreeMap<String, (u64, i64)>,
+}
+
+/// Records one run. The run loop only takes snapshots (link poses, new blackboard records, new
+/// events) at the configured rates and hands them to a logging thread, which encodes and writes
+/// them, so logging costs the simulation little wall time on a machine with a spare core.
+pub struct RunLogger {
+    settings: LoggingSettings,
+    tx: Option<std::sync::mpsc::SyncSender<Item>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    failed: std::sync::Arc<parking_lot::Mutex<Option<String>>>,
+    next_truth: Time,
+    next_slots: Time,
+    next_stats: Time,
+    slot_seq: BTreeMap<String, u64>,
     events_seen: usize,
 }
 
@@ -224,8 +277,8 @@ fn period(hz: f64) -> Option<Duration> {
 }
 
 impl RunLogger {
-    /// Opens `out/run.rrd` and `out/run.mcap` (as the scenario asks) and logs what never changes:
-    /// the terrain, the rocks, the robot's link geometry.
+    /// Opens `out/run.rrd` and `out/run.mcap` (as the scenario asks) and starts the logging thread,
+    /// which first logs what never changes: the terrain, the rocks, the robot's link geometry.
     pub fn create(out: &Path, s: &Scenario, twin: &Twin, core: &Core) -> Result<Self> {
         let rrd_path = out.join("run.rrd");
         let mcap_path = out.join("run.mcap");
@@ -241,28 +294,189 @@ impl RunLogger {
             None
         };
         let mcap = if s.logging.mcap { Some(Mcap::create(&mcap_path)?) } else { None };
-        let mut l = RunLogger {
-            settings: s.logging.clone(),
+        let mut w = Writer {
             mcap,
             rrd,
             rrd_path,
             mcap_path,
-            next_truth: Time::ZERO,
-            next_slots: Time::ZERO,
-            next_stats: Time::ZERO,
-            slot_seq: BTreeMap::new(),
             truth_track: Vec::new(),
             est_track: Vec::new(),
             next_track: Time::ZERO,
             last_stats: BTreeMap::new(),
-            events_seen: 0,
         };
-        l.statics(s, twin, core)?;
-        Ok(l)
+        let world = twin.world().clone();
+        let modules: Vec<(String, framework::ModuleKind)> =
+            core.modules().iter().map(|m| (m.name.clone(), m.kind)).collect();
+        let scenario = s.clone();
+        let failed = std::sync::Arc::new(parking_lot::Mutex::new(None));
+        let fail = failed.clone();
+        // Bounded: if encoding ever falls behind the simulation, the simulation waits.
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Item>(256);
+        let thread = std::thread::Builder::new().name("run-logger".into()).spawn(move || {
+            let record = |r: Result<()>| {
+                if let Err(e) = r {
+                    fail.lock().get_or_insert_with(|| format!("{e:#}"));
+                }
+            };
+            record(w.statics(&scenario, &world, &modules));
+            for item in rx {
+                match item {
+                    Item::Truth { now, poses, canister, base, collisions } => {
+                        record(w.truth(now, &poses, canister, base, collisions))
+                    }
+                    Item::Slots { now, base, records } => record(w.slots(now, base, records)),
+                    Item::Events { now, events, messages } => record(w.events(now, events, messages)),
+                    Item::Stats { now, reports } => record(w.stats(now, reports)),
+                    Item::Finish { score, reply } => {
+                        let _ = reply.send(w.finish(score.as_deref()));
+                        return;
+                    }
+                }
+            }
+            // The run loop went away without finishing (a panic): finalize what was written.
+            let _ = w.finish(None);
+        })?;
+        Ok(RunLogger {
+            settings: s.logging.clone(),
+            tx: Some(tx),
+            thread: Some(thread),
+            failed,
+            next_truth: Time::ZERO,
+            next_slots: Time::ZERO,
+            next_stats: Time::ZERO,
+            slot_seq: BTreeMap::new(),
+            events_seen: 0,
+        })
     }
 
-    fn statics(&mut self, s: &Scenario, twin: &Twin, core: &Core) -> Result<()> {
-        let world = twin.world();
+    fn send(&self, item: Item) -> Result<()> {
+        if let Some(e) = self.failed.lock().as_ref() {
+            anyhow::bail!("{e}");
+        }
+        self.tx
+            .as_ref()
+            .expect("open until finish")
+            .send(item)
+            .map_err(|_| anyhow::anyhow!("the logging thread stopped"))
+    }
+
+    /// Takes the snapshots due at `now` and hands them to the logging thread.
+    pub fn tick(&mut self, now: Time, twin: &Twin, core: &Core) -> Result<()> {
+        if let Some(p) = period(self.settings.truth_hz)
+            && now >= self.next_truth
+        {
+            self.next_truth = now + p;
+            let poses = twin.link_poses().into_iter().map(|(n, p)| (n.to_string(), p)).collect();
+            self.send(Item::Truth {
+                now,
+                poses,
+                canister: twin.canister_truth(),
+                base: twin.base_pose(),
+                collisions: twin.collisions(),
+            })?;
+        }
+        if let Some(p) = period(self.settings.slots_hz)
+            && now >= self.next_slots
+        {
+            self.next_slots = now + p;
+            let records = self.new_records(twin, core);
+            if !records.is_empty() {
+                self.send(Item::Slots { now, base: twin.base_pose(), records })?;
+            }
+        }
+        if self.settings.events {
+            let (events, count) = core.events.since(self.events_seen);
+            self.events_seen = count;
+            let messages: Vec<_> = core
+                .post
+                .take_trace()
+                .into_iter()
+                .map(|m| (core.post.name(m.sender).to_string(), core.post.name(m.recipient).to_string(), m))
+                .collect();
+            if !events.is_empty() || !messages.is_empty() {
+                self.send(Item::Events { now, events, messages })?;
+            }
+        }
+        if let Some(p) = period(self.settings.stats_hz)
+            && now >= self.next_stats
+        {
+            self.next_stats = now + p;
+            self.send(Item::Stats { now, reports: framework::system::module_reports(core) })?;
+        }
+        Ok(())
+    }
+
+    /// Blackboard records written since the last look.
+    fn new_records(&mut self, twin: &Twin, core: &Core) -> Vec<SlotRecord> {
+        let mut out = Vec::new();
+        for name in core.board.names() {
+            let Some(slot) = core.board.slot(&name) else { continue };
+            let seq = slot.seq();
+            if seq == 0 || self.slot_seq.get(&name) == Some(&seq) {
+                continue;
+            }
+            self.slot_seq.insert(name.clone(), seq);
+            let any = slot.as_any();
+            let known = if let Some(s) =
+                any.downcast_ref::<framework::blackboard::SlotCell<PoseEstimate>>().and_then(|c| c.latest())
+            {
+                Known::Pose(s.stamp, Box::new(s.value.clone()))
+            } else if let Some(s) =
+                any.downcast_ref::<framework::blackboard::SlotCell<JointStates>>().and_then(|c| c.latest())
+            {
+                Known::Joints(s.value.clone())
+            } else if let Some(s) = any
+                .downcast_ref::<framework::blackboard::SlotCell<LocomotionState>>()
+                .and_then(|c| c.latest())
+            {
+                let z = s.value.goal.map(|[x, y]| twin.world().ground_height(x, y));
+                Known::Locomotion(s.value.clone(), z)
+            } else {
+                Known::Other
+            };
+            out.push(SlotRecord { name, type_name: slot.type_name(), json: slot.to_json(), known });
+        }
+        out
+    }
+
+    /// Logs the score (if any) and finalizes both files; returns where they are.
+    pub fn finish(mut self, score: Option<&Score>) -> Result<LogFiles> {
+        let (reply, rx) = std::sync::mpsc::channel();
+        let sent = self
+            .tx
+            .take()
+            .map(|tx| tx.send(Item::Finish { score: score.cloned().map(Box::new), reply }).is_ok());
+        let files = match sent {
+            Some(true) => rx.recv().map_err(|_| anyhow::anyhow!("the logging thread stopped"))?,
+            _ => Err(anyhow::anyhow!("the logging thread stopped")),
+        };
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+        if let Some(e) = self.failed.lock().take() {
+            anyhow::bail!("logging failed: {e}");
+        }
+        files
+    }
+}
+
+impl Drop for RunLogger {
+    /// Unwinding past the logger (a panic in the runner) still finalizes the files.
+    fn drop(&mut self) {
+        self.tx.take();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+impl Writer {
+    fn statics(
+        &mut self,
+        s: &Scenario,
+        world: &worlds::World,
+        modules: &[(String, framework::ModuleKind)],
+    ) -> Result<()> {
         let hf = &world.terrain;
         // Terrain mesh, decimated to at most ~200 x 200 vertices for the viewer.
         let step = hf.nx.max(hf.ny).div_ceil(200).max(1);
@@ -325,13 +539,12 @@ impl RunLogger {
                     s.events.len()
                 )),
             )?;
-            for m in core.modules() {
+            for (name, kind) in modules {
                 rec.log_static(
-                    format!("modules/{}", m.name),
+                    format!("modules/{name}"),
                     &rerun::TextLog::new(format!(
-                        "{} module '{}' registered",
-                        format!("{:?}", m.kind).to_lowercase(),
-                        m.name
+                        "{} module '{name}' registered",
+                        format!("{kind:?}").to_lowercase()
                     ))
                     .with_level(rerun::TextLogLevel::DEBUG),
                 )?;
@@ -429,49 +642,25 @@ impl RunLogger {
         Ok(())
     }
 
-    /// Logs what is due at `now`.
-    pub fn tick(&mut self, now: Time, twin: &Twin, core: &Core) -> Result<()> {
+    fn truth(
+        &mut self,
+        now: Time,
+        poses: &[(String, Isometry3<f64>)],
+        canister: Option<Isometry3<f64>>,
+        b: Isometry3<f64>,
+        collisions: u64,
+    ) -> Result<()> {
         if let Some(rec) = &self.rrd {
             rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
-        }
-        if let Some(p) = period(self.settings.truth_hz)
-            && now >= self.next_truth
-        {
-            self.next_truth = now + p;
-            self.truth(now, twin)?;
-        }
-        if let Some(p) = period(self.settings.slots_hz)
-            && now >= self.next_slots
-        {
-            self.next_slots = now + p;
-            self.slots(now, twin, core)?;
-        }
-        if self.settings.events {
-            self.events(now, core)?;
-        }
-        if let Some(p) = period(self.settings.stats_hz)
-            && now >= self.next_stats
-        {
-            self.next_stats = now + p;
-            self.stats(now, core)?;
-        }
-        Ok(())
-    }
-
-    fn truth(&mut self, now: Time, twin: &Twin) -> Result<()> {
-        let poses = twin.link_poses();
-        let canister = twin.canister_truth();
-        if let Some(rec) = &self.rrd {
-            for (name, pose) in &poses {
+            for (name, pose) in poses {
                 rec.log(format!("world/truth/{name}"), &rr_transform(pose))?;
             }
             if let Some(c) = &canister {
                 rec.log("world/truth/canister", &rr_transform(c))?;
             }
-            let b = twin.base_pose();
             let tilt = (b.rotation * nalgebra::Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees();
             rec.log("plots/motion/tilt_deg", &rerun::Scalars::single(tilt))?;
-            rec.log("plots/motion/collisions", &rerun::Scalars::single(twin.collisions() as f64))?;
+            rec.log("plots/motion/collisions", &rerun::Scalars::single(collisions as f64))?;
             if now >= self.next_track {
                 self.next_track = now + Duration::from_secs(1);
                 let t = b.translation;
@@ -487,7 +676,7 @@ impl RunLogger {
             }
         }
         if let Some(m) = &mut self.mcap {
-            for (name, pose) in &poses {
+            for (name, pose) in poses {
                 let q = pose.rotation.quaternion();
                 m.foxglove(
                     "/tf",
@@ -512,54 +701,48 @@ impl RunLogger {
         Ok(())
     }
 
-    fn slots(&mut self, now: Time, twin: &Twin, core: &Core) -> Result<()> {
-        for name in core.board.names() {
-            let Some(slot) = core.board.slot(&name) else { continue };
-            let seq = slot.seq();
-            if seq == 0 || self.slot_seq.get(&name) == Some(&seq) {
-                continue;
-            }
-            self.slot_seq.insert(name.clone(), seq);
-            let any = slot.as_any();
-            if let Some(cell) = any.downcast_ref::<framework::blackboard::SlotCell<PoseEstimate>>()
-                && let Some(s) = cell.latest()
-            {
-                self.pose_estimate(&name, s.stamp, &s.value, twin)?;
-            } else if let Some(cell) = any.downcast_ref::<framework::blackboard::SlotCell<JointStates>>()
-                && let Some(s) = cell.latest()
-                && let Some(rec) = &self.rrd
-            {
-                for j in &s.value.joints {
-                    rec.log(
-                        format!("plots/joints/{}/{}", s.value.group, j.name),
-                        &rerun::Scalars::single(j.position),
-                    )?;
+    fn slots(&mut self, now: Time, base: Isometry3<f64>, records: Vec<SlotRecord>) -> Result<()> {
+        if let Some(rec) = &self.rrd {
+            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
+        }
+        for r in records {
+            match &r.known {
+                Known::Pose(stamp, e) => self.pose_estimate(&r.name, *stamp, e, &base)?,
+                Known::Joints(j) => {
+                    if let Some(rec) = &self.rrd {
+                        for s in &j.joints {
+                            rec.log(
+                                format!("plots/joints/{}/{}", j.group, s.name),
+                                &rerun::Scalars::single(s.position),
+                            )?;
+                        }
+                    }
                 }
-            } else if let Some(cell) = any.downcast_ref::<framework::blackboard::SlotCell<LocomotionState>>()
-                && let Some(s) = cell.latest()
-                && let Some(rec) = &self.rrd
-            {
-                rec.log("plots/motion/commanded_speed_m_s", &rerun::Scalars::single(s.value.command.v))?;
-                rec.log(
-                    "plots/motion/commanded_yaw_rate_rad_s",
-                    &rerun::Scalars::single(s.value.command.omega),
-                )?;
-                if let Some([x, y]) = s.value.goal {
-                    let z = twin.world().ground_height(x, y) as f32;
-                    rec.log(
-                        "world/estimate/goal",
-                        &rerun::Points3D::new([[x as f32, y as f32, z + 0.1]])
-                            .with_radii([0.12_f32])
-                            .with_colors([[255u8, 200, 0]])
-                            .with_labels([s.value.mode.clone()]),
-                    )?;
+                Known::Locomotion(l, goal_z) => {
+                    if let Some(rec) = &self.rrd {
+                        rec.log("plots/motion/commanded_speed_m_s", &rerun::Scalars::single(l.command.v))?;
+                        rec.log(
+                            "plots/motion/commanded_yaw_rate_rad_s",
+                            &rerun::Scalars::single(l.command.omega),
+                        )?;
+                        if let (Some([x, y]), Some(z)) = (l.goal, goal_z) {
+                            rec.log(
+                                "world/estimate/goal",
+                                &rerun::Points3D::new([[x as f32, y as f32, *z as f32 + 0.1]])
+                                    .with_radii([0.12_f32])
+                                    .with_colors([[255u8, 200, 0]])
+                                    .with_labels([l.mode.clone()]),
+                            )?;
+                        }
+                    }
                 }
+                Known::Other => {}
             }
             // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.
-            if let (Some(m), Some(json)) = (&mut self.mcap, slot.to_json()) {
-                let type_name = slot.type_name();
+            if let (Some(m), Some(json)) = (&mut self.mcap, &r.json) {
+                let type_name = r.type_name;
                 m.write(
-                    &format!("/slots/{name}"),
+                    &format!("/slots/{}", r.name),
                     &format!("rover_twin.Slot<{type_name}>"),
                     || {
                         own_schema(
@@ -569,15 +752,20 @@ impl RunLogger {
                         )
                     },
                     now,
-                    &json,
+                    json,
                 )?;
             }
         }
         Ok(())
     }
 
-    fn pose_estimate(&mut self, slot: &str, stamp: Time, e: &PoseEstimate, twin: &Twin) -> Result<()> {
-        let truth = twin.base_pose();
+    fn pose_estimate(
+        &mut self,
+        slot: &str,
+        stamp: Time,
+        e: &PoseEstimate,
+        truth: &Isometry3<f64>,
+    ) -> Result<()> {
         let err =
             (e.pose.translation.x - truth.translation.x).hypot(e.pose.translation.y - truth.translation.y);
         let sig = e.position_sigma();
@@ -633,11 +821,17 @@ impl RunLogger {
         Ok(())
     }
 
-    fn events(&mut self, now: Time, core: &Core) -> Result<()> {
+    fn events(
+        &mut self,
+        now: Time,
+        events: Vec<framework::events::Event>,
+        messages: Vec<(String, String, framework::message::Message)>,
+    ) -> Result<()> {
         use framework::events::EventKind as K;
-        let (new, count) = core.events.since(self.events_seen);
-        self.events_seen = count;
-        for e in new {
+        if let Some(rec) = &self.rrd {
+            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
+        }
+        for e in events {
             let (level, rr_level, module) = match &e.kind {
                 K::ModuleIsolated { module, .. } => (4, rerun::TextLogLevel::ERROR, Some(module.clone())),
                 K::MessageRejected { module, .. } | K::Overrun { module, .. } => {
@@ -666,9 +860,7 @@ impl RunLogger {
                 )?;
             }
         }
-        for msg in core.post.take_trace() {
-            let from = core.post.name(msg.sender).to_string();
-            let to = core.post.name(msg.recipient).to_string();
+        for (from, to, msg) in messages {
             let (kind, what) = match &msg.body {
                 framework::message::Body::Command { name, args } => {
                     ("command", format!("{from} -> {to}: {name} {args}"))
@@ -697,9 +889,9 @@ impl RunLogger {
         Ok(())
     }
 
-    fn stats(&mut self, now: Time, core: &Core) -> Result<()> {
-        let reports = framework::system::module_reports(core);
+    fn stats(&mut self, now: Time, reports: Vec<framework::system::ModuleReport>) -> Result<()> {
         if let Some(rec) = &self.rrd {
+            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
             for r in &reports {
                 let (c0, e0) = self.last_stats.get(&r.name).copied().unwrap_or((0, 0));
                 let cycles = r.stats.cycles - c0;
@@ -736,7 +928,7 @@ impl RunLogger {
     }
 
     /// Logs the score (if any) and finalizes both files; returns where they are.
-    pub fn finish(mut self, score: Option<&Score>) -> Result<LogFiles> {
+    fn finish(&mut self, score: Option<&Score>) -> Result<LogFiles> {
         let mut files = LogFiles::default();
         if let Some(s) = score {
             let t = Time::from_secs_f64(s.sim_time_s);

@@ -43,6 +43,22 @@ enum Cmd {
     Check(CheckArgs),
     /// Run the framework demo: four modules of a heading loop exchanging data and commands.
     Demo(DemoArgs),
+    /// Benchmarks that need whole runs: `bench logging` (the logger's share of a run's wall time
+    /// and the bytes it writes per simulated minute at the scenario's rates).
+    Bench(BenchArgs),
+}
+
+#[derive(clap::Args)]
+struct BenchArgs {
+    /// What to measure.
+    #[arg(value_parser = ["logging"])]
+    what: String,
+    /// The scenario to run.
+    #[arg(long, default_value_os_t = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("traverse.toml"))]
+    scenario: PathBuf,
+    /// Repetitions of each variant (the fastest counts).
+    #[arg(long, default_value_t = 2)]
+    repeat: usize,
 }
 
 #[derive(clap::Args)]
@@ -170,6 +186,7 @@ fn main() {
         Cmd::Run(a) => run_main(a),
         Cmd::Sweep(a) => sweep_main(a),
         Cmd::Check(a) => Ok(check_main(&a)),
+        Cmd::Bench(a) => bench_main(&a),
     };
     let code = r.unwrap_or_else(|e| {
         eprintln!("error: {e:#}");
@@ -277,6 +294,53 @@ fn sweep_main(a: SweepArgs) -> Result<i32> {
         println!("interrupted: the rows of the finished runs are in {}", out.join("runs.csv").display());
         return Ok(2);
     }
+    Ok(0)
+}
+
+fn bench_main(a: &BenchArgs) -> Result<i32> {
+    let loaded = scenario::load(&a.scenario, &[])?;
+    let tmp = std::env::temp_dir().join(format!("rover-twin-bench-{}", std::process::id()));
+    let interrupt = interrupt_flag();
+    let mut best = [f64::INFINITY; 2];
+    let mut bytes = 0u64;
+    let mut sim = 0.0;
+    for _ in 0..a.repeat.max(1) {
+        for (k, logs) in [false, true].into_iter().enumerate() {
+            let out = tmp.join(if logs { "logs" } else { "nologs" });
+            let opts = runner::RunOptions {
+                seed: None,
+                out: out.clone(),
+                fidelity: None,
+                quiet: true,
+                write_logs: logs,
+                interrupt: interrupt.clone(),
+            };
+            let score = runner::run(&loaded, &opts)?;
+            best[k] = best[k].min(score.wall_time_s);
+            sim = score.sim_time_s;
+            if logs {
+                bytes = ["run.rrd", "run.mcap"]
+                    .iter()
+                    .map(|f| std::fs::metadata(out.join(f)).map(|m| m.len()).unwrap_or(0))
+                    .sum();
+            }
+        }
+    }
+    let _ = std::fs::remove_dir_all(&tmp);
+    let share = (best[1] - best[0]) / best[1];
+    let per_min = bytes as f64 / (sim / 60.0);
+    println!("scenario {} ({sim:.1} s simulated), best of {}:", loaded.scenario.name, a.repeat.max(1));
+    println!(
+        "  wall time without logs {:.2} s, with logs {:.2} s: logger share {:.1}% (target < 10%)",
+        best[0],
+        best[1],
+        share * 100.0
+    );
+    println!(
+        "  written {:.2} MB (rrd + mcap): {:.2} MB per simulated minute (target < 50 MB)",
+        bytes as f64 / 1e6,
+        per_min / 1e6
+    );
     Ok(0)
 }
 

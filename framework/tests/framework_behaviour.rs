@@ -184,12 +184,50 @@ fn debug_commands_are_refused_in_mission_and_accepted_in_debug() {
     b.endpoint("debugger");
     let mut ex = running(b);
     let d = ex.endpoint("debugger").unwrap();
-    let a = d.send(Command::new("mission", "inject_fault").on(Queue::Debug)).unwrap();
-    let c = d.send(Command::new("debug", "inject_fault").on(Queue::Debug)).unwrap();
+    let a = d.send(Command::new("mission", "debug_note").on(Queue::Debug)).unwrap();
+    let c = d.send(Command::new("debug", "debug_note").on(Queue::Debug)).unwrap();
     ex.tick();
     let Some(AckStatus::Rejected(r)) = d.status(a) else { panic!("{:?}", d.status(a)) };
     assert!(r.contains("Mission") && r.contains("debug queue"), "{r}");
     assert_eq!(d.status(c), Some(AckStatus::Completed(serde_json::Value::Null)));
+    // The framework's fault injection: debug queue only, then the module crashes at its next cycle
+    // and the watchdog isolates it.
+    let nominal =
+        d.send(Command::new("debug", "inject_fault").json(serde_json::json!({"kind": "panic"}))).unwrap();
+    let refused = d
+        .send(
+            Command::new("mission", "inject_fault")
+                .json(serde_json::json!({"kind": "panic"}))
+                .on(Queue::Debug),
+        )
+        .unwrap();
+    let crash = d
+        .send(
+            Command::new("debug", "inject_fault").json(serde_json::json!({"kind": "panic"})).on(Queue::Debug),
+        )
+        .unwrap();
+    ex.tick();
+    ex.tick();
+    let Some(AckStatus::Rejected(r)) = d.status(nominal) else { panic!("{:?}", d.status(nominal)) };
+    assert!(r.contains("only on the debug queue"), "{r}");
+    assert!(matches!(d.status(refused), Some(AckStatus::Rejected(_))));
+    assert!(matches!(d.status(crash), Some(AckStatus::Completed(_))), "{:?}", d.status(crash));
+    let isolated: Vec<_> = ex
+        .core()
+        .events
+        .snapshot()
+        .into_iter()
+        .filter_map(|e| match e.kind {
+            framework::events::EventKind::ModuleIsolated { module, fault } => Some((module, fault)),
+            _ => None,
+        })
+        .collect();
+    assert_eq!(isolated.len(), 1, "{isolated:?}");
+    assert_eq!(isolated[0].0, "debug");
+    assert!(
+        matches!(&isolated[0].1, framework::events::Fault::Panic(t) if t.contains("injected")),
+        "{isolated:?}"
+    );
 }
 
 /// A coordinator that sends through a relay and records the acknowledgements it gets.

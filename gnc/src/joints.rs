@@ -125,6 +125,8 @@ impl Module for JointGroupModule {
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         let slot = format!("{}/joints", d.name());
         self.out = Some(d.writes(&slot));
+        // Scenarios switch contexts at runtime (e.g. Mission -> Debug for a fault injection).
+        d.context_switchable();
         d.state("active", |m, ctx| m.cycle(ctx));
         d.command("move", |m, ctx, a: MoveArgs| m.start(ctx, a.positions, a.speed));
         d.command("move_named", |m, ctx, a: MoveNamedArgs| {

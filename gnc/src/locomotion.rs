@@ -340,6 +340,8 @@ impl Module for Locomotion {
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         self.pose = Some(d.reads("odometry/pose"));
         self.out = Some(d.writes("locomotion/state"));
+        // Scenarios switch contexts at runtime (e.g. Mission -> Debug for a fault injection).
+        d.context_switchable();
         d.state("idle", |m, ctx| m.cycle(ctx));
         d.state("moving", |m, ctx| m.cycle(ctx));
         d.state("fault", |m, ctx| {

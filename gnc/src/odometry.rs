@@ -277,6 +277,8 @@ impl Module for Odometry {
 
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         self.out = Some(d.writes("odometry/pose"));
+        // Scenarios switch contexts at runtime (e.g. Mission -> Debug for a fault injection).
+        d.context_switchable();
         d.state("estimating", |m, ctx| m.cycle(ctx));
         d.command("reset", |m, _ctx, pose: [f64; 4]| {
             if pose.iter().any(|v| !v.is_finite()) {

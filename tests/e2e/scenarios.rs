@@ -217,6 +217,20 @@ fn bad_scenario_files_give_exact_locations() {
         .output()
         .unwrap();
     assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+    // A sweep dispersing a key the scenario does not have: located at the dispersion's key.
+    let sweep = dir.path().join("bad_sweep.toml");
+    let sw = std::fs::read_to_string(data("sweep.toml"))
+        .unwrap()
+        .replace(
+            "scenario = \"short.toml\"",
+            &format!("scenario = {:?}", data("short.toml").display().to_string()),
+        )
+        .replace("key = \"rover.y\"", "key = \"rover.why\"");
+    std::fs::write(&sweep, sw).unwrap();
+    let o = rover_twin().arg("check").arg(&sweep).output().unwrap();
+    assert_eq!(o.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("bad_sweep.toml:10:") && err.contains("why"), "{err}");
     // A module configuration with a pose outside the joint limits.
     let arm = dir.path().join("arm.toml");
     std::fs::write(&arm, "[framework]\nperiod_s = 0.1\n[params.poses]\nbad = [9.0, 0, 0, 0, 0, 0]\n")

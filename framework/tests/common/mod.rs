@@ -93,8 +93,8 @@ impl Module for Accumulator {
             ctx.write(log, m.seen.clone());
             Outcome::done()
         });
-        d.command("inject_fault", |_m, ctx, _: ()| {
-            ctx.note("fault injected");
+        d.command("debug_note", |_m, ctx, _: ()| {
+            ctx.note("debug note");
             Outcome::done()
         });
         d.command("slow_job", |m, ctx, _: ()| {

@@ -71,3 +71,12 @@ pub struct LocomotionState {
     /// The goal of the current manoeuvre in the odometry frame, if it has one (x, y), m.
     pub goal: Option<[f64; 2]>,
 }
+
+/// A stereo pair captured together (left and right images of one exposure).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StereoImages {
+    /// Left image.
+    pub left: crate::camera::GreyImage,
+    /// Right image.
+    pub right: crate::camera::GreyImage,
+}

@@ -5,10 +5,12 @@
 //!
 //! Today: the HAL-level modules that scenarios command through message passing —
 //! [`locomotion::Locomotion`] (body motion, `goto`, stall detection), [`joints::JointGroupModule`]
-//! (arm, pan-tilt unit, gripper) — and [`odometry::Odometry`] (wheel-inertial dead reckoning).
+//! (arm, pan-tilt unit, gripper), [`cameras::Cameras`] (stereo and ToF frames on the blackboard) — and
+//! [`odometry::Odometry`] (wheel-inertial dead reckoning).
 //! To come (see DESIGN.md): ToF elevation maps and fusion, traversability, path planning, visual
 //! odometry and localization fusion, target and marker tracking, visual servoing, autonomy.
 
+pub mod cameras;
 pub mod joints;
 pub mod locomotion;
 pub mod odometry;

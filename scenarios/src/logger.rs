@@ -22,7 +22,8 @@ use crate::scenario::{LoggingSettings, Scenario};
 use crate::score::{LogFiles, Score};
 use anyhow::{Context, Result};
 use base64::Engine;
-use framework::data::{JointStates, LocomotionState, PoseEstimate};
+use framework::camera::{Image, TofFrame};
+use framework::data::{JointStates, LocomotionState, PoseEstimate, StereoImages};
 use framework::system::Core;
 use framework::{Duration, Time};
 use mcap::records::MessageHeader;
@@ -66,6 +67,13 @@ fn foxglove_schema(name: &str) -> String {
         "foxglove.Log" => format!(
             r#""timestamp":{TIME},"level":{{"title":"foxglove.LogLevel","oneOf":[{{"title":"UNKNOWN","const":0}},{{"title":"DEBUG","const":1}},{{"title":"INFO","const":2}},{{"title":"WARNING","const":3}},{{"title":"ERROR","const":4}},{{"title":"FATAL","const":5}}]}},"message":{{"type":"string"}},"name":{{"type":"string"}},"file":{{"type":"string"}},"line":{{"type":"integer","minimum":0}}"#
         ),
+        "foxglove.RawImage" => format!(
+            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"width":{{"type":"integer","minimum":0}},"height":{{"type":"integer","minimum":0}},"encoding":{{"type":"string"}},"step":{{"type":"integer","minimum":0}},"data":{{"type":"string","contentEncoding":"base64"}}"#
+        ),
+        "foxglove.PointCloud" => format!(
+            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"point_stride":{{"type":"integer","minimum":0}},"fields":{{"type":"array","items":{PEF}}},"data":{{"type":"string","contentEncoding":"base64"}}"#,
+            pose_schema()
+        ),
         _ => unreachable!("known schema"),
     };
     format!(
@@ -78,6 +86,28 @@ fn own_schema(name: &str, description: &str, properties: &str) -> String {
     format!(
         r#"{{"title":"{name}","description":"{description}","type":"object","properties":{{{properties}}}}}"#
     )
+}
+
+/// Downsamples an image by `k` (each output pixel combines a k x k block with `merge`).
+fn downsample<T: Copy>(img: &Image<T>, k: u32, merge: impl Fn(&[T]) -> T) -> (u32, u32, Vec<T>) {
+    if k <= 1 {
+        return (img.width, img.height, img.data.clone());
+    }
+    let (w, h) = (img.width / k, img.height / k);
+    let mut out = Vec::with_capacity((w * h) as usize);
+    let mut block = Vec::with_capacity((k * k) as usize);
+    for v in 0..h {
+        for u in 0..w {
+            block.clear();
+            for dv in 0..k {
+                for du in 0..k {
+                    block.push(img.at(u * k + du, v * k + dv));
+                }
+            }
+            out.push(merge(&block));
+        }
+    }
+    (w, h, out)
 }
 
 fn stamp_json(t: Time) -> serde_json::Value {
@@ -173,8 +203,8 @@ fn rr_transform(p: &Isometry3<f64>) -> Transform3D {
 
 fn blueprint() -> rerun::blueprint::Blueprint {
     use rerun::blueprint::{
-        Blueprint, ContainerLike, Horizontal, Spatial3DView, Tabs, TextLogView, TimePanel, TimeSeriesView,
-        Vertical,
+        Blueprint, ContainerLike, Horizontal, Spatial2DView, Spatial3DView, Tabs, TextLogView, TimePanel,
+        TimeSeriesView, Vertical,
     };
     Blueprint::new(
         Horizontal::new(vec![
@@ -188,6 +218,12 @@ fn blueprint() -> rerun::blueprint::Blueprint {
                         ContainerLike::from(TimeSeriesView::new("Motion").with_origin("/plots/motion")),
                         ContainerLike::from(TimeSeriesView::new("Joints").with_origin("/plots/joints")),
                         ContainerLike::from(TimeSeriesView::new("Scheduler").with_origin("/plots/scheduler")),
+                        ContainerLike::from(
+                            Spatial2DView::new("Head camera").with_origin("/sensors/head_stereo/left"),
+                        ),
+                        ContainerLike::from(
+                            Spatial2DView::new("ToF depth").with_origin("/sensors/tof_left/depth"),
+                        ),
                     ])),
                     ContainerLike::from(
                         TextLogView::new("Framework events and messages").with_origin("/logs"),
@@ -242,11 +278,14 @@ enum Known {
     Pose(Time, Box<PoseEstimate>),
     Joints(JointStates),
     Locomotion(LocomotionState, Option<f64>),
+    Stereo(std::sync::Arc<framework::Stamped<StereoImages>>),
+    Tof(std::sync::Arc<framework::Stamped<TofFrame>>),
     Other,
 }
 
 /// The logging thread's side: owns the files and does all the encoding.
 struct Writer {
+    downsample: u32,
     mcap: Option<Mcap>,
     rrd: Option<rerun::RecordingStream>,
     rrd_path: PathBuf,
@@ -269,6 +308,8 @@ pub struct RunLogger {
     next_slots: Time,
     next_stats: Time,
     slot_seq: BTreeMap<String, u64>,
+    /// Next time each image slot may be logged (`images_hz`).
+    next_image: BTreeMap<String, Time>,
     events_seen: usize,
 }
 
@@ -295,6 +336,7 @@ impl RunLogger {
         };
         let mcap = if s.logging.mcap { Some(Mcap::create(&mcap_path)?) } else { None };
         let mut w = Writer {
+            downsample: s.logging.image_downsample.max(1),
             mcap,
             rrd,
             rrd_path,
@@ -345,6 +387,7 @@ impl RunLogger {
             next_slots: Time::ZERO,
             next_stats: Time::ZERO,
             slot_seq: BTreeMap::new(),
+            next_image: BTreeMap::new(),
             events_seen: 0,
         })
     }
@@ -379,7 +422,7 @@ impl RunLogger {
             && now >= self.next_slots
         {
             self.next_slots = now + p;
-            let records = self.new_records(twin, core);
+            let records = self.new_records(now, twin, core);
             if !records.is_empty() {
                 self.send(Item::Slots { now, base: twin.base_pose(), records })?;
             }
@@ -407,7 +450,7 @@ impl RunLogger {
     }
 
     /// Blackboard records written since the last look.
-    fn new_records(&mut self, twin: &Twin, core: &Core) -> Vec<SlotRecord> {
+    fn new_records(&mut self, now: Time, twin: &Twin, core: &Core) -> Vec<SlotRecord> {
         let mut out = Vec::new();
         for name in core.board.names() {
             let Some(slot) = core.board.slot(&name) else { continue };
@@ -431,9 +474,27 @@ impl RunLogger {
             {
                 let z = s.value.goal.map(|[x, y]| twin.world().ground_height(x, y));
                 Known::Locomotion(s.value.clone(), z)
+            } else if let Some(s) =
+                any.downcast_ref::<framework::blackboard::SlotCell<StereoImages>>().and_then(|c| c.latest())
+            {
+                Known::Stereo(s)
+            } else if let Some(s) =
+                any.downcast_ref::<framework::blackboard::SlotCell<TofFrame>>().and_then(|c| c.latest())
+            {
+                Known::Tof(s)
             } else {
                 Known::Other
             };
+            if matches!(known, Known::Stereo(_) | Known::Tof(_)) {
+                // Images: at their own rate, never as JSON.
+                let Some(p) = period(self.settings.images_hz) else { continue };
+                if self.next_image.get(&name).is_some_and(|t| now < *t) {
+                    continue;
+                }
+                self.next_image.insert(name.clone(), now + p);
+                out.push(SlotRecord { name, type_name: slot.type_name(), json: None, known });
+                continue;
+            }
             out.push(SlotRecord { name, type_name: slot.type_name(), json: slot.to_json(), known });
         }
         out
@@ -736,6 +797,15 @@ impl Writer {
                         }
                     }
                 }
+                Known::Stereo(img) => {
+                    let name = r.name.trim_start_matches("cameras/").to_string();
+                    self.grey(&format!("sensors/{name}/left"), &img.value.left)?;
+                    self.grey(&format!("sensors/{name}/right"), &img.value.right)?;
+                }
+                Known::Tof(f) => {
+                    let name = r.name.trim_start_matches("cameras/").to_string();
+                    self.tof(&name, &f.value)?;
+                }
                 Known::Other => {}
             }
             // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.
@@ -755,6 +825,78 @@ impl Writer {
                     json,
                 )?;
             }
+        }
+        Ok(())
+    }
+
+    /// A greyscale image, downsampled: Rerun `Image` and MCAP `foxglove.RawImage` (mono8).
+    fn grey(&mut self, path: &str, img: &Image<u8>) -> Result<()> {
+        let (w, h, data) = downsample(img, self.downsample, |v: &[u8]| {
+            (v.iter().map(|&x| x as u32).sum::<u32>() / v.len() as u32) as u8
+        });
+        if let Some(rec) = &self.rrd {
+            rec.log(path, &rerun::Image::from_l8(data.clone(), [w, h]))?;
+        }
+        if let Some(m) = &mut self.mcap {
+            m.foxglove(
+                &format!("/{path}"),
+                "foxglove.RawImage",
+                img.stamp,
+                &serde_json::json!({
+                    "timestamp": stamp_json(img.stamp), "frame_id": img.frame, "width": w, "height": h,
+                    "encoding": "mono8", "step": w, "data": base64::engine::general_purpose::STANDARD.encode(&data),
+                }),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// A ToF frame: the depth image (Rerun `DepthImage`, MCAP `foxglove.RawImage` 32FC1,
+    /// downsampled) and the full point cloud in the optical frame (Rerun `Points3D` under the
+    /// frame's truth entity, MCAP `foxglove.PointCloud`).
+    fn tof(&mut self, name: &str, f: &TofFrame) -> Result<()> {
+        let d = &f.depth;
+        let (w, h, depth) = downsample(d, self.downsample, |v: &[f32]| {
+            let ok: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
+            if ok.is_empty() { f32::NAN } else { ok.iter().sum::<f32>() / ok.len() as f32 }
+        });
+        let depth_bytes: Vec<u8> = depth.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let points: Vec<[f32; 3]> = f.points.iter().map(|p| [p.x, p.y, p.z]).collect();
+        if let Some(rec) = &self.rrd {
+            let zeroed: Vec<u8> =
+                depth.iter().flat_map(|x| if x.is_finite() { *x } else { 0.0 }.to_le_bytes()).collect();
+            rec.log(
+                format!("sensors/{name}/depth"),
+                &rerun::DepthImage::from_data_type_and_bytes(zeroed, [w, h], rerun::ChannelDatatype::F32)
+                    .with_meter(1.0_f32),
+            )?;
+            rec.log(
+                format!("world/truth/{}/points", d.frame),
+                &rerun::Points3D::new(points.clone()).with_radii([0.01_f32]).with_colors([[255u8, 120, 40]]),
+            )?;
+        }
+        if let Some(m) = &mut self.mcap {
+            m.foxglove(
+                &format!("/sensors/{name}/depth"),
+                "foxglove.RawImage",
+                d.stamp,
+                &serde_json::json!({
+                    "timestamp": stamp_json(d.stamp), "frame_id": d.frame, "width": w, "height": h,
+                    "encoding": "32FC1", "step": w * 4, "data": base64::engine::general_purpose::STANDARD.encode(&depth_bytes),
+                }),
+            )?;
+            let bytes: Vec<u8> = points.iter().flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())).collect();
+            m.foxglove(
+                &format!("/sensors/{name}/points"),
+                "foxglove.PointCloud",
+                d.stamp,
+                &serde_json::json!({
+                    "timestamp": stamp_json(d.stamp), "frame_id": d.frame, "pose": pose_json(&Isometry3::identity()),
+                    "point_stride": 12,
+                    "fields": [{"name": "x", "offset": 0, "type": 7}, {"name": "y", "offset": 4, "type": 7}, {"name": "z", "offset": 8, "type": 7}],
+                    "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
+                }),
+            )?;
         }
         Ok(())
     }

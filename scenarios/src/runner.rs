@@ -53,7 +53,8 @@ pub fn module_config_dir() -> PathBuf {
 }
 
 /// Modules of the system a scenario runs, in registration order.
-pub const MODULES: &[&str] = &["odometry", "locomotion", "arm", "ptu", "gripper", faults::NAME];
+/// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders).
+pub const MODULES: &[&str] = &["odometry", "locomotion", "arm", "ptu", "gripper", "cameras", faults::NAME];
 
 /// Builds a module's configuration: its default file with the scenario's `[modules.<name>]` merged
 /// over it and the run's purpose (Debug/Mission) applied.
@@ -161,6 +162,9 @@ fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: boo
     odo_extra.insert("params".into(), toml::Value::Table(params));
     let p = &loaded.path;
     for name in MODULES {
+        if *name == "cameras" && !s.modules.contains_key("cameras") {
+            continue;
+        }
         let extra = if *name == "odometry" { odo_extra.clone() } else { Default::default() };
         add_module(&mut b, name, &map, twin, model.clone(), module_config(name, s, p, extra)?)?;
     }
@@ -182,6 +186,14 @@ fn add_module(
         "locomotion" => b.add(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
         "arm" | "ptu" | "gripper" => b.add(name, JointGroupModule::new(map.joint_group(name)?), config),
         faults::NAME => b.add(name, TwinFaults::new(twin.clone()), config),
+        "cameras" => b.add(
+            name,
+            gnc::cameras::Cameras::new(
+                vec![map.stereo_camera("head_stereo")?],
+                vec![map.tof_camera("tof_left")?, map.tof_camera("tof_right")?],
+            ),
+            config,
+        ),
         other => return Err(anyhow!("no module '{other}' in the runner's system")),
     };
     Ok(())

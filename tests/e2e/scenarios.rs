@@ -397,3 +397,45 @@ fn sigint_during_a_run_leaves_complete_valid_logs() {
     assert_eq!(topics["/score"].len(), 1);
     assert!(rrd_entities(&dir.path().join("run.rrd")).contains("/world/truth/base_link"));
 }
+
+#[test]
+fn camera_frames_reach_the_logs_as_images_and_point_clouds() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("cameras.toml"), dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+    let sim = score(dir.path())["sim_time_s"].as_f64().unwrap();
+    let topics = read_mcap(&dir.path().join("run.mcap"));
+    let left = &topics["/sensors/head_stereo/left"];
+    // images_hz = 1 over the run.
+    assert!((left.len() as f64 - sim).abs() <= 2.0, "{} images over {sim} s", left.len());
+    let img = &left[left.len() / 2];
+    assert_eq!(
+        (img["encoding"].as_str(), img["width"].as_u64(), img["height"].as_u64()),
+        (Some("mono8"), Some(320), Some(240))
+    );
+    use base64::Engine;
+    let px = base64::engine::general_purpose::STANDARD.decode(img["data"].as_str().unwrap()).unwrap();
+    assert_eq!(px.len(), 320 * 240);
+    assert!(px.iter().any(|&p| p > 50), "the rendered image is black");
+    let depth = &topics["/sensors/tof_left/depth"];
+    assert_eq!(depth[0]["encoding"], "32FC1");
+    let clouds = &topics["/sensors/tof_left/points"];
+    let n = |m: &serde_json::Value| {
+        base64::engine::general_purpose::STANDARD.decode(m["data"].as_str().unwrap()).unwrap().len() / 12
+    };
+    assert!(
+        clouds.iter().any(|c| n(c) > 1000),
+        "no ToF points: the mast looks at the ground after 'mast_up'"
+    );
+    let ents = rrd_entities(&dir.path().join("run.rrd"));
+    for e in [
+        "/sensors/head_stereo/left",
+        "/sensors/head_stereo/right",
+        "/sensors/tof_left/depth",
+        "/world/truth/tof_left_optical/points",
+    ] {
+        assert!(ents.contains(e), "{e} missing: {ents:?}");
+    }
+    // No image travels as JSON.
+    assert!(!topics.keys().any(|t| t.starts_with("/slots/cameras/")), "{:?}", topics.keys());
+}

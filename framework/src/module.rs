@@ -579,6 +579,8 @@ pub enum InjectedFault {
     Panic,
     /// The module's next cycle returns an error.
     Error,
+    /// The module's next cycle never returns (a hang): the watchdog must notice.
+    Hang,
 }
 
 fn panic_text(p: &(dyn std::any::Any + Send)) -> String {
@@ -1072,6 +1074,11 @@ impl<M: Module> Cell<M> {
                     Fault::Panic(r.err().map(|p| panic_text(&*p)).unwrap_or(text))
                 }
                 InjectedFault::Error => Fault::Error(text),
+                InjectedFault::Hang => loop {
+                    // Never returns: the watchdog isolates the module after its hang timeout (and,
+                    // under lockstep, calls the executor's hang handler).
+                    std::thread::park();
+                },
             };
             self.isolate(core, now, fault);
             return Duration::ZERO;

@@ -544,13 +544,22 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     {
         let logger = logger.clone();
         let out = opts.out.clone();
+        let core = ex.core().clone();
+        let (name, file) = (s.name.clone(), loaded.path.display().to_string());
         ex.on_hang(Arc::new(move |module, busy| {
             let reason = format!("module '{module}' hung (busy for {busy}); run aborted");
             eprintln!("error: {reason}");
-            if let Some(l) = logger.lock().take() {
-                let _ = l.finish(None);
-            }
-            let _ = std::fs::write(out.join("ABORTED"), format!("{reason}\n"));
+            let logs = logger.lock().take().map(|l| l.finish(None));
+            // What is known of the run: it did not succeed, and why.
+            let score = serde_json::json!({
+                "scenario": name, "scenario_file": file, "seed": seed, "success": false,
+                "outcome": "aborted", "abort_reason": reason, "sim_time_s": core.now().as_secs_f64(),
+                "logs": logs.and_then(Result::ok),
+            });
+            let _ = std::fs::write(
+                out.join("score.json"),
+                serde_json::to_string_pretty(&score).unwrap_or_default() + "\n",
+            );
             std::process::exit(2);
         }));
     }

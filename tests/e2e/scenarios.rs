@@ -439,3 +439,17 @@ fn camera_frames_reach_the_logs_as_images_and_point_clouds() {
     // No image travels as JSON.
     assert!(!topics.keys().any(|t| t.starts_with("/slots/cameras/")), "{:?}", topics.keys());
 }
+
+#[test]
+fn a_hung_module_ends_the_run_naming_it_with_finalized_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("hang.toml"), dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", show(&o));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("module 'odometry' hung"), "{}", show(&o));
+    let s = score(dir.path());
+    assert_eq!(s["outcome"], "aborted");
+    assert!(s["abort_reason"].as_str().unwrap().contains("odometry"));
+    let topics = read_mcap(&dir.path().join("run.mcap"));
+    assert!(topics["/tf"].len() > 20);
+    assert!(rrd_entities(&dir.path().join("run.rrd")).contains("/world/truth/base_link"));
+}

@@ -49,6 +49,9 @@ pub struct OdometryParams {
     pub still_wheel_rate: f64,
     /// Gain of the gyro bias update per zero-velocity cycle (0 disables learning).
     pub bias_gain: f64,
+    /// The wheels must have stood still this long before the gyro bias is learnt: a rover that has
+    /// just stopped (or just been set down) still rocks and creeps, which is no bias, s.
+    pub still_settle_s: f64,
     /// A sensor whose stamp does not advance for this long is reported as silent, s.
     pub silent_after_s: f64,
 }
@@ -67,6 +70,7 @@ impl Default for OdometryParams {
             tilt_time_constant_s: 0.5,
             still_wheel_rate: 0.01,
             bias_gain: 0.01,
+            still_settle_s: 2.0,
             silent_after_s: 0.2,
         }
     }
@@ -98,6 +102,10 @@ struct OdoState {
     last_imu: ImuSample,
     enc_silent: bool,
     imu_silent: bool,
+    /// Since when the wheels stand still.
+    still_since: Option<Time>,
+    /// The gyro bias has been learnt at least once.
+    bias_learnt: bool,
 }
 
 impl Odometry {
@@ -125,6 +133,8 @@ impl Odometry {
             last_imu: imu,
             enc_silent: false,
             imu_silent: false,
+            still_since: None,
+            bias_learnt: false,
         }
     }
 
@@ -169,12 +179,19 @@ impl Odometry {
             (0.0, 0.0, 0.0, vec![0.0; self.model.wheels.len()])
         };
         let still = enc_fresh && rates.iter().all(|w| w.abs() < p.still_wheel_rate);
+        if !still {
+            s.still_since = None;
+        } else if s.still_since.is_none() {
+            s.still_since = Some(now);
+        }
+        let settled = s.still_since.is_some_and(|t| (now - t).as_secs_f64() >= p.still_settle_s);
 
         // Attitude and heading change from the IMU.
         let (dyaw, yaw_var) = if imu_fresh && !imu_silent {
             let dt = (imu.stamp - s.last_imu.stamp).as_secs_f64();
-            if still && p.bias_gain > 0.0 {
+            if settled && p.bias_gain > 0.0 {
                 s.bias += p.bias_gain * (imu.angular_rate - s.bias);
+                s.bias_learnt = true;
             }
             let w = imu.angular_rate - s.bias;
             if let Some((roll, pitch)) = tilt_from_gravity(&imu.specific_force) {
@@ -185,7 +202,9 @@ impl Odometry {
             // Rate of yaw (about the world vertical) from body rates, ZYX Euler kinematics.
             let (sr, cr) = s.roll.sin_cos();
             let yaw_rate = (w.y * sr + w.z * cr) / s.pitch.cos().max(0.2);
-            let dyaw = if still { 0.0 } else { yaw_rate * dt };
+            // Until a bias is known, a standing rover is taken not to turn (its rocking and the
+            // unknown bias are alike); afterwards the gyro is integrated always.
+            let dyaw = if still && !s.bias_learnt { 0.0 } else { yaw_rate * dt };
             (dyaw, p.gyro_noise.powi(2) * dt)
         } else if enc_fresh {
             (dyaw_wheels, (p.wheel_yaw_sigma_per_rad * dyaw_wheels).powi(2))

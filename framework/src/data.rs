@@ -80,3 +80,20 @@ pub struct StereoImages {
     /// Right image.
     pub right: crate::camera::GreyImage,
 }
+
+/// A target region selected in a camera image (by the ground operator, or by a detector).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TargetSelection {
+    /// What the target is (`canister`).
+    pub target: String,
+    /// The camera device whose image was used.
+    pub camera: String,
+    /// The optical frame of that image.
+    pub frame: String,
+    /// Stamp of the image the region was selected in.
+    pub image_stamp: crate::time::Time,
+    /// The region, pixels: [u_min, v_min, u_max, v_max].
+    pub bbox: [f64; 4],
+    /// Who selected it (`operator`: a person at the ground station, from what they see).
+    pub source: String,
+}

@@ -3,13 +3,14 @@
 //! Scenario files and their loader ([`scenario`]), the runner that steps the twin and the module
 //! system in lockstep and plays a mission's ground plan ([`runner`]), the scorer ([`score`]), the
 //! run logger writing Rerun and MCAP files ([`logger`]), Monte Carlo sweeps with shards and merging
-//! ([`sweep`], [`report`]), file validation ([`check`]), the twin's fault injector ([`faults`]) and
+//! ([`sweep`], [`report`]), file validation ([`check`]), the twin's fault injector ([`faults`]), the scripted operator ([`operator`]) and
 //! the framework demo ([`demo`]). The `rover-twin` binary is a thin CLI over these.
 
 pub mod check;
 pub mod demo;
 pub mod faults;
 pub mod logger;
+pub mod operator;
 pub mod report;
 pub mod runner;
 pub mod scenario;

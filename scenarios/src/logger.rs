@@ -23,7 +23,7 @@ use crate::score::{LogFiles, Score};
 use anyhow::{Context, Result};
 use base64::Engine;
 use framework::camera::{Image, TofFrame};
-use framework::data::{JointStates, LocomotionState, PoseEstimate, StereoImages};
+use framework::data::{JointStates, LocomotionState, PoseEstimate, StereoImages, TargetSelection};
 use framework::system::Core;
 use framework::{Duration, Time};
 use mcap::records::MessageHeader;
@@ -280,6 +280,7 @@ enum Known {
     Locomotion(LocomotionState, Option<f64>),
     Stereo(std::sync::Arc<framework::Stamped<StereoImages>>),
     Tof(std::sync::Arc<framework::Stamped<TofFrame>>),
+    Target(TargetSelection),
     Other,
 }
 
@@ -474,6 +475,11 @@ impl RunLogger {
             {
                 let z = s.value.goal.map(|[x, y]| twin.world().ground_height(x, y));
                 Known::Locomotion(s.value.clone(), z)
+            } else if let Some(s) = any
+                .downcast_ref::<framework::blackboard::SlotCell<TargetSelection>>()
+                .and_then(|c| c.latest())
+            {
+                Known::Target(s.value.clone())
             } else if let Some(s) =
                 any.downcast_ref::<framework::blackboard::SlotCell<StereoImages>>().and_then(|c| c.latest())
             {
@@ -805,6 +811,19 @@ impl Writer {
                 Known::Tof(f) => {
                     let name = r.name.trim_start_matches("cameras/").to_string();
                     self.tof(&name, &f.value)?;
+                }
+                Known::Target(t) => {
+                    if let Some(rec) = &self.rrd {
+                        // Drawn over the (downsampled) left image it was selected in.
+                        let k = self.downsample as f32;
+                        let [u0, v0, u1, v1] = t.bbox.map(|x| x as f32 / k);
+                        rec.log(
+                            format!("sensors/{}/left/target", t.camera),
+                            &rerun::Boxes2D::from_mins_and_sizes([[u0, v0]], [[u1 - u0, v1 - v0]])
+                                .with_labels([format!("{} ({})", t.target, t.source)])
+                                .with_colors([[255u8, 200, 0]]),
+                        )?;
+                    }
                 }
                 Known::Other => {}
             }

@@ -161,15 +161,39 @@ fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: boo
     );
     odo_extra.insert("params".into(), toml::Value::Table(params));
     let p = &loaded.path;
+    let cameras = cameras_enabled(s);
     for name in MODULES {
-        if *name == "cameras" && !s.modules.contains_key("cameras") {
+        if *name == "cameras" && !cameras {
             continue;
         }
         let extra = if *name == "odometry" { odo_extra.clone() } else { Default::default() };
         add_module(&mut b, name, &map, twin, model.clone(), module_config(name, s, p, extra)?)?;
     }
+    if s.operator.select_target && cameras {
+        let model = map.stereo_camera("head_stereo")?.model().left.clone();
+        let source = ConfigSource::inline(
+            format!("<operator of {}>", loaded.path.display()),
+            "[framework]\nperiod_s = 0.1\n",
+        );
+        b.add(
+            crate::operator::NAME,
+            crate::operator::Operator::new(twin.clone(), "head_stereo", model),
+            source,
+        );
+    }
     b.endpoint("ground").endpoint("events");
     Ok(b)
+}
+
+/// The cameras run when the scenario has a `[modules.cameras]` table with a non-zero rate (sweeps
+/// turn them off by setting both rates to 0).
+fn cameras_enabled(s: &Scenario) -> bool {
+    let Some(t) = s.modules.get("cameras") else { return false };
+    let rate = |k: &str| {
+        t.get("params").and_then(|p| p.get(k)).and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
+    };
+    // Absent rates take the module defaults (on).
+    rate("stereo_hz").is_none_or(|r| r > 0.0) || rate("tof_hz").is_none_or(|r| r > 0.0)
 }
 
 /// Registers module `name` of the runner's system, with its devices from `map`.

@@ -183,6 +183,19 @@ fn exit_codes_tell_success_mission_failure_and_bad_input() {
     assert_eq!(locate["status"], "not_run");
     assert_eq!(locate["success"], false);
     assert!(locate["reason"].as_str().unwrap().contains("perception"));
+    // The scripted operator marked the canister in the first head-camera image (operator input).
+    let topics = read_mcap(&dir.path().join("run.mcap"));
+    let sel = &topics["/slots/operator/target_selection"];
+    assert_eq!(sel.len(), 1);
+    let v = &sel[0]["value"];
+    assert_eq!(
+        (v["source"].as_str(), v["target"].as_str(), v["camera"].as_str()),
+        (Some("operator"), Some("canister"), Some("head_stereo"))
+    );
+    let b: Vec<f64> = v["bbox"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    // 7 m straight ahead on flat ground: a small box near the image's vertical centre line.
+    assert!(b[0] < b[2] && b[1] < b[3] && b[2] - b[0] < 40.0, "{b:?}");
+    assert!(((b[0] + b[2]) / 2.0 - 320.0).abs() < 40.0, "{b:?}");
 }
 
 #[test]

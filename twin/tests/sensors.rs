@@ -106,7 +106,8 @@ fn a_box_covers_exactly_the_pixels_its_projected_corners_predict() {
     let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
     let h = 6.0;
     let pose = down_at(h);
-    let f = r.render(&t, &cam, &pose, Shading::Sun).unwrap();
+    // ToF shading: the range target is read back only for it.
+    let f = r.render(&t, &cam, &pose, Shading::Tof).unwrap();
     // The lander is a 2 x 2 x 1.5 m box: its top face projects to a rectangle.
     let corners: Vec<Point2<f64>> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
         .iter()

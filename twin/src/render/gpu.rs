@@ -187,7 +187,8 @@ pub struct Frame {
     pub height: u32,
     /// RGBA8, `width * height * 4` bytes.
     pub rgba: Vec<u8>,
-    /// Distance along the optical axis in metres; 0.0 where nothing was hit.
+    /// Distance along the optical axis in metres; 0.0 where nothing was hit. Read back for ToF
+    /// shading only (empty for Sun-shaded camera frames).
     pub range_m: Vec<f32>,
 }
 
@@ -585,18 +586,22 @@ impl Renderer {
             },
             extent,
         );
-        encoder.copy_texture_to_buffer(
-            t.range.as_image_copy(),
-            wgpu::TexelCopyBufferInfo {
-                buffer: &t.readback,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: t.range_offset,
-                    bytes_per_row: Some(t.padded_bytes_per_row),
-                    rows_per_image: Some(t.height),
+        // Sun-shaded (camera) frames need colour only: the range target is not read back.
+        let want_range = matches!(shading, Shading::Tof);
+        if want_range {
+            encoder.copy_texture_to_buffer(
+                t.range.as_image_copy(),
+                wgpu::TexelCopyBufferInfo {
+                    buffer: &t.readback,
+                    layout: wgpu::TexelCopyBufferLayout {
+                        offset: t.range_offset,
+                        bytes_per_row: Some(t.padded_bytes_per_row),
+                        rows_per_image: Some(t.height),
+                    },
                 },
-            },
-            extent,
-        );
+                extent,
+            );
+        }
         let submission = self.queue.submit([encoder.finish()]);
 
         let slice = t.readback.slice(..);
@@ -613,7 +618,7 @@ impl Renderer {
 
         let (w, h, bpr) = (t.width as usize, t.height as usize, t.padded_bytes_per_row as usize);
         let mut rgba = Vec::with_capacity(w * h * 4);
-        let mut range_m = Vec::with_capacity(w * h);
+        let mut range_m = Vec::with_capacity(if want_range { w * h } else { 0 });
         {
             let data = slice.get_mapped_range().map_err(|e| RenderError::Gpu(e.to_string()))?;
             for row in 0..h {
@@ -621,7 +626,7 @@ impl Renderer {
                 rgba.extend_from_slice(&data[start..start + w * 4]);
             }
             let base = t.range_offset as usize;
-            for row in 0..h {
+            for row in (0..h).filter(|_| want_range) {
                 let start = base + row * bpr;
                 for px in data[start..start + w * 4].chunks_exact(4) {
                     range_m.push(f32::from_bits(u32::from_le_bytes([px[0], px[1], px[2], px[3]])));

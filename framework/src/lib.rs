@@ -20,6 +20,7 @@
 //! Time is integer nanoseconds from the executor's clock; modules never read the OS clock. Runs
 //! under the [`executor::LockstepExecutor`] are deterministic.
 
+pub mod angle;
 pub mod blackboard;
 pub mod camera;
 pub mod clock;

@@ -14,6 +14,7 @@
 //! than a fraction of its commanded rate for longer than the stall time puts the module in `fault`:
 //! the rover stops and the manoeuvre fails naming the wheel.
 
+use framework::angle::wrap;
 use framework::data::{LocomotionState, PoseEstimate};
 use framework::hal::{BodyTwist, Locomotor, WheelEncoders};
 use framework::module::Request;
@@ -125,10 +126,6 @@ pub struct Locomotion {
     /// jerks is still caught while brief sticking in skid turns is not.
     stall_evidence: Vec<f64>,
     fault: Option<String>,
-}
-
-fn wrap(a: f64) -> f64 {
-    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
 
 impl Locomotion {

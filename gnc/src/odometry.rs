@@ -16,6 +16,7 @@
 //! The initial pose is what the operator knows of the start (a parameter set from the scenario); the
 //! estimate is published in frame `map` as `odometry/pose`.
 
+use framework::angle::wrap;
 use framework::data::PoseEstimate;
 use framework::hal::{EncoderReading, Imu, ImuSample, LocomotorModel, WheelEncoders};
 use framework::prelude::*;
@@ -284,10 +285,6 @@ fn tilt_from_gravity(f: &Vector3<f64>) -> Option<(f64, f64)> {
     let roll = f.y.atan2(f.z);
     let pitch = (-f.x).atan2(f.y.hypot(f.z));
     Some((roll, pitch))
-}
-
-fn wrap(a: f64) -> f64 {
-    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
 
 impl Module for Odometry {

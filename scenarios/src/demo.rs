@@ -171,10 +171,6 @@ pub struct TurnTo {
     pub heading_deg: f64,
 }
 
-fn wrap(a: f64) -> f64 {
-    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
-}
-
 impl Navigator {
     fn steer(&mut self, ctx: &mut Ctx<'_>, law: fn(&NavigatorParams, f64) -> f64) -> StateResult {
         let (Some(goal), Some(stamped)) = (self.goal, self.heading.as_ref().and_then(|r| ctx.read(r))) else {
@@ -251,6 +247,7 @@ impl Module for Navigator {
 }
 
 use framework::AckStatus;
+use framework::angle::wrap;
 
 /// Applies yaw-rate commands within its limit.
 #[derive(Default)]

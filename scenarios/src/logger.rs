@@ -947,9 +947,7 @@ impl Writer {
                 format!("plots/errors/{slot}/sigma_3_m"),
                 &rerun::Scalars::single(3.0 * sig.x.hypot(sig.y)),
             )?;
-            let yaw_err = (e.yaw() - truth.rotation.euler_angles().2 + std::f64::consts::PI)
-                .rem_euclid(std::f64::consts::TAU)
-                - std::f64::consts::PI;
+            let yaw_err = framework::angle::wrap(e.yaw() - truth.rotation.euler_angles().2);
             rec.log(
                 format!("plots/errors/{slot}/yaw_error_deg"),
                 &rerun::Scalars::single(yaw_err.to_degrees()),

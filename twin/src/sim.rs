@@ -15,6 +15,7 @@
 use crate::config::TwinConfig;
 use crate::convert::*;
 use crate::truth::{BodyTruth, ContactTruth, GroundTruth};
+use framework::angle::wrap;
 use framework::hal::{BodyTwist, JointLimits, JointState, LocomotorModel, MotorStatus, MoveId, MoveStatus};
 use framework::mechanism::{JointKind, MechanismModel};
 use framework::time::{Duration, Time};
@@ -256,10 +257,6 @@ pub fn assets_dir() -> PathBuf {
 /// The shipped rover description.
 pub fn rover_urdf() -> PathBuf {
     assets_dir().join("rover/rover.urdf")
-}
-
-fn wrap(a: f64) -> f64 {
-    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
 }
 
 impl Twin {

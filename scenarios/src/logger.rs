@@ -725,7 +725,7 @@ impl Writer {
             if let Some(c) = &canister {
                 rec.log("world/truth/canister", &rr_transform(c))?;
             }
-            let tilt = (b.rotation * nalgebra::Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees();
+            let tilt = crate::score::tilt_deg(&b);
             rec.log("plots/motion/tilt_deg", &rerun::Scalars::single(tilt))?;
             rec.log("plots/motion/collisions", &rerun::Scalars::single(collisions as f64))?;
             if now >= self.next_track {

@@ -20,7 +20,7 @@ use framework::{
 use gnc::joints::JointGroupModule;
 use gnc::locomotion::Locomotion;
 use gnc::odometry::Odometry;
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::Isometry3;
 use parking_lot::Mutex;
 use std::collections::{BTreeMap, HashSet};
 use std::io::Write;
@@ -432,7 +432,7 @@ struct Scorer {
 
 impl Scorer {
     fn sample(&mut self, now: Time, base: &Isometry3<f64>, est: Option<&PoseEstimate>, after: Option<f64>) {
-        let tilt = (base.rotation * Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees();
+        let tilt = crate::score::tilt_deg(base);
         self.max_tilt = self.max_tilt.max(tilt);
         if self.last_sample.is_some_and(|t| (now - t).as_secs_f64() < 0.1 - 1e-9) {
             return;
@@ -545,6 +545,37 @@ fn check_criteria(
     out
 }
 
+/// Steps the twin to the executor's next tick, then runs that tick (modules at `t` read sensors
+/// stamped `t`); the new time.
+fn step(ex: &mut LockstepExecutor, twin: &SharedTwin) -> Time {
+    let next = ex.now() + ex.base_period();
+    let mut t = twin.lock();
+    while t.time() < next {
+        t.step();
+    }
+    drop(t);
+    ex.tick()
+}
+
+/// Feeds the scorer and the logger at `now`; the reason when logging failed.
+fn record(
+    now: Time,
+    twin: &SharedTwin,
+    core: &framework::system::Core,
+    pose: Option<&framework::Reader<PoseEstimate>>,
+    scorer: &mut Scorer,
+    after: Option<f64>,
+    logger: &Mutex<Option<RunLogger>>,
+) -> std::result::Result<(), String> {
+    let t = twin.lock();
+    let est = pose.and_then(|r| r.read());
+    scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
+    match logger.lock().as_mut().map(|l| l.tick(now, &t, core)) {
+        Some(Err(e)) => Err(format!("logging failed: {e:#}")),
+        _ => Ok(()),
+    }
+}
+
 /// Runs a scenario; the score is also written to `out/score.json`. An `Err` is bad input found
 /// before the run started (nothing was simulated).
 pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
@@ -609,15 +640,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             abort = Some("interrupted (SIGINT/SIGTERM)".into());
             break;
         }
-        let next = ex.now() + base;
-        {
-            let mut t = twin.lock();
-            while t.time() < next {
-                t.step();
-            }
-        }
-        ex.tick();
-        let now = ex.now();
+        let now = step(&mut ex, &twin);
         while pending_events.front().is_some_and(|e| Time::from_secs_f64(e.at_s) <= now) {
             let e = pending_events.pop_front().expect("checked");
             let args =
@@ -637,17 +660,8 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         if now >= settle {
             seq.update(now, &ground);
         }
-        {
-            let t = twin.lock();
-            let est = pose_reader.as_ref().and_then(|r| r.read());
-            scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
-            if let Some(l) = logger.lock().as_mut()
-                && let Err(e) = l.tick(now, &t, ex.core())
-            {
-                abort = Some(format!("logging failed: {e:#}"));
-            }
-        }
-        if abort.is_some() {
+        if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
+            abort = Some(e);
             break;
         }
         #[allow(clippy::disallowed_methods)]
@@ -698,21 +712,9 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     if abort.is_none() && !timed_out {
         let until = ex.now() + Duration::from_secs_f64(s.run.observe_s);
         while ex.now() < until && !opts.interrupt.load(Ordering::SeqCst) {
-            let next = ex.now() + base;
-            let mut t = twin.lock();
-            while t.time() < next {
-                t.step();
-            }
-            drop(t);
-            ex.tick();
-            let now = ex.now();
-            let t = twin.lock();
-            let est = pose_reader.as_ref().and_then(|r| r.read());
-            scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
-            if let Some(l) = logger.lock().as_mut()
-                && let Err(e) = l.tick(now, &t, ex.core())
-            {
-                abort = Some(format!("logging failed: {e:#}"));
+            let now = step(&mut ex, &twin);
+            if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
+                abort = Some(e);
                 break;
             }
         }

@@ -6,6 +6,11 @@
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
+/// Tilt of a body from the vertical (the angle between its z axis and the world's), degrees.
+pub fn tilt_deg(pose: &nalgebra::Isometry3<f64>) -> f64 {
+    (pose.rotation * nalgebra::Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees()
+}
+
 /// How a phase ended.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]

@@ -64,26 +64,15 @@ fn check_file_located(path: &Path) -> Vec<ConfigError> {
         FileKind::World => worlds::World::load(path).err().into_iter().collect(),
         FileKind::Scenario => match crate::scenario::load(path, &[]) {
             Err(e) => vec![e],
-            Ok(loaded) => {
-                // The world it names must load, and its module tables must name real modules.
-                let mut errs = Vec::new();
-                let src = Source::new(&origin, &text);
-                if let Err(e) = worlds::World::load(loaded.world_path()) {
-                    errs.push(src.error_at_key("world.file", format!("world does not load: {e}")));
-                }
-                for m in loaded.scenario.modules.keys() {
-                    if !MODULES.contains(&m.as_str()) {
-                        let files = crate::scenario::load_merged(path).map(|(_, f)| f).unwrap_or_default();
-                        errs.push(crate::scenario::locate(
-                            &["modules".into(), m.clone()],
-                            &files,
-                            &[],
-                            format!("no module '{m}' (modules: {})", MODULES.join(", ")),
-                        ));
-                    }
-                }
-                errs
-            }
+            // The world it names must load (its module tables were checked with the scenario).
+            Ok(loaded) => worlds::World::load(loaded.world_path())
+                .err()
+                .map(|e| {
+                    Source::new(&origin, &text)
+                        .error_at_key("world.file", format!("world does not load: {e}"))
+                })
+                .into_iter()
+                .collect(),
         },
         FileKind::Module => check_module(path, &origin, &text),
     }

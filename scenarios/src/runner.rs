@@ -131,21 +131,6 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
 /// Builds the module system of a scenario over `twin`.
 fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: bool) -> Result<SystemBuilder> {
     let s = &loaded.scenario;
-    for name in s.modules.keys() {
-        if !MODULES.contains(&name.as_str()) {
-            let files = [crate::scenario::FileText {
-                origin: loaded.path.display().to_string(),
-                text: std::fs::read_to_string(&loaded.path).unwrap_or_default(),
-            }];
-            return Err(crate::scenario::locate(
-                &["modules".into(), name.clone()],
-                &files,
-                &loaded.overrides,
-                format!("no module '{name}' in this system (it has: {})", MODULES.join(", ")),
-            )
-            .into());
-        }
-    }
     let mut b = SystemBuilder::new();
     // Every message and acknowledgement is traced for the logger.
     b.trace_messages(log_messages);

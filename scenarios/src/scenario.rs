@@ -606,6 +606,15 @@ fn validate(s: &Scenario, files: &[FileText], overrides: &[(String, String)]) ->
     {
         return err("world.friction", format!("must be >= 0, got {f}"));
     }
+    for name in s.modules.keys() {
+        if !crate::runner::MODULES.contains(&name.as_str()) {
+            let modules = crate::runner::MODULES.join(", ");
+            return err(
+                &format!("modules.{name}"),
+                format!("no module '{name}' in this system (it has: {modules})"),
+            );
+        }
+    }
     let mut names = std::collections::HashSet::new();
     for (i, p) in s.phases.iter().enumerate() {
         if !names.insert(p.name.as_str()) {

@@ -363,6 +363,13 @@ impl RunLogger {
             };
             record(w.statics(&scenario, &world, &modules));
             for item in rx {
+                if let Item::Truth { now, .. }
+                | Item::Slots { now, .. }
+                | Item::Events { now, .. }
+                | Item::Stats { now, .. } = &item
+                {
+                    w.set_time(*now);
+                }
                 match item {
                     Item::Truth { now, poses, canister, base, collisions } => {
                         record(w.truth(now, &poses, canister, base, collisions))
@@ -538,6 +545,13 @@ impl Drop for RunLogger {
 }
 
 impl Writer {
+    /// Sets the recording's `sim_time` for what the thread logs next.
+    fn set_time(&self, t: Time) {
+        if let Some(rec) = &self.rrd {
+            rec.set_time(TIMELINE, std::time::Duration::from_nanos(t.as_nanos().max(0) as u64));
+        }
+    }
+
     fn statics(
         &mut self,
         s: &Scenario,
@@ -718,7 +732,6 @@ impl Writer {
         collisions: u64,
     ) -> Result<()> {
         if let Some(rec) = &self.rrd {
-            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
             for (name, pose) in poses {
                 rec.log(format!("world/truth/{name}"), &rr_transform(pose))?;
             }
@@ -769,9 +782,6 @@ impl Writer {
     }
 
     fn slots(&mut self, now: Time, base: Isometry3<f64>, records: Vec<SlotRecord>) -> Result<()> {
-        if let Some(rec) = &self.rrd {
-            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
-        }
         for r in records {
             match &r.known {
                 Known::Pose(stamp, e) => self.pose_estimate(&r.name, *stamp, e, &base)?,
@@ -987,9 +997,6 @@ impl Writer {
         messages: Vec<(String, String, framework::message::Message)>,
     ) -> Result<()> {
         use framework::events::EventKind as K;
-        if let Some(rec) = &self.rrd {
-            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
-        }
         for e in events {
             let (level, rr_level, module) = match &e.kind {
                 K::ModuleIsolated { module, .. } => (4, rerun::TextLogLevel::ERROR, Some(module.clone())),
@@ -1050,7 +1057,6 @@ impl Writer {
 
     fn stats(&mut self, now: Time, reports: Vec<framework::system::ModuleReport>) -> Result<()> {
         if let Some(rec) = &self.rrd {
-            rec.set_time(TIMELINE, std::time::Duration::from_nanos(now.as_nanos().max(0) as u64));
             for r in &reports {
                 let (c0, e0) = self.last_stats.get(&r.name).copied().unwrap_or((0, 0));
                 let cycles = r.stats.cycles - c0;
@@ -1091,8 +1097,8 @@ impl Writer {
         let mut files = LogFiles::default();
         if let Some(s) = score {
             let t = Time::from_secs_f64(s.sim_time_s);
+            self.set_time(t);
             if let Some(rec) = &self.rrd {
-                rec.set_time(TIMELINE, std::time::Duration::from_nanos(t.as_nanos().max(0) as u64));
                 let mut md = format!(
                     "# {}: {}\n\n| phase | status | start (s) | end (s) | reason |\n|---|---|---|---|---|\n",
                     s.scenario, s.outcome

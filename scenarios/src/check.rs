@@ -4,7 +4,7 @@
 //! `[framework]` or `[params]` (and a name matching a module of the runner's system) a module
 //! configuration, anything else is read as a scenario.
 
-use crate::runner::{MODULES, module_config_dir};
+use crate::runner::MODULES;
 use framework::config::{ConfigError, Source, read_file};
 use std::path::Path;
 
@@ -93,9 +93,4 @@ fn check_module(path: &Path, origin: &str, text: &str) -> Vec<ConfigError> {
         Err(e) => vec![e],
         Ok(c) => c.framework.validate(&src).err().into_iter().collect(),
     }
-}
-
-/// The default module configuration folder (for messages).
-pub fn defaults() -> std::path::PathBuf {
-    module_config_dir()
 }

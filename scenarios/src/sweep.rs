@@ -6,7 +6,7 @@
 //! and a campaign's results do not depend on `--jobs` or on how it is sharded.
 
 use crate::runner::{self, RunOptions};
-use crate::scenario::{self, FidelityName, FileText};
+use crate::scenario::{self, FidelityName};
 use anyhow::{Context, Result, anyhow, bail};
 use framework::config::ConfigError;
 use rand::{Rng, SeedableRng};
@@ -706,13 +706,6 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Vec<Row>> {
     Ok(rows)
 }
 
-/// Reads the rows of a results folder.
-pub fn read_rows(dir: &Path) -> Result<Vec<Row>> {
-    let c: Campaign = serde_json::from_str(&std::fs::read_to_string(dir.join("campaign.json"))?)?;
-    let mut r = csv::Reader::from_path(dir.join("runs.csv"))?;
-    r.records().map(|rec| parse_row(&rec?, c.sweep.dispersions.len())).collect()
-}
-
 /// Parses `K/N`.
 pub fn parse_shard(s: &str) -> Result<(u64, u64), String> {
     let (k, n) = s.split_once('/').ok_or_else(|| format!("shard '{s}' is not K/N"))?;
@@ -724,11 +717,6 @@ pub fn parse_shard(s: &str) -> Result<(u64, u64), String> {
         return Err(format!("shard '{s}' needs 1 <= K <= N"));
     }
     Ok((k, n))
-}
-
-/// Files of a sweep, for `check`.
-pub fn files_of(path: &Path) -> Result<Vec<FileText>, ConfigError> {
-    scenario::load_merged(path).map(|(_, f)| f)
 }
 
 /// Writes a line to stdout and flushes.

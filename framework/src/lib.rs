@@ -37,6 +37,7 @@ pub mod mechanism;
 pub mod message;
 pub mod module;
 pub mod resources;
+pub mod seed;
 pub mod stats;
 pub mod system;
 pub mod time;

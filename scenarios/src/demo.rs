@@ -51,11 +51,8 @@ impl Default for Gyro {
 impl Gyro {
     /// Uniform noise in [-1, 1) from a SplitMix64 stream (seeded, deterministic).
     fn noise(&mut self) -> f64 {
+        let z = framework::seed::splitmix64(self.rng);
         self.rng = self.rng.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.rng;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
         (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
     }
 }

@@ -9,6 +9,7 @@ use crate::runner::{self, RunOptions};
 use crate::scenario::{self, FidelityName};
 use anyhow::{Context, Result, anyhow, bail};
 use framework::config::ConfigError;
+use framework::seed::splitmix64 as mix;
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, Normal};
 use rand_pcg::Pcg64Mcg;
@@ -216,14 +217,6 @@ pub struct RunPlan {
     pub overrides: Vec<(String, String)>,
     /// The dispersed values alone, by key.
     pub dispersed: Vec<(String, String)>,
-}
-
-/// SplitMix64 of a value: independent streams from one master seed.
-fn mix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
 }
 
 /// A TOML value as `--set` text (floats keep every digit so that a run reproduces exactly).

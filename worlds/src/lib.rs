@@ -71,10 +71,7 @@ fn sub_seed(seed: u64, purpose: &str) -> u64 {
     for b in purpose.bytes() {
         h = (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01B3);
     }
-    // SplitMix64 finaliser.
-    h = (h ^ (h >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    h = (h ^ (h >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    h ^ (h >> 31)
+    framework::seed::mix64(h)
 }
 
 impl World {

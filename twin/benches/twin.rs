@@ -85,8 +85,6 @@ fn stereo_pair_640x480(b: Bencher<'_, '_>) {
     let m = twin::render::sensors::stereo_model(&cfg.head_stereo, &t).expect("stereo model");
     let poses = [t.link_pose(&m.left.frame).expect("left"), t.link_pose(&m.right.frame).expect("right")];
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
-    b.bench_local(|| {
-        black_box(r.grey(&t, &m.left, &poses[0], cfg.head_stereo.noise_dn, &mut rng).expect("left"));
-        black_box(r.grey(&t, &m.right, &poses[1], cfg.head_stereo.noise_dn, &mut rng).expect("right"));
-    });
+    let cams = [(&m.left, poses[0]), (&m.right, poses[1])];
+    b.bench_local(|| black_box(r.grey_views(&t, &cams, cfg.head_stereo.noise_dn, &mut rng).expect("pair")));
 }

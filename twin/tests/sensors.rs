@@ -259,3 +259,72 @@ fn devices_render_only_when_a_new_frame_is_due() {
     assert!(map.stereo_camera("loc_stereo").unwrap().capture().unwrap().0.frame == "loc_cam_left_optical");
     assert!(map.tof_camera("tof_middle").is_err() && map.stereo_camera("nav").is_err());
 }
+
+/// The rover on the Mars-like yard with its pan-tilt looking at the ground ahead.
+fn mars_yard_rover() -> Twin {
+    let world = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
+    let mut t =
+        Twin::with_defaults(world, StartPose { x: 3.5, y: 2.0, yaw: 0.6 }, Fidelity::Kinematic).unwrap();
+    let id = t.start_move("ptu", &[0.0, 0.35], 1.0).unwrap();
+    t.run_until(Duration::from_secs(3), |t| t.move_status(id).is_over());
+    t
+}
+
+#[test]
+fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
+    let t = mars_yard_rover();
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
+    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
+    let poses = [t.link_pose(&m.left.frame).unwrap(), t.link_pose(&m.right.frame).unwrap()];
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let pair = r.grey_views(&t, &[(&m.left, poses[0]), (&m.right, poses[1])], 1.5, &mut rng).unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let left = r.grey(&t, &m.left, &poses[0], 1.5, &mut rng).unwrap();
+    let right = r.grey(&t, &m.right, &poses[1], 1.5, &mut rng).unwrap();
+    assert!(pair[0].data == left.data && pair[1].data == right.data);
+    assert!(left.data != right.data, "the two cameras see different images");
+}
+
+/// Terrain chunks are drawn at the coarsest level whose geometric error projects below
+/// `LOD_ERROR_PX`: against full resolution everywhere, the images barely change.
+#[test]
+fn terrain_levels_of_detail_stay_within_their_screen_space_error() {
+    let t = mars_yard_rover();
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
+    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
+    let pose = t.link_pose(&m.left.frame).unwrap();
+    let mut tof = cfg.tof.clone();
+    tof.noise_fraction = 0.0;
+    let tof_cam = tof_model(&tof, &tof.frames[0]);
+    let tof_pose = t.link_pose(&tof_cam.frame).unwrap();
+    let mut shots = Vec::new();
+    for px in [0.0, twin::render::scene::LOD_ERROR_PX] {
+        r.set_lod_error_px(px);
+        let mut rng = Pcg64Mcg::seed_from_u64(1);
+        let grey = r.grey(&t, &m.left, &pose, 0.0, &mut rng).unwrap();
+        let depth = r.tof(&t, &tof_cam, &tof_pose, &tof, &mut rng).unwrap().depth;
+        shots.push((grey, depth));
+    }
+    let (full, lod) = (&shots[0], &shots[1]);
+    let n = full.0.data.len() as f64;
+    let grey_diff: f64 =
+        full.0.data.iter().zip(&lod.0.data).map(|(a, b)| (*a as f64 - *b as f64).abs()).sum::<f64>() / n;
+    let mut depth_diff: Vec<f64> = full
+        .1
+        .data
+        .iter()
+        .zip(&lod.1.data)
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .map(|(a, b)| (*a as f64 - *b as f64).abs() / *a as f64)
+        .collect();
+    depth_diff.sort_by(f64::total_cmp);
+    let p99 = depth_diff[depth_diff.len() * 99 / 100];
+    let worst = *depth_diff.last().unwrap();
+    // Coarser terrain was drawn (the images differ), yet the head camera's image moves by a fraction
+    // of a grey level on average and the ToF depth by a fraction of its own noise (1% of range).
+    assert!(grey_diff > 0.0 && grey_diff < 0.5, "mean grey difference {grey_diff}");
+    assert!(p99 < 0.25 * cfg.tof.noise_fraction, "99th percentile relative depth difference {p99}");
+    assert!(worst < cfg.tof.noise_fraction, "largest relative depth difference {worst}");
+}

@@ -3,9 +3,10 @@
 //! in metres (an f32 bit-cast: GL can neither copy depth textures nor render to R32Float, so this
 //! works on every backend), and the readback of both.
 //!
-//! Two fragment programs share the geometry: `fs_main` (passive cameras lit by the sun) and `fs_tof`
-//! (a Time-of-Flight camera lit by its own emitter: amplitude falls with the square of the range and
-//! the cosine of incidence, which it writes with that cosine for the sensor model to use).
+//! Two programs share the geometry: `fs_grey` (passive cameras lit by the sun: the luminance alone,
+//! into one R8 target, which is all a greyscale camera reads back) and `fs_tof` (a Time-of-Flight
+//! camera lit by its own emitter: amplitude falls with the square of the range and the cosine of
+//! incidence, which it writes with that cosine for the sensor model to use, plus the range target).
 //!
 //! Adapter choice: the GPU when there is one, Mesa's software Vulkan (lavapipe) otherwise; the
 //! environment variable `WGPU_BACKEND` (`vulkan`, `gl`) forces a backend.
@@ -34,11 +35,14 @@ pub enum RenderError {
 type BoxErr = RenderError;
 
 const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+const GREY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Stride between per-object uniforms; 256 = the default `min_uniform_buffer_offset_alignment`.
 const OBJECT_STRIDE: u64 = 256;
-const MAX_OBJECTS: u64 = 1024;
+const MAX_OBJECTS: u64 = 4096;
+/// Most views rendered in one submission.
+pub const MAX_VIEWS: usize = 8;
 
 const SHADER: &str = r#"
 struct Globals {
@@ -87,16 +91,33 @@ struct FsOut {
     @location(1) range_m: u32,
 }
 
-@fragment
-fn fs_main(f: VsOut) -> FsOut {
-    let base = textureSample(albedo_tex, albedo_smp, f.uv) * object.tint;
-    let n = normalize(f.normal);
-    let diffuse = max(dot(n, globals.light_dir.xyz), 0.0);
+// Sun-lit passive cameras need neither the range nor the world position, and light the surface per
+// vertex (Gouraud): one varying besides the texture coordinates and no per-fragment normalization,
+// which a software rasterizer pays for at every pixel. The meshes are fine enough (terrain normals at
+// every height sample) for the difference to per-pixel Lambert shading to stay below a grey level.
+struct GreyOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) uv: vec2<f32>,
+    @location(1) light: f32,
+}
+
+@vertex
+fn vs_grey(v: VsIn) -> GreyOut {
+    let world = object.model * vec4<f32>(v.position, 1.0);
+    var out: GreyOut;
+    out.clip = globals.view_proj * world;
+    let n = normalize((object.model * vec4<f32>(v.normal, 0.0)).xyz);
     let ambient = globals.light_dir.w;
-    var out: FsOut;
-    out.color = vec4<f32>(base.rgb * (ambient + (1.0 - ambient) * diffuse), 1.0);
-    out.range_m = bitcast<u32>(f.axis_dist);
+    out.light = ambient + (1.0 - ambient) * max(dot(n, globals.light_dir.xyz), 0.0);
+    out.uv = v.uv;
     return out;
+}
+
+@fragment
+fn fs_grey(f: GreyOut) -> @location(0) vec4<f32> {
+    let base = textureSample(albedo_tex, albedo_smp, f.uv) * object.tint;
+    // Luminance (Rec. 601 weights).
+    return vec4<f32>(dot(base.rgb, vec3<f32>(0.299, 0.587, 0.114)) * f.light, 0.0, 0.0, 1.0);
 }
 
 @fragment
@@ -117,7 +138,7 @@ fn fs_tof(f: VsOut) -> FsOut {
 /// Which fragment program a frame uses.
 #[derive(Copy, Clone, Debug, PartialEq, Eq)]
 pub enum Shading {
-    /// Sunlit scene for passive cameras.
+    /// Sunlit scene for passive cameras: one luminance byte per pixel, no range.
     Sun,
     /// Active illumination from the camera (Time-of-Flight): color.r = amplitude / 4, color.g = cos i.
     Tof,
@@ -170,6 +191,7 @@ pub struct Mesh {
 }
 
 /// One draw: a mesh, its texture bind group (group 1) and its transform.
+#[derive(Clone, Copy)]
 pub struct Draw<'a> {
     /// Geometry.
     pub mesh: &'a Mesh,
@@ -179,28 +201,51 @@ pub struct Draw<'a> {
     pub object: ObjectUniform,
 }
 
+/// One view of a batch: what to draw, from where, into what size.
+pub struct View<'a> {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Fragment program and outputs.
+    pub shading: Shading,
+    /// Camera and light.
+    pub globals: Globals,
+    /// What to draw.
+    pub draws: Vec<Draw<'a>>,
+}
+
 /// One rendered frame, rows tightly packed, row 0 at the top.
 pub struct Frame {
     /// Width in pixels.
     pub width: u32,
     /// Height in pixels.
     pub height: u32,
-    /// RGBA8, `width * height * 4` bytes.
-    pub rgba: Vec<u8>,
+    /// Bytes per pixel of `pixels`: 1 for [`Shading::Sun`] (luminance), 4 for [`Shading::Tof`]
+    /// (RGBA8: r = amplitude / 4, g = cosine of incidence).
+    pub channels: u32,
+    /// `width * height * channels` bytes.
+    pub pixels: Vec<u8>,
     /// Distance along the optical axis in metres; 0.0 where nothing was hit. Read back for ToF
     /// shading only (empty for Sun-shaded camera frames).
     pub range_m: Vec<f32>,
 }
 
+/// The offscreen targets of one (size, shading).
 struct Targets {
     width: u32,
     height: u32,
-    padded_bytes_per_row: u32,
+    /// Bytes per pixel of the colour target.
+    channels: u32,
+    /// Row pitch of the colour plane in the readback buffer.
+    color_bpr: u32,
+    /// Row pitch of the range plane in the readback buffer.
+    range_bpr: u32,
     range_offset: u64,
     color: wgpu::Texture,
     color_view: wgpu::TextureView,
-    range: wgpu::Texture,
-    range_view: wgpu::TextureView,
+    /// Tof only.
+    range: Option<(wgpu::Texture, wgpu::TextureView)>,
     depth_view: wgpu::TextureView,
     readback: wgpu::Buffer,
 }
@@ -211,7 +256,7 @@ pub struct Renderer {
     queue: wgpu::Queue,
     /// Adapter that was picked (log it: name, backend, driver).
     pub adapter_info: wgpu::AdapterInfo,
-    pipeline: wgpu::RenderPipeline,
+    grey_pipeline: wgpu::RenderPipeline,
     tof_pipeline: wgpu::RenderPipeline,
     globals_buf: wgpu::Buffer,
     globals_bg: wgpu::BindGroup,
@@ -219,7 +264,8 @@ pub struct Renderer {
     objects_bg: wgpu::BindGroup,
     texture_bgl: wgpu::BindGroupLayout,
     sampler: wgpu::Sampler,
-    targets: std::collections::BTreeMap<(u32, u32), Targets>,
+    /// Per (width, height, ToF shading, index among the batch's views of that kind).
+    targets: std::collections::BTreeMap<(u32, u32, bool, usize), Targets>,
 }
 
 impl Renderer {
@@ -260,7 +306,7 @@ impl Renderer {
 
         let globals_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("globals"),
-            entries: &[uniform_entry(size_of::<Globals>(), false)],
+            entries: &[uniform_entry(size_of::<Globals>(), true)],
         });
         let texture_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("albedo"),
@@ -294,13 +340,13 @@ impl Renderer {
             immediate_size: 0,
         });
 
-        let make_pipeline = |entry: &str| {
+        let make_pipeline = |vs: &str, fs: &str, targets: &[Option<wgpu::ColorTargetState>]| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("scene"),
                 layout: Some(&layout),
                 vertex: wgpu::VertexState {
                     module: &shader,
-                    entry_point: Some("vs_main"),
+                    entry_point: Some(vs),
                     compilation_options: wgpu::PipelineCompilationOptions::default(),
                     buffers: &[Some(wgpu::VertexBufferLayout {
                         array_stride: size_of::<Vertex>() as u64,
@@ -327,28 +373,19 @@ impl Renderer {
                 multisample: wgpu::MultisampleState::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &shader,
-                    entry_point: Some(entry),
+                    entry_point: Some(fs),
                     compilation_options: wgpu::PipelineCompilationOptions::default(),
-                    // Same blend/write_mask on both targets: no INDEPENDENT_BLEND needed on GL.
-                    targets: &[
-                        Some(wgpu::ColorTargetState {
-                            format: COLOR_FORMAT,
-                            blend: None,
-                            write_mask: wgpu::ColorWrites::ALL,
-                        }),
-                        Some(wgpu::ColorTargetState {
-                            format: RANGE_FORMAT,
-                            blend: None,
-                            write_mask: wgpu::ColorWrites::ALL,
-                        }),
-                    ],
+                    targets,
                 }),
                 multiview_mask: None,
                 cache: None,
             })
         };
-        let pipeline = make_pipeline("fs_main");
-        let tof_pipeline = make_pipeline("fs_tof");
+        let target =
+            |format| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL });
+        let grey_pipeline = make_pipeline("vs_grey", "fs_grey", &[target(GREY_FORMAT)]);
+        // Same blend/write_mask on both targets: no INDEPENDENT_BLEND needed on GL.
+        let tof_pipeline = make_pipeline("vs_main", "fs_tof", &[target(COLOR_FORMAT), target(RANGE_FORMAT)]);
 
         if let Some(err) = pollster::block_on(scope.pop()) {
             return Err(RenderError::Gpu(format!("pipeline creation failed: {err}")));
@@ -356,14 +393,21 @@ impl Renderer {
 
         let globals_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("globals"),
-            size: size_of::<Globals>() as u64,
+            size: OBJECT_STRIDE * MAX_VIEWS as u64,
             usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         let globals_bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("globals"),
             layout: &globals_bgl,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: globals_buf.as_entire_binding() }],
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                    buffer: &globals_buf,
+                    offset: 0,
+                    size: wgpu::BufferSize::new(size_of::<Globals>() as u64),
+                }),
+            }],
         });
         let objects_buf = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("objects"),
@@ -389,7 +433,7 @@ impl Renderer {
             address_mode_v: wgpu::AddressMode::Repeat,
             mag_filter: wgpu::FilterMode::Linear,
             min_filter: wgpu::FilterMode::Linear,
-            mipmap_filter: wgpu::MipmapFilterMode::Linear,
+            mipmap_filter: wgpu::MipmapFilterMode::Nearest,
             ..Default::default()
         });
 
@@ -398,7 +442,7 @@ impl Renderer {
             device,
             queue,
             adapter_info,
-            pipeline,
+            grey_pipeline,
             tof_pipeline,
             globals_buf,
             globals_bg,
@@ -487,7 +531,8 @@ impl Renderer {
         Mesh { vertices: vertices_buf, indices: indices_buf, index_count: indices.len() as u32 }
     }
 
-    /// Renders the draws at `width` x `height` and reads back color and range.
+    /// Renders the draws at `width` x `height` and reads back what the shading produces: luminance
+    /// for [`Shading::Sun`], colour and range for [`Shading::Tof`].
     pub fn render(
         &mut self,
         width: u32,
@@ -496,147 +541,165 @@ impl Renderer {
         globals: &Globals,
         draws: &[Draw<'_>],
     ) -> Result<Frame, BoxErr> {
-        if draws.len() as u64 > MAX_OBJECTS {
-            return Err(RenderError::Gpu(format!("too many draws: {} > {MAX_OBJECTS}", draws.len())));
+        let view = View { width, height, shading, globals: *globals, draws: draws.to_vec() };
+        let mut frames = self.render_views(&[view])?;
+        Ok(frames.remove(0))
+    }
+
+    /// Renders several views in one submission and reads them all back (a stereo pair: the
+    /// rasterizer shades one view while the next one's geometry is processed, and there is one wait
+    /// instead of one per view).
+    pub fn render_views(&mut self, views: &[View<'_>]) -> Result<Vec<Frame>, BoxErr> {
+        if views.len() > MAX_VIEWS {
+            return Err(RenderError::Gpu(format!("too many views: {} > {MAX_VIEWS}", views.len())));
         }
-        if !self.targets.contains_key(&(width, height)) {
-            let t = create_targets(&self.device, width, height);
-            self.targets.insert((width, height), t);
+        let total: usize = views.iter().map(|v| v.draws.len()).sum();
+        if total as u64 > MAX_OBJECTS {
+            return Err(RenderError::Gpu(format!("too many draws: {total} > {MAX_OBJECTS}")));
         }
-        let t = &self.targets[&(width, height)];
-        self.queue.write_buffer(&self.globals_buf, 0, bytemuck::bytes_of(globals));
-        // One upload for all per-draw uniforms (a write per draw costs a staging allocation each).
-        let mut objects = vec![0u8; draws.len() * OBJECT_STRIDE as usize];
-        for (i, d) in draws.iter().enumerate() {
-            let at = i * OBJECT_STRIDE as usize;
-            let bytes = bytemuck::bytes_of(&d.object);
-            objects[at..at + bytes.len()].copy_from_slice(bytes);
+        // The targets of each view: views of the same size and kind get their own.
+        let mut keys = Vec::with_capacity(views.len());
+        for v in views {
+            let tof = matches!(v.shading, Shading::Tof);
+            let n = keys
+                .iter()
+                .filter(|k: &&(u32, u32, bool, usize)| (k.0, k.1, k.2) == (v.width, v.height, tof))
+                .count();
+            let key = (v.width, v.height, tof, n);
+            self.targets.entry(key).or_insert_with(|| create_targets(&self.device, v.width, v.height, tof));
+            keys.push(key);
         }
+        // One upload for all per-view and per-draw uniforms (a write each costs a staging allocation).
+        let mut globals = vec![0u8; views.len() * OBJECT_STRIDE as usize];
+        let mut objects = vec![0u8; total * OBJECT_STRIDE as usize];
+        let mut at = 0;
+        for (k, v) in views.iter().enumerate() {
+            let bytes = bytemuck::bytes_of(&v.globals);
+            globals[k * OBJECT_STRIDE as usize..][..bytes.len()].copy_from_slice(bytes);
+            for d in &v.draws {
+                let bytes = bytemuck::bytes_of(&d.object);
+                objects[at..at + bytes.len()].copy_from_slice(bytes);
+                at += OBJECT_STRIDE as usize;
+            }
+        }
+        self.queue.write_buffer(&self.globals_buf, 0, &globals);
         if !objects.is_empty() {
             self.queue.write_buffer(&self.objects_buf, 0, &objects);
         }
 
         let mut encoder =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
-        {
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("scene"),
-                color_attachments: &[
+        let mut first_draw = 0u64;
+        for (k, (v, key)) in views.iter().zip(&keys).enumerate() {
+            let t = &self.targets[key];
+            {
+                let attachment = |view| {
                     Some(wgpu::RenderPassColorAttachment {
-                        view: &t.color_view,
+                        view,
                         depth_slice: None,
                         resolve_target: None,
                         ops: wgpu::Operations {
+                            // Black; the integer range target casts each f64 `as u32` -> clears to 0.
                             load: wgpu::LoadOp::Clear(wgpu::Color { r: 0.0, g: 0.0, b: 0.0, a: 1.0 }),
                             store: wgpu::StoreOp::Store,
                         },
+                    })
+                };
+                let mut color_attachments = vec![attachment(&t.color_view)];
+                if let Some((_, view)) = &t.range {
+                    color_attachments.push(attachment(view));
+                }
+                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                    label: Some("scene"),
+                    color_attachments: &color_attachments,
+                    depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                        view: &t.depth_view,
+                        depth_ops: Some(wgpu::Operations {
+                            load: wgpu::LoadOp::Clear(1.0),
+                            store: wgpu::StoreOp::Discard,
+                        }),
+                        stencil_ops: None,
                     }),
-                    Some(wgpu::RenderPassColorAttachment {
-                        view: &t.range_view,
-                        depth_slice: None,
-                        resolve_target: None,
-                        ops: wgpu::Operations {
-                            // Integer target: each f64 is cast `as u32` by the backend -> clears to 0.
-                            load: wgpu::LoadOp::Clear(wgpu::Color { r: 0.0, g: 0.0, b: 0.0, a: 0.0 }),
-                            store: wgpu::StoreOp::Store,
-                        },
-                    }),
-                ],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &t.depth_view,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(1.0),
-                        store: wgpu::StoreOp::Discard,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            pass.set_pipeline(match shading {
-                Shading::Sun => &self.pipeline,
-                Shading::Tof => &self.tof_pipeline,
-            });
-            pass.set_bind_group(0, &self.globals_bg, &[]);
-            for (i, d) in draws.iter().enumerate() {
-                pass.set_bind_group(1, d.texture, &[]);
-                pass.set_bind_group(2, &self.objects_bg, &[(i as u64 * OBJECT_STRIDE) as u32]);
-                pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
-                pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
-                pass.draw_indexed(0..d.mesh.index_count, 0, 0..1);
-            }
-        } // pass dropped: encoder usable again
+                    timestamp_writes: None,
+                    occlusion_query_set: None,
+                    multiview_mask: None,
+                });
+                pass.set_pipeline(if key.2 { &self.tof_pipeline } else { &self.grey_pipeline });
+                pass.set_bind_group(0, &self.globals_bg, &[(k as u64 * OBJECT_STRIDE) as u32]);
+                for (i, d) in v.draws.iter().enumerate() {
+                    let offset = (first_draw + i as u64) * OBJECT_STRIDE;
+                    pass.set_bind_group(1, d.texture, &[]);
+                    pass.set_bind_group(2, &self.objects_bg, &[offset as u32]);
+                    pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
+                    pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+                    pass.draw_indexed(0..d.mesh.index_count, 0, 0..1);
+                }
+            } // pass dropped: encoder usable again
+            first_draw += v.draws.len() as u64;
 
-        let extent = wgpu::Extent3d { width: t.width, height: t.height, depth_or_array_layers: 1 };
-        encoder.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: &t.color,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
+            let extent = wgpu::Extent3d { width: t.width, height: t.height, depth_or_array_layers: 1 };
+            let plane = |offset: u64, bytes_per_row: u32| wgpu::TexelCopyBufferInfo {
                 buffer: &t.readback,
                 layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(t.padded_bytes_per_row),
+                    offset,
+                    bytes_per_row: Some(bytes_per_row),
                     rows_per_image: Some(t.height),
                 },
-            },
-            extent,
-        );
-        // Sun-shaded (camera) frames need colour only: the range target is not read back.
-        let want_range = matches!(shading, Shading::Tof);
-        if want_range {
-            encoder.copy_texture_to_buffer(
-                t.range.as_image_copy(),
-                wgpu::TexelCopyBufferInfo {
-                    buffer: &t.readback,
-                    layout: wgpu::TexelCopyBufferLayout {
-                        offset: t.range_offset,
-                        bytes_per_row: Some(t.padded_bytes_per_row),
-                        rows_per_image: Some(t.height),
-                    },
-                },
-                extent,
-            );
+            };
+            encoder.copy_texture_to_buffer(t.color.as_image_copy(), plane(0, t.color_bpr), extent);
+            if let Some((range, _)) = &t.range {
+                encoder.copy_texture_to_buffer(
+                    range.as_image_copy(),
+                    plane(t.range_offset, t.range_bpr),
+                    extent,
+                );
+            }
         }
         let submission = self.queue.submit([encoder.finish()]);
 
-        let slice = t.readback.slice(..);
         let (tx, rx) = mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |result| {
-            let _ = tx.send(result);
-        });
+        for key in &keys {
+            let tx = tx.clone();
+            self.targets[key].readback.slice(..).map_async(wgpu::MapMode::Read, move |result| {
+                let _ = tx.send(result);
+            });
+        }
         self.device
             .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
             .map_err(|e| RenderError::Gpu(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| RenderError::Gpu(e.to_string()))?
-            .map_err(|e| RenderError::Gpu(e.to_string()))?;
-
-        let (w, h, bpr) = (t.width as usize, t.height as usize, t.padded_bytes_per_row as usize);
-        let mut rgba = Vec::with_capacity(w * h * 4);
-        let mut range_m = Vec::with_capacity(if want_range { w * h } else { 0 });
-        {
-            let data = slice.get_mapped_range().map_err(|e| RenderError::Gpu(e.to_string()))?;
-            for row in 0..h {
-                let start = row * bpr;
-                rgba.extend_from_slice(&data[start..start + w * 4]);
-            }
-            let base = t.range_offset as usize;
-            for row in (0..h).filter(|_| want_range) {
-                let start = base + row * bpr;
-                for px in data[start..start + w * 4].chunks_exact(4) {
-                    range_m.push(f32::from_bits(u32::from_le_bytes([px[0], px[1], px[2], px[3]])));
-                }
-            }
-        } // BufferView dropped before unmap (unmap panics otherwise)
-        t.readback.unmap();
-
-        Ok(Frame { width: t.width, height: t.height, rgba, range_m })
+        for _ in &keys {
+            rx.recv()
+                .map_err(|e| RenderError::Gpu(e.to_string()))?
+                .map_err(|e| RenderError::Gpu(e.to_string()))?;
+        }
+        keys.iter().map(|key| read_back(&self.targets[key])).collect()
     }
+}
+
+/// Copies a mapped readback buffer into a [`Frame`] and unmaps it.
+fn read_back(t: &Targets) -> Result<Frame, BoxErr> {
+    let (w, h) = (t.width as usize, t.height as usize);
+    let row_bytes = w * t.channels as usize;
+    let mut pixels = Vec::with_capacity(row_bytes * h);
+    let mut range_m = Vec::with_capacity(if t.range.is_some() { w * h } else { 0 });
+    {
+        let data = t.readback.slice(..).get_mapped_range().map_err(|e| RenderError::Gpu(e.to_string()))?;
+        for row in data.chunks_exact(t.color_bpr as usize).take(h) {
+            pixels.extend_from_slice(&row[..row_bytes]);
+        }
+        if t.range.is_some() {
+            let planes = &data[t.range_offset as usize..];
+            for row in planes.chunks_exact(t.range_bpr as usize).take(h) {
+                range_m.extend(
+                    row[..w * 4]
+                        .chunks_exact(4)
+                        .map(|px| f32::from_bits(u32::from_le_bytes([px[0], px[1], px[2], px[3]]))),
+                );
+            }
+        }
+    } // BufferView dropped before unmap (unmap panics otherwise)
+    t.readback.unmap();
+    Ok(Frame { width: t.width, height: t.height, channels: t.channels, pixels, range_m })
 }
 
 /// Layout entry of a uniform buffer at binding 0, seen by both shader stages.
@@ -653,7 +716,7 @@ fn uniform_entry(size: usize, dynamic: bool) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-fn create_targets(device: &wgpu::Device, width: u32, height: u32) -> Targets {
+fn create_targets(device: &wgpu::Device, width: u32, height: u32, tof: bool) -> Targets {
     let size = wgpu::Extent3d { width, height, depth_or_array_layers: 1 };
     let make = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
         device.create_texture(&wgpu::TextureDescriptor {
@@ -668,27 +731,35 @@ fn create_targets(device: &wgpu::Device, width: u32, height: u32) -> Targets {
         })
     };
     let copy_target = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
-    let color = make("color", COLOR_FORMAT, copy_target);
-    let range = make("range", RANGE_FORMAT, copy_target);
+    let (color_format, channels) = if tof { (COLOR_FORMAT, 4) } else { (GREY_FORMAT, 1) };
+    let color = make("color", color_format, copy_target);
+    let range = tof.then(|| {
+        let range = make("range", RANGE_FORMAT, copy_target);
+        let view = range.create_view(&wgpu::TextureViewDescriptor::default());
+        (range, view)
+    });
     let depth = make("depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT);
 
-    // Both formats are 4 bytes per texel, so they share one padded row pitch.
+    // Rows of a texture-to-buffer copy are padded to 256 bytes; each plane then is a multiple of 256.
     let align = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-    let padded_bytes_per_row = (width * 4).div_ceil(align) * align;
-    let plane = u64::from(padded_bytes_per_row) * u64::from(height); // multiple of 256
+    let color_bpr = (width * channels).div_ceil(align) * align;
+    let range_bpr = (width * 4).div_ceil(align) * align;
+    let range_offset = u64::from(color_bpr) * u64::from(height);
+    let range_bytes = if tof { u64::from(range_bpr) * u64::from(height) } else { 0 };
     let readback = device.create_buffer(&wgpu::BufferDescriptor {
         label: Some("readback"),
-        size: 2 * plane,
+        size: range_offset + range_bytes,
         usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
         mapped_at_creation: false,
     });
     Targets {
         width,
         height,
-        padded_bytes_per_row,
-        range_offset: plane,
+        channels,
+        color_bpr,
+        range_bpr,
+        range_offset,
         color_view: color.create_view(&wgpu::TextureViewDescriptor::default()),
-        range_view: range.create_view(&wgpu::TextureViewDescriptor::default()),
         depth_view: depth.create_view(&wgpu::TextureViewDescriptor::default()),
         color,
         range,

@@ -115,11 +115,15 @@ enum Placement {
     Canister,
 }
 
-/// A terrain chunk: its bounds and one mesh per level of detail.
+/// A terrain chunk: its bounds and one mesh per level of detail, with each level's geometric error.
 struct Chunk {
     min: Vector3<f64>,
     max: Vector3<f64>,
     lods: Vec<Mesh>,
+    /// Largest vertical distance (m) between each level's surface and the full-resolution samples.
+    errors_m: Vec<f64>,
+    /// The rocks standing on the chunk (culled with it; inside its bounds).
+    rocks: Option<Mesh>,
 }
 
 /// Everything drawable, uploaded.
@@ -129,16 +133,55 @@ pub struct Scene {
     white: wgpu::BindGroup,
     regolith: wgpu::BindGroup,
     marker: wgpu::BindGroup,
+    rock_tint: [f32; 4],
 }
 
 /// Cells per side of a terrain chunk (divisible by the coarsest LOD step).
 const CHUNK: usize = 16;
 /// Sample steps of the levels of detail.
-const LOD_STEPS: [usize; 4] = [1, 2, 4, 8];
-/// Distance (m) up to which each level is used; beyond the last, the coarsest.
-const LOD_DISTANCES: [f64; 3] = [5.0, 10.0, 20.0];
+const LOD_STEPS: [usize; 5] = [1, 2, 4, 8, 16];
+/// Default screen-space error of the terrain, pixels: each chunk is drawn at the coarsest level whose
+/// geometric error, seen from the camera at the chunk's nearest point, stays below it.
+pub const LOD_ERROR_PX: f64 = 1.0;
 /// Depth of the skirts that hide cracks between chunks of different levels, m.
 const SKIRT_M: f64 = 0.3;
+
+/// The sample indices from `first` to `last` at `step`, the last always included.
+fn lod_samples(first: usize, last: usize, step: usize) -> Vec<usize> {
+    let mut v: Vec<usize> = (first..=last).step_by(step).collect();
+    if v.last() != Some(&last) {
+        v.push(last);
+    }
+    v
+}
+
+/// The largest vertical distance between the full-resolution samples of a chunk and the surface of
+/// its level of detail at `step` (the triangles [`terrain_chunk`] makes: each cell split along its
+/// (i, j)-(i+1, j+1) diagonal).
+fn lod_error(hf: &worlds::terrain::Heightfield, i0: usize, j0: usize, step: usize) -> f64 {
+    let (i1, j1) = ((i0 + CHUNK).min(hf.nx - 1), (j0 + CHUNK).min(hf.ny - 1));
+    let (is, js) = (lod_samples(i0, i1, step), lod_samples(j0, j1, step));
+    let mut worst = 0.0f64;
+    for b in js.windows(2) {
+        for a in is.windows(2) {
+            let (h00, h10, h01, h11) =
+                (hf.at(a[0], b[0]), hf.at(a[1], b[0]), hf.at(a[0], b[1]), hf.at(a[1], b[1]));
+            for j in b[0]..=b[1] {
+                for i in a[0]..=a[1] {
+                    let s = (i - a[0]) as f64 / (a[1] - a[0]) as f64;
+                    let t = (j - b[0]) as f64 / (b[1] - b[0]) as f64;
+                    let z = if s >= t {
+                        h00 + s * (h10 - h00) + t * (h11 - h10)
+                    } else {
+                        h00 + t * (h01 - h00) + s * (h11 - h01)
+                    };
+                    worst = worst.max((z - hf.at(i, j)).abs());
+                }
+            }
+        }
+    }
+    worst
+}
 
 /// One chunk of terrain at one level of detail, with skirts along its border.
 fn terrain_chunk(twin: &Twin, i0: usize, j0: usize, step: usize) -> MeshData {
@@ -154,18 +197,7 @@ fn terrain_chunk(twin: &Twin, i0: usize, j0: usize, step: usize) -> MeshData {
             uv: [(p.x / TERRAIN_TILE_M) as f32, (p.y / TERRAIN_TILE_M) as f32],
         }
     };
-    let is: Vec<usize> = (i0..=i1)
-        .step_by(step)
-        .chain(std::iter::once(i1))
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
-    let js: Vec<usize> = (j0..=j1)
-        .step_by(step)
-        .chain(std::iter::once(j1))
-        .collect::<std::collections::BTreeSet<_>>()
-        .into_iter()
-        .collect();
+    let (is, js) = (lod_samples(i0, i1, step), lod_samples(j0, j1, step));
     let nx = is.len();
     for &j in &js {
         for &i in &is {
@@ -179,27 +211,26 @@ fn terrain_chunk(twin: &Twin, i0: usize, j0: usize, step: usize) -> MeshData {
             m.indices.extend([k, k + 1, k + n + 1, k, k + n + 1, k + n]);
         }
     }
-    // Skirts: each border edge gets a quad hanging below it.
-    let border: Vec<(usize, usize)> = is
+    // Skirts: each border edge gets a quad hanging below it, sharing the surface's border vertices.
+    let mut border: Vec<(usize, usize)> = is
         .iter()
         .map(|&i| (i, j0))
         .chain(js.iter().map(|&j| (i1, j)))
         .chain(is.iter().rev().map(|&i| (i, j1)))
         .chain(js.iter().rev().map(|&j| (i0, j)))
         .collect();
-    for w in border.windows(2) {
-        let (a, b) = (w[0], w[1]);
-        if a == b {
-            continue;
-        }
-        let base = m.vertices.len() as u32;
-        m.vertices.extend([
-            vertex(a.0, a.1, 0.0),
-            vertex(b.0, b.1, 0.0),
-            vertex(b.0, b.1, SKIRT_M),
-            vertex(a.0, a.1, SKIRT_M),
-        ]);
-        m.indices.extend([base, base + 1, base + 2, base, base + 2, base + 3]);
+    border.dedup();
+    let top = |(i, j): (usize, usize)| {
+        let (a, b) =
+            (is.binary_search(&i).expect("border sample"), js.binary_search(&j).expect("border sample"));
+        (b * nx + a) as u32
+    };
+    let first_bottom = m.vertices.len() as u32;
+    m.vertices.extend(border.iter().map(|&(i, j)| vertex(i, j, SKIRT_M)));
+    for k in 0..border.len() - 1 {
+        let (a, b) = (border[k], border[k + 1]);
+        let (ba, bb) = (first_bottom + k as u32, first_bottom + k as u32 + 1);
+        m.indices.extend([top(a), top(b), bb, top(a), bb, ba]);
     }
     m
 }
@@ -316,42 +347,50 @@ impl Scene {
         };
         let albedo = twin.world().regolith.albedo;
         let hf = &twin.world().terrain;
-        let mut chunks = Vec::new();
-        for j0 in (0..hf.ny - 1).step_by(CHUNK) {
-            for i0 in (0..hf.nx - 1).step_by(CHUNK) {
-                let (i1, j1) = ((i0 + CHUNK).min(hf.nx - 1), (j0 + CHUNK).min(hf.ny - 1));
-                let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-                for j in j0..=j1 {
-                    for i in i0..=i1 {
-                        lo = lo.min(hf.at(i, j));
-                        hi = hi.max(hf.at(i, j));
-                    }
-                }
-                let (a, b) = (hf.position(i0, j0), hf.position(i1, j1));
-                let lods = LOD_STEPS
-                    .iter()
-                    .map(|&st| {
-                        let m = terrain_chunk(twin, i0, j0, st);
-                        gpu.create_mesh(&m.vertices, &m.indices)
-                    })
-                    .collect();
-                chunks.push(Chunk {
-                    min: Vector3::new(a.x, a.y, lo - SKIRT_M),
-                    max: Vector3::new(b.x, b.y, hi),
-                    lods,
-                });
-            }
-        }
-        let mut rocks = MeshData::default();
+        let (cx, cy) = ((hf.nx - 1).div_ceil(CHUNK), (hf.ny - 1).div_ceil(CHUNK));
+        // Rocks go with the chunk their origin stands on, so they are culled with it.
+        let mut rock_meshes: Vec<MeshData> = (0..cx * cy).map(|_| MeshData::default()).collect();
         for r in &twin.world().rocks {
+            let cell = |x: f64, o: f64, n: usize| (((x - o) / hf.cell) as usize / CHUNK).min(n - 1);
+            let (a, b) = (cell(r.position.x, hf.origin.x, cx), cell(r.position.y, hf.origin.y, cy));
             let t = Isometry3::from_parts(
                 nalgebra::Translation3::from(r.position.coords),
                 UnitQuaternion::from_axis_angle(&Vector3::z_axis(), r.yaw),
             );
-            rocks.add_hull(&t, &r.points);
+            rock_meshes[b * cx + a].add_hull(&t, &r.points);
         }
-        let a = (albedo * 1.3).min(1.0) as f32;
-        add(rocks, [a, a, a, 1.0], Placement::Fixed, TextureId::White);
+        let mut chunks = Vec::new();
+        for (n, rocks) in rock_meshes.into_iter().enumerate() {
+            let (i0, j0) = ((n % cx) * CHUNK, (n / cx) * CHUNK);
+            let (i1, j1) = ((i0 + CHUNK).min(hf.nx - 1), (j0 + CHUNK).min(hf.ny - 1));
+            let (mut lo, mut hi) = (Vector3::repeat(f64::INFINITY), Vector3::repeat(f64::NEG_INFINITY));
+            for j in j0..=j1 {
+                for i in i0..=i1 {
+                    let p = hf.position(i, j);
+                    let q = Vector3::new(p.x, p.y, hf.at(i, j));
+                    (lo, hi) = (lo.inf(&(q - Vector3::z() * SKIRT_M)), hi.sup(&q));
+                }
+            }
+            for v in &rocks.vertices {
+                let q = Vector3::new(v.position[0], v.position[1], v.position[2]).cast::<f64>();
+                (lo, hi) = (lo.inf(&q), hi.sup(&q));
+            }
+            let lods = LOD_STEPS
+                .iter()
+                .map(|&st| {
+                    let m = terrain_chunk(twin, i0, j0, st);
+                    gpu.create_mesh(&m.vertices, &m.indices)
+                })
+                .collect();
+            chunks.push(Chunk {
+                min: lo,
+                max: hi,
+                lods,
+                errors_m: LOD_STEPS.iter().map(|&st| lod_error(hf, i0, j0, st)).collect(),
+                rocks: (!rocks.indices.is_empty()).then(|| gpu.create_mesh(&rocks.vertices, &rocks.indices)),
+            });
+        }
+        let rock_albedo = (albedo * 1.3).min(1.0) as f32;
         let mut objects = MeshData::default();
         for o in &twin.world().objects {
             let half = match o.kind {
@@ -382,23 +421,36 @@ impl Scene {
         let regolith =
             gpu.create_texture(TERRAIN_TEX, TERRAIN_TEX, &regolith_texture(albedo, twin.world().seed));
         let marker = gpu.create_texture(marker_rgba.0, marker_rgba.1, &marker_rgba.2);
-        Scene { chunks, parts, white, regolith, marker }
+        Scene {
+            chunks,
+            parts,
+            white,
+            regolith,
+            marker,
+            rock_tint: [rock_albedo, rock_albedo, rock_albedo, 1.0],
+        }
     }
 
     /// The draws of the scene at the twin's current poses, seen by `cam` from `pose` (optical frame in
     /// the world): terrain chunks outside the view or beyond `max_range` are left out, the others
-    /// drawn at a level of detail chosen by their distance.
+    /// drawn at the coarsest level of detail whose geometric error projects to at most `lod_error_px`
+    /// pixels at the chunk's nearest point (0 draws every chunk at full resolution).
     pub fn draws(
         &self,
         twin: &Twin,
         cam: &framework::camera::CameraModel,
         pose: &Isometry3<f64>,
         max_range: f64,
+        lod_error_px: f64,
     ) -> Vec<Draw<'_>> {
         let identity: [[f32; 4]; 4] = Matrix4::<f32>::identity().into();
         let inv = pose.inverse();
         let k = &cam.pinhole;
-        let mut draws = Vec::with_capacity(self.parts.len() + self.chunks.len());
+        let mut draws = Vec::with_capacity(self.parts.len() + 2 * self.chunks.len());
+        // The robot and the canister first, then the chunks near to far, each chunk's rocks before
+        // its ground: what is drawn first hides what is behind it from the (costly) shading.
+        self.push_parts(twin, &mut draws);
+        let mut visible = Vec::new();
         for c in &self.chunks {
             let corners: Vec<Point3<f64>> = (0..8)
                 .map(|b| {
@@ -428,13 +480,30 @@ impl Scene {
             if outside || nearest > max_range {
                 continue;
             }
-            let lod = LOD_DISTANCES.iter().position(|d| nearest < *d).unwrap_or(LOD_DISTANCES.len());
+            let focal = k.fx.max(k.fy);
+            let lod = c.errors_m.iter().rposition(|e| *e * focal <= lod_error_px * nearest).unwrap_or(0);
+            visible.push((nearest, c, lod));
+        }
+        visible.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for (_, c, lod) in visible {
+            if let Some(rocks) = &c.rocks {
+                draws.push(Draw {
+                    mesh: rocks,
+                    texture: &self.white,
+                    object: ObjectUniform { model: identity, tint: self.rock_tint },
+                });
+            }
             draws.push(Draw {
                 mesh: &c.lods[lod],
                 texture: &self.regolith,
                 object: ObjectUniform { model: identity, tint: [1.0, 1.0, 1.0, 1.0] },
             });
         }
+        draws
+    }
+
+    /// The draws of the objects, the robot and the canister at their current poses.
+    fn push_parts<'a>(&'a self, twin: &Twin, draws: &mut Vec<Draw<'a>>) {
         let gt_can = twin.canister_truth();
         let links: std::collections::HashMap<&str, Isometry3<f64>> = twin.link_poses().into_iter().collect();
         for p in &self.parts {
@@ -454,6 +523,5 @@ impl Scene {
                 object: ObjectUniform { model: m.into(), tint: p.tint },
             });
         }
-        draws
     }
 }

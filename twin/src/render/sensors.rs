@@ -6,7 +6,7 @@
 //! Devices render only when a new frame is due: `capture` returns the last frame until the sensor's
 //! period has passed in simulated time, so a mission pays only for the frames its modules read.
 
-use super::gpu::{Frame, Globals, RenderError, Renderer, Shading};
+use super::gpu::{Frame, Globals, RenderError, Renderer, Shading, View};
 use super::scene::Scene;
 use crate::devices::SharedTwin;
 use crate::sim::Twin;
@@ -159,7 +159,66 @@ pub struct SensorRenderer {
     gpu: Renderer,
     scene: Scene,
     /// Per distorted camera: for each output pixel, where it samples the undistorted render.
-    remaps: Vec<(CameraModel, Vec<[f32; 2]>)>,
+    remaps: Vec<(CameraModel, Vec<Tap>)>,
+    lod_error_px: f64,
+}
+
+/// Where a distorted pixel samples the undistorted render: the top-left of its 2 x 2 neighbourhood
+/// and the bilinear weights in 1/256 pixel.
+#[derive(Clone, Copy, Debug)]
+struct Tap {
+    /// Index of the top-left pixel; `u32::MAX` when the pixel sees outside the render (black).
+    at: u32,
+    wx: u16,
+    wy: u16,
+}
+
+impl Tap {
+    const OUTSIDE: Tap = Tap { at: u32::MAX, wx: 0, wy: 0 };
+
+    fn new(at: usize, tx: f32, ty: f32) -> Tap {
+        let q = |t: f32| (t * 256.0).round().clamp(0.0, 256.0) as u16;
+        Tap { at: at as u32, wx: q(tx), wy: q(ty) }
+    }
+
+    /// The bilinear sample of an 8-bit image, with 8 fractional bits.
+    fn sample_q8(&self, lum: &[u8], width: usize) -> i32 {
+        if self.at == u32::MAX {
+            return 0;
+        }
+        let i = self.at as usize;
+        let at = |k: usize| i32::from(lum[k]);
+        let (wx, wy) = (i32::from(self.wx), i32::from(self.wy));
+        let top = at(i) * (256 - wx) + at(i + 1) * wx;
+        let bottom = at(i + width) * (256 - wx) + at(i + width + 1) * wx;
+        (top * (256 - wy) + bottom * wy) >> 8
+    }
+}
+
+/// Entries of the exposure-noise table (a power of two).
+const GAUSS_TABLE: usize = 4096;
+
+/// Standard normal quantiles at the midpoints of `GAUSS_TABLE` equal-probability bins: indexed by
+/// uniform random bits, a normal deviate for the price of a table read (tails cut at +-3.7 sigma,
+/// standard deviation 0.998; the exposure noise is rounded to grey levels anyway).
+fn gaussian_table() -> &'static [f32; GAUSS_TABLE] {
+    static TABLE: std::sync::OnceLock<[f32; GAUSS_TABLE]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let cdf = |x: f64| 0.5 * libm::erfc(-x / std::f64::consts::SQRT_2);
+        std::array::from_fn(|k| {
+            let p = (k as f64 + 0.5) / GAUSS_TABLE as f64;
+            let (mut lo, mut hi) = (-10.0, 10.0);
+            for _ in 0..64 {
+                let mid = 0.5 * (lo + hi);
+                if cdf(mid) < p {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            (0.5 * (lo + hi)) as f32
+        })
+    })
 }
 
 const NEAR: f32 = 0.05;
@@ -234,12 +293,18 @@ impl SensorRenderer {
         let id = twin.world().object("canister").and_then(|c| c.marker_ids.first().copied()).unwrap_or(0);
         let marker = marker_texture(id, 16).map_err(RenderError::Gpu)?;
         let scene = Scene::new(&gpu, twin, marker);
-        Ok(SensorRenderer { gpu, scene, remaps: Vec::new() })
+        Ok(SensorRenderer { gpu, scene, remaps: Vec::new(), lod_error_px: super::scene::LOD_ERROR_PX })
     }
 
     /// The adapter in use, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)`.
     pub fn adapter(&self) -> String {
         format!("{} ({:?})", self.gpu.adapter_info.name, self.gpu.adapter_info.backend)
+    }
+
+    /// Sets the terrain's screen-space error bound in pixels ([`super::scene::LOD_ERROR_PX`] by
+    /// default; 0 draws all terrain at full resolution).
+    pub fn set_lod_error_px(&mut self, px: f64) {
+        self.lod_error_px = px.max(0.0);
     }
 
     /// Renders an undistorted pinhole view from `pose` (optical frame in the world). Terrain farther
@@ -252,21 +317,9 @@ impl SensorRenderer {
         shading: Shading,
         max_range: f64,
     ) -> Result<Frame, RenderError> {
-        let view: Matrix4<f32> = pose.inverse().to_homogeneous().cast();
-        let vp = projection(&cam.pinhole) * view;
-        let fwd = pose.rotation * Vector3::z();
-        let sun = &twin.world().sun;
-        let (az, el) = (sun.azimuth_deg.to_radians(), sun.elevation_deg.to_radians());
-        let light = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
-        let p = pose.translation.vector;
-        let globals = Globals {
-            view_proj: vp.into(),
-            cam_pos: [p.x as f32, p.y as f32, p.z as f32, 1.0],
-            cam_fwd: [fwd.x as f32, fwd.y as f32, fwd.z as f32, 0.0],
-            light_dir: [light.x as f32, light.y as f32, light.z as f32, 0.3],
-        };
-        let draws = self.scene.draws(twin, cam, pose, max_range);
-        self.gpu.render(cam.pinhole.width, cam.pinhole.height, shading, &globals, &draws)
+        let view = view(&self.scene, self.lod_error_px, twin, cam, pose, shading, max_range);
+        let mut frames = self.gpu.render_views(&[view])?;
+        Ok(frames.remove(0))
     }
 
     /// Renders an undistorted pinhole view from `pose` (optical frame in the world).
@@ -289,45 +342,80 @@ impl SensorRenderer {
         noise_dn: f64,
         rng: &mut Pcg64Mcg,
     ) -> Result<GreyImage, RenderError> {
-        let f = self.render(twin, cam, pose, Shading::Sun)?;
-        let (w, h) = (f.width as usize, f.height as usize);
-        // Luminance (Rec. 601 weights in 8-bit fixed point).
-        let lum: Vec<f32> = f
-            .rgba
-            .chunks_exact(4)
-            .map(|p| ((77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32) >> 8) as f32)
+        let mut images = self.grey_views(twin, &[(cam, *pose)], noise_dn, rng)?;
+        Ok(images.remove(0))
+    }
+
+    /// Greyscale images of several cameras (a stereo pair) rendered in one submission.
+    ///
+    /// The GPU renders the undistorted luminance; the distortion (bilinear remap) and the noise are
+    /// applied here, rows of all images in parallel. Each image draws one seed from `rng`, in order,
+    /// and each of its rows its own noise stream from that seed, so the images do not depend on the
+    /// number of threads.
+    pub fn grey_views(
+        &mut self,
+        twin: &Twin,
+        cams: &[(&CameraModel, Isometry3<f64>)],
+        noise_dn: f64,
+        rng: &mut Pcg64Mcg,
+    ) -> Result<Vec<GreyImage>, RenderError> {
+        use rayon::prelude::*;
+        let views: Vec<View<'_>> = cams
+            .iter()
+            .map(|(cam, pose)| {
+                view(&self.scene, self.lod_error_px, twin, cam, pose, Shading::Sun, f64::INFINITY)
+            })
             .collect();
-        let sample = |x: f32, y: f32| -> f32 {
-            // Bilinear, in pixel-centre coordinates.
-            let (x, y) = (x - 0.5, y - 0.5);
-            if x < 0.0 || y < 0.0 || x > (w - 1) as f32 || y > (h - 1) as f32 {
-                return 0.0;
-            }
-            let (i, j) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
-            let (tx, ty) = (x - i as f32, y - j as f32);
-            let at = |a: usize, b: usize| lum[b * w + a];
-            (at(i, j) * (1.0 - tx) + at(i + 1, j) * tx) * (1.0 - ty)
-                + (at(i, j + 1) * (1.0 - tx) + at(i + 1, j + 1) * tx) * ty
-        };
-        let remap = if cam.distortion.is_zero() { None } else { Some(self.remap(cam)) };
-        let normal = StandardNormal;
-        let mut data = Vec::with_capacity(w * h);
-        for (i, l) in lum.iter().enumerate() {
-            let value = match remap {
-                None => *l,
-                Some(k) => {
-                    let [x, y] = self.remaps[k].1[i];
-                    sample(x, y)
-                }
-            };
-            let n: f32 = if noise_dn > 0.0 {
-                noise_dn as f32 * <StandardNormal as Distribution<f32>>::sample(&normal, rng)
-            } else {
-                0.0
-            };
-            data.push((value + n + 0.5).clamp(0.0, 255.0) as u8);
+        let frames = self.gpu.render_views(&views)?;
+        drop(views);
+        let remaps: Vec<Option<usize>> = cams
+            .iter()
+            .map(|(cam, _)| if cam.distortion.is_zero() { None } else { Some(self.remap(cam)) })
+            .collect();
+        // Fixed point with 8 fractional bits from here on: the noise table scaled to the noise
+        // level, the bilinear weights in 1/256 pixel.
+        let noise_q8: Vec<i32> =
+            gaussian_table().iter().map(|g| (g * noise_dn as f32 * 256.0).round() as i32).collect();
+        let noisy = noise_dn > 0.0;
+        let mut images: Vec<GreyImage> = cams
+            .iter()
+            .zip(&frames)
+            .map(|((cam, _), f)| GreyImage {
+                stamp: twin.time(),
+                frame: cam.frame.clone(),
+                width: f.width,
+                height: f.height,
+                data: vec![0u8; f.pixels.len()],
+            })
+            .collect();
+        let seeds: Vec<u64> = cams.iter().map(|_| rand::RngCore::next_u64(rng)).collect();
+        let mut rows = Vec::new();
+        for (k, image) in images.iter_mut().enumerate() {
+            let w = image.width as usize;
+            rows.extend(image.data.chunks_mut(w).enumerate().map(|(v, row)| (k, v, row)));
         }
-        Ok(GreyImage { stamp: twin.time(), frame: cam.frame.clone(), width: f.width, height: f.height, data })
+        rows.into_par_iter().for_each(|(k, v, row)| {
+            let (lum, w) = (&frames[k].pixels, frames[k].width as usize);
+            let taps = remaps[k].map(|r| &self.remaps[r].1[v * w..(v + 1) * w]);
+            let mut stream = Pcg64Mcg::seed_from_u64(framework::seed::mix64(seeds[k] ^ v as u64));
+            let mut bits = 0u64;
+            for (u, out) in row.iter_mut().enumerate() {
+                let value = match taps {
+                    None => i32::from(lum[v * w + u]) << 8,
+                    Some(t) => t[u].sample_q8(lum, w),
+                };
+                let n = if noisy {
+                    if u % 4 == 0 {
+                        bits = rand::RngCore::next_u64(&mut stream);
+                    }
+                    noise_q8[(bits >> (16 * (u % 4))) as usize & (GAUSS_TABLE - 1)]
+                } else {
+                    0
+                };
+                *out = ((value + n + 128) >> 8).clamp(0, 255) as u8;
+            }
+        });
+        Ok(images)
     }
 
     /// The index of the remap table of a distorted camera, computed on first use: the distorted pixel
@@ -337,12 +425,20 @@ impl SensorRenderer {
             return k;
         }
         let p = &cam.pinhole;
-        let mut table = Vec::with_capacity((p.width * p.height) as usize);
+        let (w, h) = (p.width as usize, p.height as usize);
+        let mut table = Vec::with_capacity(w * h);
         for v in 0..p.height {
             for u in 0..p.width {
                 let d = Vector2::new((u as f64 + 0.5 - p.cx) / p.fx, (v as f64 + 0.5 - p.cy) / p.fy);
                 let n = cam.distortion.undistort(d);
-                table.push([(p.fx * n.x + p.cx) as f32, (p.fy * n.y + p.cy) as f32]);
+                // Bilinear, in pixel-centre coordinates of the undistorted render.
+                let (x, y) = ((p.fx * n.x + p.cx) as f32 - 0.5, (p.fy * n.y + p.cy) as f32 - 0.5);
+                table.push(if x < 0.0 || y < 0.0 || x > (w - 1) as f32 || y > (h - 1) as f32 {
+                    Tap::OUTSIDE
+                } else {
+                    let (i, j) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
+                    Tap::new(j * w + i, x - i as f32, y - j as f32)
+                });
             }
         }
         self.remaps.push((cam.clone(), table));
@@ -366,7 +462,7 @@ impl SensorRenderer {
         let mut depth = Vec::with_capacity(n);
         let mut amplitude = Vec::with_capacity(n);
         let mut points = Vec::new();
-        for (i, (z, px)) in f.range_m.iter().zip(f.rgba.chunks_exact(4)).enumerate() {
+        for (i, (z, px)) in f.range_m.iter().zip(f.pixels.chunks_exact(4)).enumerate() {
             let amp = px[0] as f64 / 255.0 * 4.0;
             let cos_i = px[1] as f64 / 255.0;
             let z = *z as f64;
@@ -399,6 +495,38 @@ impl SensorRenderer {
             amplitude,
             points,
         })
+    }
+}
+
+/// The view of `cam` at `pose` (optical frame in the world), terrain beyond `max_range` left out.
+fn view<'s>(
+    scene: &'s Scene,
+    lod_error_px: f64,
+    twin: &Twin,
+    cam: &CameraModel,
+    pose: &Isometry3<f64>,
+    shading: Shading,
+    max_range: f64,
+) -> View<'s> {
+    let view: Matrix4<f32> = pose.inverse().to_homogeneous().cast();
+    let vp = projection(&cam.pinhole) * view;
+    let fwd = pose.rotation * Vector3::z();
+    let sun = &twin.world().sun;
+    let (az, el) = (sun.azimuth_deg.to_radians(), sun.elevation_deg.to_radians());
+    let light = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+    let p = pose.translation.vector;
+    let globals = Globals {
+        view_proj: vp.into(),
+        cam_pos: [p.x as f32, p.y as f32, p.z as f32, 1.0],
+        cam_fwd: [fwd.x as f32, fwd.y as f32, fwd.z as f32, 0.0],
+        light_dir: [light.x as f32, light.y as f32, light.z as f32, 0.3],
+    };
+    View {
+        width: cam.pinhole.width,
+        height: cam.pinhole.height,
+        shading,
+        globals,
+        draws: scene.draws(twin, cam, pose, max_range, lod_error_px),
     }
 }
 
@@ -463,15 +591,16 @@ impl StereoCamera for DryRunStereo {
         if due(self.last.as_ref().map(|l| l.0.stamp), twin.time(), self.period) {
             let fail =
                 |e: RenderError| DeviceError::Fault { device: self.name.clone(), reason: e.to_string() };
-            let mut r = self.renderer.lock();
-            let mut one = |cam: &CameraModel, rng: &mut Pcg64Mcg| {
-                let pose = twin
-                    .link_pose(&cam.frame)
-                    .ok_or_else(|| RenderError::Gpu(format!("no frame {}", cam.frame)))?;
-                r.grey(&twin, cam, &pose, self.noise_dn, rng)
+            let pose = |cam: &CameraModel| {
+                twin.link_pose(&cam.frame)
+                    .ok_or_else(|| fail(RenderError::Gpu(format!("no frame {}", cam.frame))))
             };
-            let left = one(&self.model.left, &mut self.rng).map_err(fail)?;
-            let right = one(&self.model.right, &mut self.rng).map_err(fail)?;
+            let cams =
+                [(&self.model.left, pose(&self.model.left)?), (&self.model.right, pose(&self.model.right)?)];
+            let mut images =
+                self.renderer.lock().grey_views(&twin, &cams, self.noise_dn, &mut self.rng).map_err(fail)?;
+            let right = images.pop().expect("two images");
+            let left = images.pop().expect("two images");
             self.last = Some((left, right));
         }
         Ok(self.last.clone().expect("captured above"))

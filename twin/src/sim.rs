@@ -541,6 +541,7 @@ impl Twin {
             }
         }
         ph.params.num_internal_pgs_iterations = c.physics.pgs_iterations;
+        ph.params.friction_in_bias_pass = c.physics.friction_in_bias_pass;
         if c.physics.friction_model == crate::config::FrictionModelName::Coulomb {
             ph.params.friction_model = FrictionModel::Coulomb;
         }

@@ -117,6 +117,25 @@ fn a_static_imu_reads_gravity_within_its_noise() {
     assert!((imu.period() - 0.01).abs() < 1e-12);
 }
 
+/// A parked rover stands still: on flat ground and on the Mars-like yard's start area, with the
+/// drives holding their wheels, it neither turns nor slides (the solver once let it creep about
+/// 2 degrees of yaw and 2 cm in 20 s, which a gyro-bias estimator could not tell from a bias).
+#[test]
+fn a_parked_rover_stands_still() {
+    let mars = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
+    for (label, w, x, y) in [("flat", flat(0.8), 0.0, 0.0), ("mars yard", mars, -12.0, -12.0)] {
+        let mut t = rover(w, x, y, 0.3, Fidelity::Dynamic);
+        t.run_for(S(3.0));
+        let (p0, yaw0) = (t.base_pose().translation.vector, t.base_pose().rotation.euler_angles().2);
+        t.run_for(S(20.0));
+        let (p1, yaw1) = (t.base_pose().translation.vector, t.base_pose().rotation.euler_angles().2);
+        let turned = (yaw1 - yaw0).to_degrees().abs();
+        let slid = (p1 - p0).xy().norm();
+        assert!(turned < 0.01, "{label}: turned {turned} deg in 20 s");
+        assert!(slid < 1e-3, "{label}: slid {slid} m in 20 s");
+    }
+}
+
 fn arm_names(t: &Twin) -> Vec<String> {
     t.group_joints("arm").unwrap()
 }

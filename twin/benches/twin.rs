@@ -4,8 +4,15 @@
 //!   arm, gripper) and the canister on the 257 x 257 heightfield with its rock field, while driving
 //!   and moving the arm. Target: at most 100 us (10,000 steps/s) on one core.
 //! - `kinematic_step`: the same rover in locomotion-level kinematic mode. Target: 10x cheaper.
+//! - `tof_pair`: both ToF cameras (176 x 144), rendered, read back, noise and validity applied.
+//!   Target on 2 cores with software Vulkan: under 4 ms.
+//! - `stereo_pair_640x480`: the head stereo pair, rendered in one submission, read back, distortion
+//!   and noise applied. Target: under 16 ms. `loc_stereo_pair_640x480`: the same for the body's
+//!   localization pair (wider, looking down: more terrain near the camera).
 //!
-//! divan prints the time per step; items/s is steps per second.
+//! The sensor benches stand the rover on the Mars-like yard with its pan-tilt looking at the ground
+//! ahead (full terrain, rocks, the arm and the canister in view) and print the adapter in use.
+//! divan prints the time per step or frame set; items/s is steps per second.
 
 use divan::counter::ItemsCount;
 use divan::{Bencher, black_box};
@@ -77,14 +84,29 @@ fn tof_pair(b: Bencher<'_, '_>) {
     });
 }
 
-/// One head stereo pair (640 x 480 each, distortion and noise applied).
-#[divan::bench(sample_count = 20, sample_size = 5)]
-fn stereo_pair_640x480(b: Bencher<'_, '_>) {
+/// One stereo pair rendered in one submission, distortion and noise applied.
+fn stereo_pair(
+    b: Bencher<'_, '_>,
+    which: fn(&twin::render::SensorConfig) -> &twin::render::sensors::StereoConfig,
+) {
     use rand::SeedableRng;
     let (t, mut r, cfg) = sensing();
-    let m = twin::render::sensors::stereo_model(&cfg.head_stereo, &t).expect("stereo model");
+    let s = which(&cfg);
+    let m = twin::render::sensors::stereo_model(s, &t).expect("stereo model");
     let poses = [t.link_pose(&m.left.frame).expect("left"), t.link_pose(&m.right.frame).expect("right")];
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
     let cams = [(&m.left, poses[0]), (&m.right, poses[1])];
-    b.bench_local(|| black_box(r.grey_views(&t, &cams, cfg.head_stereo.noise_dn, &mut rng).expect("pair")));
+    b.bench_local(|| black_box(r.grey_views(&t, &cams, s.noise_dn, &mut rng).expect("pair")));
+}
+
+/// The head stereo pair on the pan-tilt (640 x 480 each, 70 degrees).
+#[divan::bench(sample_count = 30, sample_size = 5)]
+fn stereo_pair_640x480(b: Bencher<'_, '_>) {
+    stereo_pair(b, |c| &c.head_stereo);
+}
+
+/// The localization stereo pair on the body (640 x 480 each, 80 degrees, looking ahead and down).
+#[divan::bench(sample_count = 30, sample_size = 5)]
+fn loc_stereo_pair_640x480(b: Bencher<'_, '_>) {
+    stereo_pair(b, |c| &c.loc_stereo);
 }

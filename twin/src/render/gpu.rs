@@ -184,10 +184,15 @@ pub struct ObjectUniform {
 }
 
 /// Vertex and index buffers of one mesh.
+///
+/// Meshes made together by [`Renderer::create_meshes`] share their buffers, so that drawing one
+/// after another rebinds nothing (a software driver pays for every state change).
 pub struct Mesh {
     vertices: wgpu::Buffer,
     indices: wgpu::Buffer,
+    first_index: u32,
     index_count: u32,
+    base_vertex: i32,
 }
 
 /// One draw: a mesh, its texture bind group (group 1) and its transform.
@@ -518,17 +523,39 @@ impl Renderer {
 
     /// Uploads a triangle mesh (must not be empty: `set_vertex_buffer` panics on empty slices).
     pub fn create_mesh(&self, vertices: &[Vertex], indices: &[u32]) -> Mesh {
+        self.create_meshes(&[(vertices, indices)]).remove(0)
+    }
+
+    /// Uploads several triangle meshes into one vertex and one index buffer (none may be empty).
+    pub fn create_meshes(&self, meshes: &[(&[Vertex], &[u32])]) -> Vec<Mesh> {
+        let vertices: Vec<Vertex> = meshes.iter().flat_map(|m| m.0.iter().copied()).collect();
+        let indices: Vec<u32> = meshes.iter().flat_map(|m| m.1.iter().copied()).collect();
         let vertices_buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
-            contents: bytemuck::cast_slice(vertices),
+            contents: bytemuck::cast_slice(&vertices),
             usage: wgpu::BufferUsages::VERTEX,
         });
         let indices_buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("indices"),
-            contents: bytemuck::cast_slice(indices),
+            contents: bytemuck::cast_slice(&indices),
             usage: wgpu::BufferUsages::INDEX,
         });
-        Mesh { vertices: vertices_buf, indices: indices_buf, index_count: indices.len() as u32 }
+        let (mut first_index, mut base_vertex) = (0u32, 0i32);
+        meshes
+            .iter()
+            .map(|(v, i)| {
+                let mesh = Mesh {
+                    vertices: vertices_buf.clone(),
+                    indices: indices_buf.clone(),
+                    first_index,
+                    index_count: i.len() as u32,
+                    base_vertex,
+                };
+                first_index += i.len() as u32;
+                base_vertex += v.len() as i32;
+                mesh
+            })
+            .collect()
     }
 
     /// Renders the draws at `width` x `height` and reads back what the shading produces: luminance
@@ -569,18 +596,27 @@ impl Renderer {
             self.targets.entry(key).or_insert_with(|| create_targets(&self.device, v.width, v.height, tof));
             keys.push(key);
         }
-        // One upload for all per-view and per-draw uniforms (a write each costs a staging allocation).
+        // One upload for all per-view and per-draw uniforms (a write each costs a staging
+        // allocation); a draw with the same transform and tint as the one before shares its slot.
         let mut globals = vec![0u8; views.len() * OBJECT_STRIDE as usize];
-        let mut objects = vec![0u8; total * OBJECT_STRIDE as usize];
-        let mut at = 0;
+        let mut objects: Vec<u8> = Vec::with_capacity(total * OBJECT_STRIDE as usize);
+        let mut slots: Vec<Vec<u32>> = Vec::with_capacity(views.len());
         for (k, v) in views.iter().enumerate() {
             let bytes = bytemuck::bytes_of(&v.globals);
             globals[k * OBJECT_STRIDE as usize..][..bytes.len()].copy_from_slice(bytes);
+            let mut view_slots = Vec::with_capacity(v.draws.len());
+            let mut last: Option<&ObjectUniform> = None;
             for d in &v.draws {
-                let bytes = bytemuck::bytes_of(&d.object);
-                objects[at..at + bytes.len()].copy_from_slice(bytes);
-                at += OBJECT_STRIDE as usize;
+                if last.is_none_or(|l| bytemuck::bytes_of(l) != bytemuck::bytes_of(&d.object)) {
+                    let at = objects.len();
+                    objects.resize(at + OBJECT_STRIDE as usize, 0);
+                    let bytes = bytemuck::bytes_of(&d.object);
+                    objects[at..at + bytes.len()].copy_from_slice(bytes);
+                }
+                view_slots.push((objects.len() as u64 - OBJECT_STRIDE) as u32);
+                last = Some(&d.object);
             }
+            slots.push(view_slots);
         }
         self.queue.write_buffer(&self.globals_buf, 0, &globals);
         if !objects.is_empty() {
@@ -589,7 +625,6 @@ impl Renderer {
 
         let mut encoder =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
-        let mut first_draw = 0u64;
         for (k, (v, key)) in views.iter().zip(&keys).enumerate() {
             let t = &self.targets[key];
             {
@@ -626,16 +661,26 @@ impl Renderer {
                 });
                 pass.set_pipeline(if key.2 { &self.tof_pipeline } else { &self.grey_pipeline });
                 pass.set_bind_group(0, &self.globals_bg, &[(k as u64 * OBJECT_STRIDE) as u32]);
-                for (i, d) in v.draws.iter().enumerate() {
-                    let offset = (first_draw + i as u64) * OBJECT_STRIDE;
-                    pass.set_bind_group(1, d.texture, &[]);
-                    pass.set_bind_group(2, &self.objects_bg, &[offset as u32]);
-                    pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
-                    pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
-                    pass.draw_indexed(0..d.mesh.index_count, 0, 0..1);
+                // Bind only what changes from one draw to the next.
+                let (mut texture, mut slot, mut buffers) = (None, None, None);
+                for (d, &offset) in v.draws.iter().zip(&slots[k]) {
+                    if texture != Some(d.texture) {
+                        pass.set_bind_group(1, d.texture, &[]);
+                        texture = Some(d.texture);
+                    }
+                    if slot != Some(offset) {
+                        pass.set_bind_group(2, &self.objects_bg, &[offset]);
+                        slot = Some(offset);
+                    }
+                    if buffers != Some((&d.mesh.vertices, &d.mesh.indices)) {
+                        pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
+                        pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+                        buffers = Some((&d.mesh.vertices, &d.mesh.indices));
+                    }
+                    let first = d.mesh.first_index;
+                    pass.draw_indexed(first..first + d.mesh.index_count, d.mesh.base_vertex, 0..1);
                 }
             } // pass dropped: encoder usable again
-            first_draw += v.draws.len() as u64;
 
             let extent = wgpu::Extent3d { width: t.width, height: t.height, depth_or_array_layers: 1 };
             let plane = |offset: u64, bytes_per_row: u32| wgpu::TexelCopyBufferInfo {

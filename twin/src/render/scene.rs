@@ -359,7 +359,9 @@ impl Scene {
             );
             rock_meshes[b * cx + a].add_hull(&t, &r.points);
         }
-        let mut chunks = Vec::new();
+        // Every chunk's levels and rocks go into one pair of buffers (nothing to rebind between them).
+        let mut bounds = Vec::with_capacity(rock_meshes.len());
+        let mut data: Vec<MeshData> = Vec::new();
         for (n, rocks) in rock_meshes.into_iter().enumerate() {
             let (i0, j0) = ((n % cx) * CHUNK, (n / cx) * CHUNK);
             let (i1, j1) = ((i0 + CHUNK).min(hf.nx - 1), (j0 + CHUNK).min(hf.ny - 1));
@@ -375,21 +377,27 @@ impl Scene {
                 let q = Vector3::new(v.position[0], v.position[1], v.position[2]).cast::<f64>();
                 (lo, hi) = (lo.inf(&q), hi.sup(&q));
             }
-            let lods = LOD_STEPS
-                .iter()
-                .map(|&st| {
-                    let m = terrain_chunk(twin, i0, j0, st);
-                    gpu.create_mesh(&m.vertices, &m.indices)
-                })
-                .collect();
-            chunks.push(Chunk {
-                min: lo,
-                max: hi,
-                lods,
-                errors_m: LOD_STEPS.iter().map(|&st| lod_error(hf, i0, j0, st)).collect(),
-                rocks: (!rocks.indices.is_empty()).then(|| gpu.create_mesh(&rocks.vertices, &rocks.indices)),
-            });
+            data.extend(LOD_STEPS.iter().map(|&st| terrain_chunk(twin, i0, j0, st)));
+            let has_rocks = !rocks.indices.is_empty();
+            if has_rocks {
+                data.push(rocks);
+            }
+            let errors_m = LOD_STEPS.iter().map(|&st| lod_error(hf, i0, j0, st)).collect();
+            bounds.push((lo, hi, errors_m, has_rocks));
         }
+        let slices: Vec<(&[Vertex], &[u32])> =
+            data.iter().map(|m| (&m.vertices[..], &m.indices[..])).collect();
+        let mut meshes = gpu.create_meshes(&slices).into_iter();
+        let chunks = bounds
+            .into_iter()
+            .map(|(min, max, errors_m, has_rocks)| Chunk {
+                min,
+                max,
+                lods: meshes.by_ref().take(LOD_STEPS.len()).collect(),
+                errors_m,
+                rocks: if has_rocks { meshes.next() } else { None },
+            })
+            .collect();
         let rock_albedo = (albedo * 1.3).min(1.0) as f32;
         let mut objects = MeshData::default();
         for o in &twin.world().objects {
@@ -447,8 +455,8 @@ impl Scene {
         let inv = pose.inverse();
         let k = &cam.pinhole;
         let mut draws = Vec::with_capacity(self.parts.len() + 2 * self.chunks.len());
-        // The robot and the canister first, then the chunks near to far, each chunk's rocks before
-        // its ground: what is drawn first hides what is behind it from the (costly) shading.
+        // The robot and the canister first, then the chunks near to far: what is drawn first hides
+        // what is behind it from the (costly) shading.
         self.push_parts(twin, &mut draws);
         let mut visible = Vec::new();
         for c in &self.chunks {
@@ -485,7 +493,16 @@ impl Scene {
             visible.push((nearest, c, lod));
         }
         visible.sort_by(|a, b| a.0.total_cmp(&b.0));
-        for (_, c, lod) in visible {
+        // Ground near to far, then the rocks near to far (all rocks share texture and tint, so
+        // drawing them together rebinds nothing).
+        for (_, c, lod) in &visible {
+            draws.push(Draw {
+                mesh: &c.lods[*lod],
+                texture: &self.regolith,
+                object: ObjectUniform { model: identity, tint: [1.0, 1.0, 1.0, 1.0] },
+            });
+        }
+        for (_, c, _) in &visible {
             if let Some(rocks) = &c.rocks {
                 draws.push(Draw {
                     mesh: rocks,
@@ -493,11 +510,6 @@ impl Scene {
                     object: ObjectUniform { model: identity, tint: self.rock_tint },
                 });
             }
-            draws.push(Draw {
-                mesh: &c.lods[lod],
-                texture: &self.regolith,
-                object: ObjectUniform { model: identity, tint: [1.0, 1.0, 1.0, 1.0] },
-            });
         }
         draws
     }

@@ -521,12 +521,8 @@ impl Renderer {
         })
     }
 
-    /// Uploads a triangle mesh (must not be empty: `set_vertex_buffer` panics on empty slices).
-    pub fn create_mesh(&self, vertices: &[Vertex], indices: &[u32]) -> Mesh {
-        self.create_meshes(&[(vertices, indices)]).remove(0)
-    }
-
-    /// Uploads several triangle meshes into one vertex and one index buffer (none may be empty).
+    /// Uploads triangle meshes into one vertex and one index buffer (none may be empty:
+    /// `set_vertex_buffer` panics on empty slices).
     pub fn create_meshes(&self, meshes: &[(&[Vertex], &[u32])]) -> Vec<Mesh> {
         let vertices: Vec<Vertex> = meshes.iter().flat_map(|m| m.0.iter().copied()).collect();
         let indices: Vec<u32> = meshes.iter().flat_map(|m| m.1.iter().copied()).collect();

@@ -339,10 +339,10 @@ fn canister_parts(out: &mut Vec<(MeshData, [f32; 4], Placement, TextureId)>) {
 impl Scene {
     /// Builds and uploads the scene of a twin's world and robot.
     pub fn new(gpu: &Renderer, twin: &Twin, marker_rgba: (u32, u32, Vec<u8>)) -> Self {
-        let mut parts = Vec::new();
+        let mut pending = Vec::new();
         let mut add = |m: MeshData, tint: [f32; 4], place: Placement, texture: TextureId| {
             if !m.indices.is_empty() {
-                parts.push(Part { mesh: gpu.create_mesh(&m.vertices, &m.indices), tint, texture, place });
+                pending.push((m, tint, place, texture));
             }
         };
         let albedo = twin.world().regolith.albedo;
@@ -425,6 +425,15 @@ impl Scene {
                 add(m, tint, place, tex);
             }
         }
+        // The objects, the robot and the canister share one pair of buffers too.
+        let slices: Vec<(&[Vertex], &[u32])> =
+            pending.iter().map(|(m, ..)| (&m.vertices[..], &m.indices[..])).collect();
+        let parts = gpu
+            .create_meshes(&slices)
+            .into_iter()
+            .zip(pending)
+            .map(|(mesh, (_, tint, place, texture))| Part { mesh, tint, texture, place })
+            .collect();
         let white = gpu.create_texture(1, 1, &[255, 255, 255, 255]);
         let regolith =
             gpu.create_texture(TERRAIN_TEX, TERRAIN_TEX, &regolith_texture(albedo, twin.world().seed));

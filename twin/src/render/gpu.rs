@@ -396,42 +396,10 @@ impl Renderer {
             return Err(RenderError::Gpu(format!("pipeline creation failed: {err}")));
         }
 
-        let globals_buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("globals"),
-            size: OBJECT_STRIDE * MAX_VIEWS as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let globals_bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("globals"),
-            layout: &globals_bgl,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer: &globals_buf,
-                    offset: 0,
-                    size: wgpu::BufferSize::new(size_of::<Globals>() as u64),
-                }),
-            }],
-        });
-        let objects_buf = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("objects"),
-            size: OBJECT_STRIDE * MAX_OBJECTS,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let objects_bg = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("objects"),
-            layout: &object_bgl,
-            entries: &[wgpu::BindGroupEntry {
-                binding: 0,
-                resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                    buffer: &objects_buf,
-                    offset: 0,
-                    size: wgpu::BufferSize::new(size_of::<ObjectUniform>() as u64),
-                }),
-            }],
-        });
+        let (globals_buf, globals_bg) =
+            dynamic_uniform(&device, &globals_bgl, "globals", MAX_VIEWS as u64, size_of::<Globals>());
+        let (objects_buf, objects_bg) =
+            dynamic_uniform(&device, &object_bgl, "objects", MAX_OBJECTS, size_of::<ObjectUniform>());
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("albedo"),
             address_mode_u: wgpu::AddressMode::Repeat,
@@ -741,6 +709,36 @@ fn read_back(t: &Targets) -> Result<Frame, BoxErr> {
     } // BufferView dropped before unmap (unmap panics otherwise)
     t.readback.unmap();
     Ok(Frame { width: t.width, height: t.height, channels: t.channels, pixels, range_m })
+}
+
+/// A uniform buffer of `slots` entries `OBJECT_STRIDE` apart and its bind group, which binds one
+/// entry of `size` bytes at the dynamic offset given with each draw.
+fn dynamic_uniform(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    label: &str,
+    slots: u64,
+    size: usize,
+) -> (wgpu::Buffer, wgpu::BindGroup) {
+    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: OBJECT_STRIDE * slots,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some(label),
+        layout,
+        entries: &[wgpu::BindGroupEntry {
+            binding: 0,
+            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: &buffer,
+                offset: 0,
+                size: wgpu::BufferSize::new(size as u64),
+            }),
+        }],
+    });
+    (buffer, group)
 }
 
 /// Layout entry of a uniform buffer at binding 0, seen by both shader stages.

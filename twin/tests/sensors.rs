@@ -283,7 +283,16 @@ fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
     let left = r.grey(&t, &m.left, &poses[0], 1.5, &mut rng).unwrap();
     let right = r.grey(&t, &m.right, &poses[1], 1.5, &mut rng).unwrap();
     assert!(pair[0].data == left.data && pair[1].data == right.data);
-    assert!(left.data != right.data, "the two cameras see different images");
+    // On one thread (the rows are shared out among threads otherwise) the images are the same.
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let cams = [(&m.left, poses[0]), (&m.right, poses[1])];
+    let serial = one.install(|| r.grey_views(&t, &cams, 1.5, &mut rng).unwrap());
+    assert!(serial[0].data == pair[0].data && serial[1].data == pair[1].data);
+    // Without noise the two views still differ: each view has its own camera.
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let clean = r.grey_views(&t, &cams, 0.0, &mut rng).unwrap();
+    assert!(clean[0].data != clean[1].data, "the two cameras see different images");
 }
 
 /// Terrain chunks are drawn at the coarsest level whose geometric error projects below
@@ -311,6 +320,11 @@ fn terrain_levels_of_detail_stay_within_their_screen_space_error() {
     let n = full.0.data.len() as f64;
     let grey_diff: f64 =
         full.0.data.iter().zip(&lod.0.data).map(|(a, b)| (*a as f64 - *b as f64).abs()).sum::<f64>() / n;
+    let valid = |d: &[f32]| d.iter().map(|z| z.is_finite()).collect::<Vec<_>>();
+    let flipped = valid(&full.1.data).iter().zip(valid(&lod.1.data)).filter(|(a, b)| **a != *b).count();
+    // Returns near the grazing-incidence and weak-amplitude thresholds may cross them (the
+    // interpolated normals differ between levels), a few in each direction.
+    assert!(flipped * 200 < full.1.data.len(), "{flipped} ToF pixels changed validity");
     let mut depth_diff: Vec<f64> = full
         .1
         .data

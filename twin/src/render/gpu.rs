@@ -93,8 +93,8 @@ struct FsOut {
 
 // Sun-lit passive cameras need neither the range nor the world position, and light the surface per
 // vertex (Gouraud): one varying besides the texture coordinates and no per-fragment normalization,
-// which a software rasterizer pays for at every pixel. The meshes are fine enough (terrain normals at
-// every height sample) for the difference to per-pixel Lambert shading to stay below a grey level.
+// which a software rasterizer pays for at every pixel. Terrain vertices carry the full-resolution
+// surface normal at their sample; between them, at coarser levels of detail, shading interpolates.
 struct GreyOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) uv: vec2<f32>,
@@ -192,7 +192,6 @@ pub struct Mesh {
     indices: wgpu::Buffer,
     first_index: u32,
     index_count: u32,
-    base_vertex: i32,
 }
 
 /// One draw: a mesh, its texture bind group (group 1) and its transform.
@@ -492,8 +491,15 @@ impl Renderer {
     /// Uploads triangle meshes into one vertex and one index buffer (none may be empty:
     /// `set_vertex_buffer` panics on empty slices).
     pub fn create_meshes(&self, meshes: &[(&[Vertex], &[u32])]) -> Vec<Mesh> {
+        // Each mesh's indices are offset by the vertices before it: draws need no base vertex,
+        // which GLES 3.0 lacks.
         let vertices: Vec<Vertex> = meshes.iter().flat_map(|m| m.0.iter().copied()).collect();
-        let indices: Vec<u32> = meshes.iter().flat_map(|m| m.1.iter().copied()).collect();
+        let mut indices: Vec<u32> = Vec::with_capacity(meshes.iter().map(|m| m.1.len()).sum());
+        let mut base = 0u32;
+        for (v, i) in meshes {
+            indices.extend(i.iter().map(|k| k + base));
+            base += v.len() as u32;
+        }
         let vertices_buf = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
             contents: bytemuck::cast_slice(&vertices),
@@ -504,42 +510,25 @@ impl Renderer {
             contents: bytemuck::cast_slice(&indices),
             usage: wgpu::BufferUsages::INDEX,
         });
-        let (mut first_index, mut base_vertex) = (0u32, 0i32);
+        let mut first_index = 0u32;
         meshes
             .iter()
-            .map(|(v, i)| {
+            .map(|(_, i)| {
                 let mesh = Mesh {
                     vertices: vertices_buf.clone(),
                     indices: indices_buf.clone(),
                     first_index,
                     index_count: i.len() as u32,
-                    base_vertex,
                 };
                 first_index += i.len() as u32;
-                base_vertex += v.len() as i32;
                 mesh
             })
             .collect()
     }
 
-    /// Renders the draws at `width` x `height` and reads back what the shading produces: luminance
-    /// for [`Shading::Sun`], colour and range for [`Shading::Tof`].
-    pub fn render(
-        &mut self,
-        width: u32,
-        height: u32,
-        shading: Shading,
-        globals: &Globals,
-        draws: &[Draw<'_>],
-    ) -> Result<Frame, BoxErr> {
-        let view = View { width, height, shading, globals: *globals, draws: draws.to_vec() };
-        let mut frames = self.render_views(&[view])?;
-        Ok(frames.remove(0))
-    }
-
-    /// Renders several views in one submission and reads them all back (a stereo pair: the
-    /// rasterizer shades one view while the next one's geometry is processed, and there is one wait
-    /// instead of one per view).
+    /// Renders several views in one submission and reads them all back: luminance for
+    /// [`Shading::Sun`], colour and range for [`Shading::Tof`] (a stereo pair: the rasterizer shades
+    /// one view while the next one's geometry is processed, and there is one wait instead of two).
     pub fn render_views(&mut self, views: &[View<'_>]) -> Result<Vec<Frame>, BoxErr> {
         if views.len() > MAX_VIEWS {
             return Err(RenderError::Gpu(format!("too many views: {} > {MAX_VIEWS}", views.len())));
@@ -642,7 +631,7 @@ impl Renderer {
                         buffers = Some((&d.mesh.vertices, &d.mesh.indices));
                     }
                     let first = d.mesh.first_index;
-                    pass.draw_indexed(first..first + d.mesh.index_count, d.mesh.base_vertex, 0..1);
+                    pass.draw_indexed(first..first + d.mesh.index_count, 0, 0..1);
                 }
             } // pass dropped: encoder usable again
 
@@ -667,47 +656,71 @@ impl Renderer {
         let submission = self.queue.submit([encoder.finish()]);
 
         let (tx, rx) = mpsc::channel();
-        for key in &keys {
+        for (n, key) in keys.iter().enumerate() {
             let tx = tx.clone();
             self.targets[key].readback.slice(..).map_async(wgpu::MapMode::Read, move |result| {
-                let _ = tx.send(result);
+                let _ = tx.send((n, result));
             });
         }
+        drop(tx);
         self.device
             .poll(wgpu::PollType::Wait { submission_index: Some(submission), timeout: None })
             .map_err(|e| RenderError::Gpu(e.to_string()))?;
+        // Every buffer that was mapped is read and unmapped, whatever else failed: the next copy
+        // into a buffer left mapped would be an error.
+        let mut mapped = vec![false; keys.len()];
+        let mut error = None;
         for _ in &keys {
-            rx.recv()
-                .map_err(|e| RenderError::Gpu(e.to_string()))?
-                .map_err(|e| RenderError::Gpu(e.to_string()))?;
+            match rx.recv() {
+                Ok((n, Ok(()))) => mapped[n] = true,
+                Ok((_, Err(e))) => _ = error.get_or_insert(RenderError::Gpu(e.to_string())),
+                Err(e) => {
+                    error.get_or_insert(RenderError::Gpu(e.to_string()));
+                    break;
+                }
+            }
         }
-        keys.iter().map(|key| read_back(&self.targets[key])).collect()
+        let mut frames = Vec::with_capacity(keys.len());
+        for (key, _) in keys.iter().zip(&mapped).filter(|(_, m)| **m) {
+            match read_back(&self.targets[key]) {
+                Ok(f) => frames.push(f),
+                Err(e) => _ = error.get_or_insert(e),
+            }
+        }
+        match error {
+            Some(e) => Err(e),
+            None => Ok(frames),
+        }
     }
 }
 
-/// Copies a mapped readback buffer into a [`Frame`] and unmaps it.
+/// Copies a mapped readback buffer into a [`Frame`] and unmaps it (also when the copy fails).
 fn read_back(t: &Targets) -> Result<Frame, BoxErr> {
+    let frame = copy_frame(t);
+    t.readback.unmap();
+    frame
+}
+
+fn copy_frame(t: &Targets) -> Result<Frame, BoxErr> {
     let (w, h) = (t.width as usize, t.height as usize);
     let row_bytes = w * t.channels as usize;
     let mut pixels = Vec::with_capacity(row_bytes * h);
     let mut range_m = Vec::with_capacity(if t.range.is_some() { w * h } else { 0 });
-    {
-        let data = t.readback.slice(..).get_mapped_range().map_err(|e| RenderError::Gpu(e.to_string()))?;
-        for row in data.chunks_exact(t.color_bpr as usize).take(h) {
-            pixels.extend_from_slice(&row[..row_bytes]);
+    // The view is dropped at the end of this function, before the caller unmaps.
+    let data = t.readback.slice(..).get_mapped_range().map_err(|e| RenderError::Gpu(e.to_string()))?;
+    for row in data.chunks_exact(t.color_bpr as usize).take(h) {
+        pixels.extend_from_slice(&row[..row_bytes]);
+    }
+    if t.range.is_some() {
+        let planes = &data[t.range_offset as usize..];
+        for row in planes.chunks_exact(t.range_bpr as usize).take(h) {
+            range_m.extend(
+                row[..w * 4]
+                    .chunks_exact(4)
+                    .map(|px| f32::from_bits(u32::from_le_bytes([px[0], px[1], px[2], px[3]]))),
+            );
         }
-        if t.range.is_some() {
-            let planes = &data[t.range_offset as usize..];
-            for row in planes.chunks_exact(t.range_bpr as usize).take(h) {
-                range_m.extend(
-                    row[..w * 4]
-                        .chunks_exact(4)
-                        .map(|px| f32::from_bits(u32::from_le_bytes([px[0], px[1], px[2], px[3]]))),
-                );
-            }
-        }
-    } // BufferView dropped before unmap (unmap panics otherwise)
-    t.readback.unmap();
+    }
     Ok(Frame { width: t.width, height: t.height, channels: t.channels, pixels, range_m })
 }
 

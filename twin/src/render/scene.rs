@@ -230,7 +230,9 @@ fn terrain_chunk(twin: &Twin, i0: usize, j0: usize, step: usize) -> MeshData {
     for k in 0..border.len() - 1 {
         let (a, b) = (border[k], border[k + 1]);
         let (ba, bb) = (first_bottom + k as u32, first_bottom + k as u32 + 1);
-        m.indices.extend([top(a), top(b), bb, top(a), bb, ba]);
+        // The border runs counter-clockwise seen from above: this winding faces outwards, towards
+        // the neighbour from whose side a crack would show.
+        m.indices.extend([top(b), top(a), ba, top(b), ba, bb]);
     }
     m
 }
@@ -464,8 +466,8 @@ impl Scene {
         let inv = pose.inverse();
         let k = &cam.pinhole;
         let mut draws = Vec::with_capacity(self.parts.len() + 2 * self.chunks.len());
-        // The robot and the canister first, then the chunks near to far: what is drawn first hides
-        // what is behind it from the (costly) shading.
+        // The objects, the robot and the canister first, then the chunks near to far: what is drawn
+        // first hides what is behind it from the (costly) shading.
         self.push_parts(twin, &mut draws);
         let mut visible = Vec::new();
         for c in &self.chunks {
@@ -498,7 +500,11 @@ impl Scene {
                 continue;
             }
             let focal = k.fx.max(k.fy);
-            let lod = c.errors_m.iter().rposition(|e| *e * focal <= lod_error_px * nearest).unwrap_or(0);
+            let lod = if lod_error_px > 0.0 {
+                c.errors_m.iter().rposition(|e| *e * focal <= lod_error_px * nearest).unwrap_or(0)
+            } else {
+                0
+            };
             visible.push((nearest, c, lod));
         }
         visible.sort_by(|a, b| a.0.total_cmp(&b.0));

@@ -200,7 +200,7 @@ const GAUSS_TABLE: usize = 4096;
 
 /// Standard normal quantiles at the midpoints of `GAUSS_TABLE` equal-probability bins: indexed by
 /// uniform random bits, a normal deviate for the price of a table read (tails cut at +-3.7 sigma,
-/// standard deviation 0.998; the exposure noise is rounded to grey levels anyway).
+/// standard deviation 0.9998; the exposure noise is rounded to grey levels anyway).
 fn gaussian_table() -> &'static [f32; GAUSS_TABLE] {
     static TABLE: std::sync::OnceLock<[f32; GAUSS_TABLE]> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| {

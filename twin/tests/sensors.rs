@@ -2,7 +2,7 @@
 //! a GPU or Mesa's software Vulkan (`scripts/setup.sh` installs it). Without one they fail with the
 //! renderer's message naming the package to install.
 
-use framework::camera::CameraModel;
+use framework::camera::{CameraModel, StereoModel};
 use framework::hal::{StereoCamera, TofCamera};
 use framework::time::Duration;
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -260,22 +260,23 @@ fn devices_render_only_when_a_new_frame_is_due() {
     assert!(map.tof_camera("tof_middle").is_err() && map.stereo_camera("nav").is_err());
 }
 
-/// The rover on the Mars-like yard with its pan-tilt looking at the ground ahead.
-fn mars_yard_rover() -> Twin {
+/// The rover on the Mars-like yard with its pan-tilt looking at the ground ahead, a renderer, the
+/// shipped sensor configuration and the head stereo model.
+fn mars_yard_rover() -> (Twin, SensorRenderer, SensorConfig, StereoModel) {
     let world = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
     let mut t =
         Twin::with_defaults(world, StartPose { x: 3.5, y: 2.0, yaw: 0.6 }, Fidelity::Kinematic).unwrap();
     let id = t.start_move("ptu", &[0.0, 0.35], 1.0).unwrap();
     t.run_until(Duration::from_secs(3), |t| t.move_status(id).is_over());
-    t
+    let r = SensorRenderer::new(&t).unwrap();
+    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
+    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
+    (t, r, cfg, m)
 }
 
 #[test]
 fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
-    let t = mars_yard_rover();
-    let mut r = SensorRenderer::new(&t).unwrap();
-    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
-    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
+    let (t, mut r, _, m) = mars_yard_rover();
     let poses = [t.link_pose(&m.left.frame).unwrap(), t.link_pose(&m.right.frame).unwrap()];
     let mut rng = Pcg64Mcg::seed_from_u64(9);
     let pair = r.grey_views(&t, &[(&m.left, poses[0]), (&m.right, poses[1])], 1.5, &mut rng).unwrap();
@@ -299,10 +300,7 @@ fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
 /// `LOD_ERROR_PX`: against full resolution everywhere, the images barely change.
 #[test]
 fn terrain_levels_of_detail_stay_within_their_screen_space_error() {
-    let t = mars_yard_rover();
-    let mut r = SensorRenderer::new(&t).unwrap();
-    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
-    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
+    let (t, mut r, cfg, m) = mars_yard_rover();
     let pose = t.link_pose(&m.left.frame).unwrap();
     let mut tof = cfg.tof.clone();
     tof.noise_fraction = 0.0;

@@ -284,7 +284,8 @@ fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
     let left = r.grey(&t, &m.left, &poses[0], 1.5, &mut rng).unwrap();
     let right = r.grey(&t, &m.right, &poses[1], 1.5, &mut rng).unwrap();
     assert!(pair[0].data == left.data && pair[1].data == right.data);
-    // On one thread (the rows are shared out among threads otherwise) the images are the same.
+    // On a pool's worker thread (as in a sweep) the rows are done in order, elsewhere shared out
+    // among threads: the images are the same.
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(9);
     let cams = [(&m.left, poses[0]), (&m.right, poses[1])];

@@ -7,3 +7,16 @@ pub mod sensors;
 
 pub use gpu::{RenderError, Shading};
 pub use sensors::{SensorConfig, SensorRenderer};
+
+/// Maps `items` in parallel on rayon's pool, or in order on this thread when it already is a worker
+/// of a pool: a sweep runs whole runs in parallel, and a worker blocked on a nested parallel loop
+/// may pick up a whole other run meanwhile, stalling this frame (and its module) for the length of
+/// that run. The results are the same either way (each item's work depends on the item alone).
+pub(crate) fn map_items<T: Send, R: Send>(items: Vec<T>, f: impl Fn(T) -> R + Sync + Send) -> Vec<R> {
+    use rayon::prelude::*;
+    if rayon::current_thread_index().is_some() {
+        items.into_iter().map(f).collect()
+    } else {
+        items.into_par_iter().map(f).collect()
+    }
+}

@@ -238,11 +238,11 @@ fn terrain_chunk(twin: &Twin, i0: usize, j0: usize, step: usize) -> MeshData {
 }
 
 /// Regolith albedo: fractal noise around the world's albedo, fine enough for feature matching.
-/// Rows are computed in parallel (each with its own grain stream, so the texture does not depend on
-/// the thread count); a texture is made once per process for each (albedo, seed) and shared.
+/// Rows are computed in parallel outside a sweep's workers (each with its own grain stream, so the
+/// texture does not depend on the thread count); a texture is made once per process for each
+/// (albedo, seed) and shared.
 fn regolith_texture(albedo: f64, seed: u64) -> std::sync::Arc<Vec<u8>> {
     use noise::{Fbm, MultiFractal, NoiseFn, Perlin};
-    use rayon::prelude::*;
     use std::collections::HashMap;
     use std::sync::{Arc, Mutex, OnceLock};
     type Cache = Mutex<HashMap<(u64, u64), Arc<Vec<u8>>>>;
@@ -257,24 +257,21 @@ fn regolith_texture(albedo: f64, seed: u64) -> std::sync::Arc<Vec<u8>> {
     // Periodic in both directions: sample 4-D noise on a torus, so the texture tiles seamlessly.
     let tau = std::f64::consts::TAU;
     let r = 2.0;
-    let rows: Vec<Vec<u8>> = (0..n)
-        .into_par_iter()
-        .map(|v| {
-            let mut rng =
-                rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-            let b = v as f64 / n as f64 * tau;
-            let mut row = Vec::with_capacity(n * 4);
-            for u in 0..n {
-                let a = u as f64 / n as f64 * tau;
-                let x = fbm.get([r * a.cos(), r * a.sin(), r * b.cos(), r * b.sin()]);
-                let grain: f64 = rand::Rng::random_range(&mut rng, -0.06..0.06);
-                let g = (albedo * (1.0 + 0.9 * x + grain)).clamp(0.02, 1.0);
-                let c = (g * 255.0) as u8;
-                row.extend([c, c, c, 255]);
-            }
-            row
-        })
-        .collect();
+    let rows: Vec<Vec<u8>> = super::map_items((0..n).collect(), |v| {
+        let mut rng =
+            rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let b = v as f64 / n as f64 * tau;
+        let mut row = Vec::with_capacity(n * 4);
+        for u in 0..n {
+            let a = u as f64 / n as f64 * tau;
+            let x = fbm.get([r * a.cos(), r * a.sin(), r * b.cos(), r * b.sin()]);
+            let grain: f64 = rand::Rng::random_range(&mut rng, -0.06..0.06);
+            let g = (albedo * (1.0 + 0.9 * x + grain)).clamp(0.02, 1.0);
+            let c = (g * 255.0) as u8;
+            row.extend([c, c, c, 255]);
+        }
+        row
+    });
     let tex = Arc::new(rows.concat());
     cache.lock().expect("texture cache").insert(key, tex.clone());
     tex

@@ -349,7 +349,7 @@ impl SensorRenderer {
     /// Greyscale images of several cameras (a stereo pair) rendered in one submission.
     ///
     /// The GPU renders the undistorted luminance; the distortion (bilinear remap) and the noise are
-    /// applied here, rows of all images in parallel. Each image draws one seed from `rng`, in order,
+    /// applied here, rows of all images in parallel (in order on a sweep's worker threads). Each image draws one seed from `rng`, in order,
     /// and each of its rows its own noise stream from that seed, so the images do not depend on the
     /// number of threads.
     pub fn grey_views(
@@ -359,7 +359,6 @@ impl SensorRenderer {
         noise_dn: f64,
         rng: &mut Pcg64Mcg,
     ) -> Result<Vec<GreyImage>, RenderError> {
-        use rayon::prelude::*;
         let views: Vec<View<'_>> = cams
             .iter()
             .map(|(cam, pose)| {
@@ -394,7 +393,7 @@ impl SensorRenderer {
             let w = image.width as usize;
             rows.extend(image.data.chunks_mut(w).enumerate().map(|(v, row)| (k, v, row)));
         }
-        rows.into_par_iter().for_each(|(k, v, row)| {
+        super::map_items(rows, |(k, v, row)| {
             let (lum, w) = (&frames[k].pixels, frames[k].width as usize);
             let taps = remaps[k].map(|r| &self.remaps[r].1[v * w..(v + 1) * w]);
             let mut stream = Pcg64Mcg::seed_from_u64(framework::seed::mix64(seeds[k] ^ v as u64));

@@ -252,11 +252,16 @@ fn regolith_texture(albedo: f64, seed: u64) -> std::sync::Arc<Vec<u8>> {
     if let Some(t) = cache.lock().expect("texture cache").get(&key) {
         return t.clone();
     }
-    let fbm = Fbm::<Perlin>::new(seed as u32).set_octaves(7).set_frequency(2.0).set_persistence(0.6);
     let n = TERRAIN_TEX as usize;
     // Periodic in both directions: sample 4-D noise on a torus, so the texture tiles seamlessly.
     let tau = std::f64::consts::TAU;
-    let r = 2.0;
+    let (r, frequency) = (2.0, 2.0);
+    // Octaves up to the texture's Nyquist limit only (finer ones would alias): Perlin noise has
+    // about one cycle per unit, and the torus's circles are 2 pi r long.
+    let base_cycles = frequency * tau * r;
+    let octaves = ((n as f64 / 2.0 / base_cycles).log2().floor() as usize + 1).max(1);
+    let fbm =
+        Fbm::<Perlin>::new(seed as u32).set_octaves(octaves).set_frequency(frequency).set_persistence(0.6);
     let rows: Vec<Vec<u8>> = super::map_items((0..n).collect(), |v| {
         let mut rng =
             rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));

@@ -41,6 +41,8 @@ pub struct DryRunDeviceMap {
     /// The sensor renderer, opened when the first camera is asked for (missions without cameras
     /// need no graphics adapter).
     renderer: Mutex<Option<crate::render::sensors::SharedRenderer>>,
+    /// The sensor file, read once for all camera devices.
+    sensors: std::sync::OnceLock<Result<crate::render::SensorConfig, String>>,
 }
 
 impl DryRunDeviceMap {
@@ -51,7 +53,7 @@ impl DryRunDeviceMap {
         for (g, _) in JOINT_GROUPS {
             resources.register(g);
         }
-        DryRunDeviceMap { twin, resources, seed, renderer: Mutex::new(None) }
+        DryRunDeviceMap { twin, resources, seed, renderer: Mutex::new(None), sensors: Default::default() }
     }
 
     fn renderer(&self, device: &str) -> Result<crate::render::sensors::SharedRenderer, DeviceError> {
@@ -66,9 +68,14 @@ impl DryRunDeviceMap {
         Ok(shared)
     }
 
-    fn sensor_config(device: &str) -> Result<crate::render::SensorConfig, DeviceError> {
-        crate::render::SensorConfig::load(crate::render::SensorConfig::default_path())
-            .map_err(|e| DeviceError::InvalidCommand { device: device.into(), reason: e.to_string() })
+    fn sensor_config(&self, device: &str) -> Result<crate::render::SensorConfig, DeviceError> {
+        self.sensors
+            .get_or_init(|| {
+                crate::render::SensorConfig::load(crate::render::SensorConfig::default_path())
+                    .map_err(|e| e.to_string())
+            })
+            .clone()
+            .map_err(|reason| DeviceError::InvalidCommand { device: device.into(), reason })
     }
 }
 
@@ -118,7 +125,7 @@ impl DeviceMap for DryRunDeviceMap {
         }))
     }
     fn stereo_camera(&self, name: &str) -> Result<Box<dyn StereoCamera>, DeviceError> {
-        let cfg = Self::sensor_config(name)?;
+        let cfg = self.sensor_config(name)?;
         let c = match name {
             "head_stereo" => cfg.head_stereo,
             "loc_stereo" => cfg.loc_stereo,
@@ -139,7 +146,7 @@ impl DeviceMap for DryRunDeviceMap {
         )?))
     }
     fn tof_camera(&self, name: &str) -> Result<Box<dyn TofCamera>, DeviceError> {
-        let cfg = Self::sensor_config(name)?;
+        let cfg = self.sensor_config(name)?;
         let frame = match name {
             "tof_left" => cfg.tof.frames.first(),
             "tof_right" => cfg.tof.frames.get(1),

@@ -225,10 +225,8 @@ pub struct Frame {
     pub width: u32,
     /// Height in pixels.
     pub height: u32,
-    /// Bytes per pixel of `pixels`: 1 for [`Shading::Sun`] (luminance), 4 for [`Shading::Tof`]
-    /// (RGBA8: r = amplitude / 4, g = cosine of incidence).
-    pub channels: u32,
-    /// `width * height * channels` bytes.
+    /// One byte per pixel for [`Shading::Sun`] (luminance), four for [`Shading::Tof`] (RGBA8:
+    /// r = amplitude / 4, g = cosine of incidence).
     pub pixels: Vec<u8>,
     /// Distance along the optical axis in metres; 0.0 where nothing was hit. Read back for ToF
     /// shading only (empty for Sun-shaded camera frames).
@@ -721,7 +719,7 @@ fn copy_frame(t: &Targets) -> Result<Frame, BoxErr> {
             );
         }
     }
-    Ok(Frame { width: t.width, height: t.height, channels: t.channels, pixels, range_m })
+    Ok(Frame { width: t.width, height: t.height, pixels, range_m })
 }
 
 /// A uniform buffer of `slots` entries `OBJECT_STRIDE` apart and its bind group, which binds one

@@ -282,7 +282,7 @@ fn regolith_texture(albedo: f64, seed: u64) -> std::sync::Arc<Vec<u8>> {
     tex
 }
 
-fn urdf_parts(twin: &Twin, out: &mut Vec<(MeshData, [f32; 4], Placement)>) {
+fn urdf_parts(out: &mut Vec<(MeshData, [f32; 4], Placement)>) {
     let robot = match rapier3d_urdf::urdf_rs::read_file(crate::rover_urdf()) {
         Ok(r) => r,
         Err(e) => {
@@ -290,7 +290,6 @@ fn urdf_parts(twin: &Twin, out: &mut Vec<(MeshData, [f32; 4], Placement)>) {
             return;
         }
     };
-    let _ = twin;
     for l in &robot.links {
         let tint = if l.name.starts_with("wheel") {
             [0.15, 0.15, 0.15, 1.0]
@@ -418,7 +417,7 @@ impl Scene {
         }
         add(objects, [0.8, 0.8, 0.78, 1.0], Placement::Fixed, TextureId::White);
         let mut robot = Vec::new();
-        urdf_parts(twin, &mut robot);
+        urdf_parts(&mut robot);
         for (m, tint, place) in robot {
             add(m, tint, place, TextureId::White);
         }

@@ -14,7 +14,7 @@ use framework::camera::{CameraModel, DepthImage, Distortion, GreyImage, Pinhole,
 use framework::config::{ConfigError, Source, read_file};
 use framework::hal::{DeviceError, StereoCamera, TofCamera};
 use framework::time::{Duration, Time};
-use nalgebra::{Isometry3, Matrix4, Point2, Point3, Vector2, Vector3};
+use nalgebra::{Isometry3, Matrix4, Point2, Point3, Vector3};
 use parking_lot::Mutex;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
@@ -126,20 +126,9 @@ impl SensorConfig {
 
 /// Camera model of a ToF configuration (non-square fields of view).
 pub fn tof_model(t: &TofConfig, frame: &str) -> CameraModel {
-    let fx = t.width as f64 / 2.0 / (t.hfov_deg.to_radians() / 2.0).tan();
-    let fy = t.height as f64 / 2.0 / (t.vfov_deg.to_radians() / 2.0).tan();
-    CameraModel {
-        pinhole: Pinhole {
-            width: t.width,
-            height: t.height,
-            fx,
-            fy,
-            cx: t.width as f64 / 2.0,
-            cy: t.height as f64 / 2.0,
-        },
-        distortion: Distortion::default(),
-        frame: frame.to_string(),
-    }
+    let mut m = CameraModel::from_hfov(t.width, t.height, t.hfov_deg.to_radians(), frame);
+    m.pinhole.fy = t.height as f64 / 2.0 / (t.vfov_deg.to_radians() / 2.0).tan();
+    m
 }
 
 /// Stereo model of a stereo configuration, baseline from the robot description.
@@ -159,7 +148,7 @@ pub struct SensorRenderer {
     gpu: Renderer,
     scene: Scene,
     /// Per distorted camera: for each output pixel, where it samples the undistorted render.
-    remaps: Vec<(CameraModel, Vec<Tap>)>,
+    remaps: Vec<((Pinhole, Distortion), Vec<Tap>)>,
     lod_error_px: f64,
 }
 
@@ -419,8 +408,10 @@ impl SensorRenderer {
 
     /// The index of the remap table of a distorted camera, computed on first use: the distorted pixel
     /// (u, v) sees the direction of the undistorted pixel the table holds.
+    /// Cameras that differ only in their frame (the two of a stereo pair) share one table.
     fn remap(&mut self, cam: &CameraModel) -> usize {
-        if let Some(k) = self.remaps.iter().position(|(c, _)| c == cam) {
+        let key = (cam.pinhole, cam.distortion);
+        if let Some(k) = self.remaps.iter().position(|(c, _)| *c == key) {
             return k;
         }
         let p = &cam.pinhole;
@@ -428,8 +419,7 @@ impl SensorRenderer {
         let mut table = Vec::with_capacity(w * h);
         for v in 0..p.height {
             for u in 0..p.width {
-                let d = Vector2::new((u as f64 + 0.5 - p.cx) / p.fx, (v as f64 + 0.5 - p.cy) / p.fy);
-                let n = cam.distortion.undistort(d);
+                let n = cam.ray(&Point2::new(u as f64 + 0.5, v as f64 + 0.5));
                 // Bilinear, in pixel-centre coordinates of the undistorted render.
                 let (x, y) = ((p.fx * n.x + p.cx) as f32 - 0.5, (p.fy * n.y + p.cy) as f32 - 0.5);
                 table.push(if x < 0.0 || y < 0.0 || x > (w - 1) as f32 || y > (h - 1) as f32 {
@@ -440,7 +430,7 @@ impl SensorRenderer {
                 });
             }
         }
-        self.remaps.push((cam.clone(), table));
+        self.remaps.push((key, table));
         self.remaps.len() - 1
     }
 
@@ -568,8 +558,18 @@ impl DryRunStereo {
     }
 }
 
-fn due(last: Option<Time>, now: Time, period: Duration) -> bool {
-    last.is_none_or(|t| now - t >= period)
+/// Whether camera `name` takes a new frame now: none during a dropout (an error), else when it has
+/// none yet or its period has passed since the last one.
+fn frame_due(twin: &Twin, name: &str, last: Option<Time>, period: Duration) -> Result<bool, DeviceError> {
+    if twin.dropped_out(name) {
+        return Err(DeviceError::Fault { device: name.into(), reason: "no frames (dropout)".into() });
+    }
+    Ok(last.is_none_or(|t| twin.time() - t >= period))
+}
+
+/// A rendering failure as the fault of camera `name`.
+fn render_fault(name: &str) -> impl Fn(RenderError) -> DeviceError + '_ {
+    move |e| DeviceError::Fault { device: name.into(), reason: e.to_string() }
 }
 
 impl StereoCamera for DryRunStereo {
@@ -581,15 +581,8 @@ impl StereoCamera for DryRunStereo {
     }
     fn capture(&mut self) -> Result<(GreyImage, GreyImage), DeviceError> {
         let twin = self.twin.lock();
-        if twin.dropped_out(&self.name) {
-            return Err(DeviceError::Fault {
-                device: self.name.clone(),
-                reason: "no frames (dropout)".into(),
-            });
-        }
-        if due(self.last.as_ref().map(|l| l.0.stamp), twin.time(), self.period) {
-            let fail =
-                |e: RenderError| DeviceError::Fault { device: self.name.clone(), reason: e.to_string() };
+        if frame_due(&twin, &self.name, self.last.as_ref().map(|l| l.0.stamp), self.period)? {
+            let fail = render_fault(&self.name);
             let pose = |cam: &CameraModel| {
                 twin.link_pose(&cam.frame)
                     .ok_or_else(|| fail(RenderError::Gpu(format!("no frame {}", cam.frame))))
@@ -653,15 +646,8 @@ impl TofCamera for DryRunTof {
     }
     fn capture(&mut self) -> Result<TofFrame, DeviceError> {
         let twin = self.twin.lock();
-        if twin.dropped_out(&self.name) {
-            return Err(DeviceError::Fault {
-                device: self.name.clone(),
-                reason: "no frames (dropout)".into(),
-            });
-        }
-        if due(self.last.as_ref().map(|l| l.depth.stamp), twin.time(), self.period) {
-            let fail =
-                |e: RenderError| DeviceError::Fault { device: self.name.clone(), reason: e.to_string() };
+        if frame_due(&twin, &self.name, self.last.as_ref().map(|l| l.depth.stamp), self.period)? {
+            let fail = render_fault(&self.name);
             let pose = twin
                 .link_pose(&self.model.frame)
                 .ok_or_else(|| fail(RenderError::Gpu(format!("no frame {}", self.model.frame))))?;

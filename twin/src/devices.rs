@@ -269,26 +269,20 @@ pub struct DryRunImu {
 
 impl DryRunImu {
     fn new(twin: SharedTwin, cfg: ImuConfig, seed: u64) -> Self {
-        let mut rng = Pcg64Mcg::seed_from_u64(seed ^ 0x1a2b_3c4d);
-        let mut gauss3 = |s: f64| {
-            Vector3::from_fn(|_, _| {
-                s * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut rng)
-            })
-        };
-        let accel_bias = gauss3(cfg.accel_bias_initial);
-        let gyro_bias = gauss3(cfg.gyro_bias_initial);
-        DryRunImu { twin, cfg, rng, accel_bias, gyro_bias, last: None, last_sample: None }
+        let rng = Pcg64Mcg::seed_from_u64(seed ^ 0x1a2b_3c4d);
+        let zero = Vector3::zeros();
+        let mut imu =
+            DryRunImu { twin, cfg, rng, accel_bias: zero, gyro_bias: zero, last: None, last_sample: None };
+        // Turn-on biases, accelerometer first.
+        imu.accel_bias = imu.gauss3(imu.cfg.accel_bias_initial);
+        imu.gyro_bias = imu.gauss3(imu.cfg.gyro_bias_initial);
+        imu
     }
 
     fn gauss3(&mut self, sigma: f64) -> Vector3<f64> {
         Vector3::from_fn(|_, _| {
             sigma * <StandardNormal as Distribution<f64>>::sample(&StandardNormal, &mut self.rng)
         })
-    }
-
-    /// Current biases (for tests of the noise model).
-    pub fn biases(&self) -> (Vector3<f64>, Vector3<f64>) {
-        (self.accel_bias, self.gyro_bias)
     }
 }
 

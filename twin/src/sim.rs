@@ -88,7 +88,6 @@ struct ColliderTag {
     name: String,
     robot: bool,
     wheel: bool,
-    rock: bool,
 }
 
 struct Physics {
@@ -375,8 +374,8 @@ impl Twin {
         Ok(())
     }
 
-    fn tag(&mut self, name: String, robot: bool, wheel: bool, rock: bool) -> u128 {
-        self.tags.push(ColliderTag { name, robot, wheel, rock });
+    fn tag(&mut self, name: String, robot: bool, wheel: bool) -> u128 {
+        self.tags.push(ColliderTag { name, robot, wheel });
         (self.tags.len() - 1) as u128
     }
 
@@ -423,7 +422,7 @@ impl Twin {
         let heights = Array2::from_fn(ny, nx, |i, j| {
             hf.height(hf.origin.x + j as f64 * cx, hf.origin.y + (ny - 1 - i) as f64 * cy) as f32
         });
-        let ground_tag = self.tag("terrain".into(), false, false, false);
+        let ground_tag = self.tag("terrain".into(), false, false);
         let ground = ColliderBuilder::heightfield_with_flags(
             heights,
             Vector::new(sx as f32, 1.0, sy as f32),
@@ -444,7 +443,7 @@ impl Twin {
                 Translation3::from(r.position.coords),
                 UnitQuaternion::from_axis_angle(&Vector3::z_axis(), r.yaw),
             );
-            let tag = self.tag(format!("rock_{i}"), false, false, true);
+            let tag = self.tag(format!("rock_{i}"), false, false);
             ph.colliders.insert(
                 b.position(pose_to_rapier(&pose))
                     .friction(self.world.regolith.friction as f32)
@@ -460,7 +459,7 @@ impl Twin {
                 ObjectKind::Canister => continue,
             };
             let pose = object_pose(&o, half.z);
-            let tag = self.tag(o.name.clone(), false, false, false);
+            let tag = self.tag(o.name.clone(), false, false);
             ph.colliders.insert(
                 ColliderBuilder::cuboid(half.x as f32, half.y as f32, half.z as f32)
                     .position(pose_to_rapier(&pose))
@@ -502,7 +501,7 @@ impl Twin {
             body_of_link.insert(name.clone(), lh.body);
             let wheel = name.starts_with("wheel_");
             for ch in &lh.colliders {
-                let tag = self.tag(name.clone(), true, wheel, false);
+                let tag = self.tag(name.clone(), true, wheel);
                 if let Some(co) = ph.colliders.get_mut(ch.handle) {
                     co.user_data = tag;
                 }
@@ -627,7 +626,7 @@ impl Twin {
                 ("canister_handle", [0.0425, 0.01, 0.0075], [0.0, 0.0, HANDLE_HEIGHT]),
             ];
             for (i, (name, h, p)) in parts.iter().enumerate() {
-                let tag = self.tag(name.to_string(), false, false, false);
+                let tag = self.tag(name.to_string(), false, false);
                 let mass = if i == 0 { 0.6 } else { 0.0 };
                 ph.colliders.insert_with_parent(
                     ColliderBuilder::cuboid(h[0] as f32, h[1] as f32, h[2] as f32)
@@ -785,9 +784,33 @@ impl Twin {
         self.wheel_cmd.iter().zip(&self.stalled).map(|(&c, &s)| if s { 0.0 } else { c }).collect()
     }
 
+    /// The servo indices of a joint group.
+    fn group_ids(&self, group: &str) -> Result<Vec<usize>, String> {
+        self.groups.get(group).cloned().ok_or_else(|| format!("no joint group '{group}'"))
+    }
+
+    /// Ends the group's active moves in `state`.
+    fn end_moves(&mut self, group: &str, state: MoveState) {
+        for m in self.moves.values_mut() {
+            if m.group == group && m.state == MoveState::Active {
+                m.state = state.clone();
+            }
+        }
+    }
+
+    /// Servo `s` holds its joint where it is, with no move under way.
+    fn hold(&mut self, s: usize) {
+        let q = self.joints[self.servos[s].joint].q;
+        let sv = &mut self.servos[s];
+        sv.start = q;
+        sv.goal = q;
+        sv.setpoint = q;
+        sv.duration = 0.0;
+    }
+
     /// Starts a move of a joint group to `targets` at `speed` (fraction of the velocity limits).
     pub fn start_move(&mut self, group: &str, targets: &[f64], speed: f64) -> Result<MoveId, String> {
-        let ids = self.groups.get(group).cloned().ok_or_else(|| format!("no joint group '{group}'"))?;
+        let ids = self.group_ids(group)?;
         if targets.len() != ids.len() {
             return Err(format!("group '{group}' has {} joints, got {} targets", ids.len(), targets.len()));
         }
@@ -808,11 +831,7 @@ impl Twin {
             }
         }
         // The new move replaces any move of this group under way.
-        for m in self.moves.values_mut() {
-            if m.group == group && m.state == MoveState::Active {
-                m.state = MoveState::Stopped;
-            }
-        }
+        self.end_moves(group, MoveState::Stopped);
         // One duration for the whole group: the slowest joint at `speed` of its limit.
         let duration = ids
             .iter()
@@ -867,52 +886,35 @@ impl Twin {
 
     /// Stops a group where it is.
     pub fn stop_group(&mut self, group: &str) -> Result<(), String> {
-        let ids = self.groups.get(group).cloned().ok_or_else(|| format!("no joint group '{group}'"))?;
+        let ids = self.group_ids(group)?;
         for &s in &ids {
-            let q = self.joints[self.servos[s].joint].q;
-            let sv = &mut self.servos[s];
-            sv.start = q;
-            sv.goal = q;
-            sv.setpoint = q;
-            sv.duration = 0.0;
+            self.hold(s);
         }
-        for m in self.moves.values_mut() {
-            if m.group == group && m.state == MoveState::Active {
-                m.state = MoveState::Stopped;
-            }
-        }
+        self.end_moves(group, MoveState::Stopped);
         Ok(())
     }
 
     /// Puts a group in FAULT (failure injection, or a detected stall).
     pub fn fault_group(&mut self, group: &str, reason: &str) -> Result<(), String> {
-        let ids = self.groups.get(group).cloned().ok_or_else(|| format!("no joint group '{group}'"))?;
+        let ids = self.group_ids(group)?;
         for &s in &ids {
             self.servos[s].status = MotorStatus { fault: Some(reason.to_string()), ..Default::default() };
         }
-        for m in self.moves.values_mut() {
-            if m.group == group && m.state == MoveState::Active {
-                m.state = MoveState::Failed(format!("{group} in FAULT: {reason}"));
-            }
-        }
+        self.end_moves(group, MoveState::Failed(format!("{group} in FAULT: {reason}")));
         Ok(())
     }
 
     /// Leaves FAULT through RECOVERING and servos at the present position.
     pub fn recover_group(&mut self, group: &str) -> Result<(), String> {
-        let ids = self.groups.get(group).cloned().ok_or_else(|| format!("no joint group '{group}'"))?;
+        let ids = self.group_ids(group)?;
         let t = self.config.servos.recover_time_s;
         for &s in &ids {
-            let q = self.joints[self.servos[s].joint].q;
-            let sv = &mut self.servos[s];
-            if sv.status.fault.is_some() {
+            if self.servos[s].status.fault.is_some() {
+                self.hold(s);
+                let sv = &mut self.servos[s];
                 sv.status = MotorStatus { recovering: true, ..Default::default() };
                 sv.recover_left = t;
-                sv.start = q;
-                sv.goal = q;
-                sv.setpoint = q;
                 sv.integral = 0.0;
-                sv.duration = 0.0;
             }
         }
         Ok(())
@@ -1179,8 +1181,8 @@ impl Twin {
         for (_, a, b) in active_pairs(ph) {
             let (ta, tb) = (a.user_data as usize, b.user_data as usize);
             let (Some(x), Some(y)) = (self.tags.get(ta), self.tags.get(tb)) else { continue };
-            // A collision: a robot part other than a wheel touching a rock or an object, or a wheel a
-            // rock taller than the rover may drive over is not counted (driving over rocks is allowed).
+            // A collision: a robot part other than a wheel touching a rock or an object (wheels may
+            // touch anything: driving over small rocks is allowed; nothing counts the terrain).
             let robot_hit =
                 |r: &ColliderTag, o: &ColliderTag| r.robot && !r.wheel && !o.robot && o.name != "terrain";
             if robot_hit(x, y) || robot_hit(y, x) {
@@ -1278,13 +1280,24 @@ impl Twin {
     }
 
     fn update_latch(&mut self) {
+        // Called every step: the poses are worked out only when a latch can form (the gripper
+        // closes, no latch yet) or a kinematic latch carries the canister.
+        let closing = self.gripper_closing();
+        let kinematic = matches!(self.engine, Engine::Kinematic(_));
+        let work = if kinematic {
+            closing || self.latched_kinematic.is_some()
+        } else {
+            closing && self.latch.is_none()
+        };
+        if !work {
+            return;
+        }
         let latch_d = self.config.gripper.latch_distance_m;
         let (Some(tcp), Some(can)) = (self.tcp_pose(), self.canister_pose()) else { return };
         let Some(handle_off) = self.canister.as_ref().map(|c| c.handle_offset) else { return };
         let handle = can * handle_off;
         let near = (tcp.translation.vector - handle.translation.vector).norm() < latch_d;
-        let closing = self.gripper_closing();
-        if matches!(self.engine, Engine::Kinematic(_)) {
+        if kinematic {
             if self.latched_kinematic.is_none() && near && closing {
                 self.latched_kinematic = Some(tcp.inverse() * can);
             }
@@ -1320,12 +1333,7 @@ impl Twin {
         // Fingers hold where they are.
         if let Some(ids) = self.groups.get("gripper").cloned() {
             for s in ids {
-                let q = self.joints[self.servos[s].joint].q;
-                let sv = &mut self.servos[s];
-                sv.goal = q;
-                sv.start = q;
-                sv.setpoint = q;
-                sv.duration = 0.0;
+                self.hold(s);
             }
         }
     }

@@ -110,7 +110,8 @@ pub struct MechanismModel {
     joint_index: HashMap<String, usize>,
 }
 
-fn pose(p: &urdf_rs::Pose) -> Isometry3<f64> {
+/// A URDF origin (xyz, roll-pitch-yaw) as an isometry.
+pub fn urdf_pose(p: &urdf_rs::Pose) -> Isometry3<f64> {
     let r = UnitQuaternion::from_euler_angles(p.rpy[0], p.rpy[1], p.rpy[2]);
     Isometry3::from_parts(Translation3::new(p.xyz[0], p.xyz[1], p.xyz[2]), r)
 }
@@ -178,7 +179,7 @@ impl MechanismModel {
                 kind,
                 parent,
                 child,
-                origin: pose(&j.origin),
+                origin: urdf_pose(&j.origin),
                 axis,
                 limits,
                 velocity_limit: j.limit.velocity,

@@ -21,8 +21,8 @@ pub enum FileKind {
     Module,
 }
 
-/// Guesses the kind of a file from its tables (and, for module configurations, its name).
-pub fn kind_of(path: &Path, text: &str) -> FileKind {
+/// Guesses the kind of a file from its tables.
+pub fn kind_of(text: &str) -> FileKind {
     let Ok(t) = toml::from_str::<toml::Table>(text) else { return FileKind::Scenario };
     if t.contains_key("sweep") {
         FileKind::Sweep
@@ -31,35 +31,18 @@ pub fn kind_of(path: &Path, text: &str) -> FileKind {
     } else if t.contains_key("framework") || (t.contains_key("params") && !t.contains_key("name")) {
         FileKind::Module
     } else {
-        let _ = path;
         FileKind::Scenario
     }
 }
 
 /// Checks one file; every problem found, located.
 pub fn check_file(path: &Path) -> Vec<String> {
-    check_file_located(path).into_iter().map(|e| e.to_string()).chain(module_problems(path)).collect()
-}
-
-fn module_problems(path: &Path) -> Vec<String> {
-    let Ok(text) = std::fs::read_to_string(path) else { return Vec::new() };
-    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
-    if kind_of(path, &text) != FileKind::Module || !MODULES.contains(&name) {
-        return Vec::new();
-    }
-    match crate::runner::check_module_config(name, path) {
-        Ok(()) => Vec::new(),
-        Err(problems) => problems,
-    }
-}
-
-fn check_file_located(path: &Path) -> Vec<ConfigError> {
     let text = match read_file(path) {
         Ok(t) => t,
-        Err(e) => return vec![e],
+        Err(e) => return vec![e.to_string()],
     };
     let origin = path.display().to_string();
-    match kind_of(path, &text) {
+    let located = match kind_of(&text) {
         FileKind::Sweep => crate::sweep::load(path).err().into_iter().collect(),
         FileKind::World => worlds::World::load(path).err().into_iter().collect(),
         FileKind::Scenario => match crate::scenario::load(path, &[]) {
@@ -74,20 +57,23 @@ fn check_file_located(path: &Path) -> Vec<ConfigError> {
                 .into_iter()
                 .collect(),
         },
-        FileKind::Module => check_module(path, &origin, &text),
-    }
+        FileKind::Module => {
+            // A module of the runner's system (the file's name) is checked whole, by registering
+            // it in a throw-away system over a flat yard: framework keys and typed parameters as at
+            // start-up.
+            let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
+            if MODULES.contains(&name) {
+                return crate::runner::check_module_config(name, path).err().unwrap_or_default();
+            }
+            check_unknown_module(&origin, &text)
+        }
+    };
+    located.into_iter().map(|e| e.to_string()).collect()
 }
 
-/// Checks a module configuration by registering the module it belongs to (its file name) in a
-/// throw-away system over a flat yard: framework keys and typed parameters are checked as at
-/// start-up.
-fn check_module(path: &Path, origin: &str, text: &str) -> Vec<ConfigError> {
+/// An unknown module's configuration: the framework keys can still be checked.
+fn check_unknown_module(origin: &str, text: &str) -> Vec<ConfigError> {
     let src = Source::new(origin, text);
-    let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
-    if MODULES.contains(&name) {
-        return Vec::new(); // checked whole by `module_problems`, with the module itself
-    }
-    // Unknown module: the framework keys can still be checked.
     let r: Result<framework::config::ModuleConfigFile<toml::Table>, _> = src.parse();
     match r {
         Err(e) => vec![e],

@@ -27,7 +27,7 @@ use framework::data::{JointStates, LocomotionState, PoseEstimate, StereoImages, 
 use framework::system::Core;
 use framework::{Duration, Time};
 use mcap::records::MessageHeader;
-use nalgebra::{Isometry3, UnitQuaternion};
+use nalgebra::Isometry3;
 use rerun::{Quaternion, Transform3D};
 use std::collections::BTreeMap;
 use std::io::BufWriter;
@@ -672,11 +672,7 @@ impl Writer {
         let robot = urdf_rs::read_file(twin::rover_urdf()).context("reading the robot description")?;
         for link in &robot.links {
             for (k, v) in link.visual.iter().enumerate() {
-                let o = &v.origin;
-                let pose = Isometry3::from_parts(
-                    nalgebra::Translation3::new(o.xyz[0], o.xyz[1], o.xyz[2]),
-                    UnitQuaternion::from_euler_angles(o.rpy[0], o.rpy[1], o.rpy[2]),
-                );
+                let pose = framework::mechanism::urdf_pose(&v.origin);
                 let path = format!("world/truth/{}/visual_{k}", link.name);
                 let color = v
                     .material
@@ -744,15 +740,13 @@ impl Writer {
             if now >= self.next_track {
                 self.next_track = now + Duration::from_secs(1);
                 let t = b.translation;
-                self.truth_track.push([t.x as f32, t.y as f32, t.z as f32 + 0.05]);
-                if self.truth_track.len() % 5 == 1 || self.truth_track.len() < 5 {
-                    rec.log(
-                        "world/truth/track",
-                        &rerun::LineStrips3D::new([self.truth_track.clone()])
-                            .with_colors([[40u8, 200, 60]])
-                            .with_radii([0.02_f32]),
-                    )?;
-                }
+                extend_track(
+                    rec,
+                    "world/truth/track",
+                    &mut self.truth_track,
+                    [t.x, t.y, t.z],
+                    [40, 200, 60],
+                )?;
             }
         }
         if let Some(m) = &mut self.mcap {
@@ -968,15 +962,13 @@ impl Writer {
                 .last()
                 .is_none_or(|l| ((l[0] - p.x as f32).powi(2) + (l[1] - p.y as f32).powi(2)).sqrt() > 0.25)
             {
-                self.est_track.push([p.x as f32, p.y as f32, p.z as f32 + 0.05]);
-                if self.est_track.len() % 5 == 1 || self.est_track.len() < 5 {
-                    rec.log(
-                        "world/estimate/track",
-                        &rerun::LineStrips3D::new([self.est_track.clone()])
-                            .with_colors([[60u8, 140, 255]])
-                            .with_radii([0.02_f32]),
-                    )?;
-                }
+                extend_track(
+                    rec,
+                    "world/estimate/track",
+                    &mut self.est_track,
+                    [p.x, p.y, p.z],
+                    [60, 140, 255],
+                )?;
             }
         }
         if let Some(m) = &mut self.mcap {
@@ -1135,4 +1127,23 @@ impl Writer {
         }
         Ok(files)
     }
+}
+
+/// Adds a point (5 cm above `p`) to a track and logs the whole track (a line strip is logged
+/// whole) at its first points and then at every fifth only.
+fn extend_track(
+    rec: &rerun::RecordingStream,
+    path: &str,
+    track: &mut Vec<[f32; 3]>,
+    p: [f64; 3],
+    color: [u8; 3],
+) -> Result<()> {
+    track.push([p[0] as f32, p[1] as f32, p[2] as f32 + 0.05]);
+    if track.len() % 5 == 1 || track.len() < 5 {
+        rec.log(
+            path,
+            &rerun::LineStrips3D::new([track.clone()]).with_colors([color]).with_radii([0.02_f32]),
+        )?;
+    }
+    Ok(())
 }

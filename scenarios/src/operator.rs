@@ -30,7 +30,7 @@ impl Operator {
     }
 
     /// The canister's image region, if enough of it is in view.
-    fn select(&self, stamp: Time) -> Option<[f64; 4]> {
+    fn select(&self) -> Option<[f64; 4]> {
         let t = self.twin.lock();
         let can = t.canister_truth()?;
         let cam = t.link_pose(&self.model.frame)?;
@@ -54,7 +54,6 @@ impl Operator {
         let u1 = uv.iter().map(|p| p.x).fold(f64::NEG_INFINITY, f64::max).min(w);
         let v0 = uv.iter().map(|p| p.y).fold(f64::INFINITY, f64::min).max(0.0);
         let v1 = uv.iter().map(|p| p.y).fold(f64::NEG_INFINITY, f64::max).min(h);
-        let _ = stamp;
         (u1 - u0 >= 2.0 && v1 - v0 >= 2.0).then_some([u0, v0, u1, v1])
     }
 }
@@ -73,7 +72,7 @@ impl Module for Operator {
             let Some(img) = m.image.as_ref().and_then(|r| ctx.read(r)) else { return Ok(()) };
             // The first image decides: the operator marks the target there, or reports it unseen.
             m.done = true;
-            match m.select(img.stamp) {
+            match m.select() {
                 Some(bbox) => {
                     let sel = TargetSelection {
                         target: "canister".into(),

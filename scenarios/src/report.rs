@@ -118,7 +118,7 @@ fn histogram(name: &str, values: &[f64]) -> Result<String> {
 
 /// Reads a run's `track.csv` (t, x, y).
 fn track(dir: &Path, index: u64) -> Vec<(f64, f64)> {
-    let p = dir.join("runs").join(format!("{index:05}")).join("track.csv");
+    let p = crate::sweep::run_dir(dir, index).join("track.csv");
     let Ok(mut r) = csv::Reader::from_path(p) else { return Vec::new() };
     r.records()
         .filter_map(|rec| {
@@ -217,7 +217,7 @@ pub fn write(
         }
     }
     writeln!(h, "<h2>Metric histograms</h2>")?;
-    for (k, name) in METRICS.iter().enumerate() {
+    for (k, (name, _)) in METRICS.iter().enumerate() {
         let v = metric_values(rows, k);
         if v.len() >= 2 {
             h.push_str(&histogram(name, &v)?);

@@ -533,12 +533,7 @@ fn check_criteria(
 /// Steps the twin to the executor's next tick, then runs that tick (modules at `t` read sensors
 /// stamped `t`); the new time.
 fn step(ex: &mut LockstepExecutor, twin: &SharedTwin) -> Time {
-    let next = ex.now() + ex.base_period();
-    let mut t = twin.lock();
-    while t.time() < next {
-        t.step();
-    }
-    drop(t);
+    twin.lock().step_to(ex.now() + ex.base_period());
     ex.tick()
 }
 
@@ -742,7 +737,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         scenario_file: loaded.path.display().to_string(),
         seed,
         overrides: loaded.overrides.iter().cloned().collect::<BTreeMap<_, _>>(),
-        fidelity: format!("{fidelity:?}").to_lowercase(),
+        fidelity: fidelity.name().to_string(),
         success,
         outcome: if abort.is_some() {
             "aborted"

@@ -82,6 +82,16 @@ pub enum FidelityName {
     Kinematic,
 }
 
+impl FidelityName {
+    /// The name scenario files and the command line use.
+    pub fn name(self) -> &'static str {
+        match self {
+            FidelityName::Dynamic => "dynamic",
+            FidelityName::Kinematic => "kinematic",
+        }
+    }
+}
+
 /// Run settings.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields, default)]

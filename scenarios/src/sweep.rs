@@ -7,6 +7,7 @@
 
 use crate::runner::{self, RunOptions};
 use crate::scenario::{self, FidelityName};
+use crate::score::Score;
 use anyhow::{Context, Result, anyhow, bail};
 use framework::config::ConfigError;
 use framework::seed::splitmix64 as mix;
@@ -272,23 +273,31 @@ pub struct Row {
     pub wall_time_s: f64,
 }
 
-/// Metric columns of `runs.csv`, in order.
-pub const METRICS: &[&str] = &[
-    "sim_time_s",
-    "distance_m",
-    "final_position_error_m",
-    "position_error_rms_m",
-    "canister_stowed",
-    "collisions",
-    "max_tilt_deg",
-    "final_state",
+/// A metric column: its name and how a run's score fills it.
+pub type Metric = (&'static str, fn(&Score) -> String);
+
+/// Metric columns of `runs.csv`, in order, each with the formatting of its value (empty when the
+/// run has none).
+pub const METRICS: &[Metric] = &[
+    ("sim_time_s", |s| format!("{:.3}", s.sim_time_s)),
+    ("distance_m", |s| format!("{:.6}", s.metrics.distance_m)),
+    ("final_position_error_m", |s| optional(s.metrics.final_position_error_m)),
+    ("position_error_rms_m", |s| optional(s.metrics.position_error_rms_m)),
+    ("canister_stowed", |s| s.metrics.canister_stowed.to_string()),
+    ("collisions", |s| s.metrics.collisions.to_string()),
+    ("max_tilt_deg", |s| format!("{:.6}", s.metrics.max_tilt_deg)),
+    ("final_state", |s| s.metrics.final_state.clone()),
 ];
+
+fn optional(v: Option<f64>) -> String {
+    v.map(|v| format!("{v:.6}")).unwrap_or_default()
+}
 
 fn header(sweep: &SweepFile) -> Vec<String> {
     let mut h = vec!["index".to_string(), "seed".into()];
     h.extend(sweep.dispersions.iter().map(|d| d.key.clone()));
     h.extend(["success".to_string(), "outcome".into()]);
-    h.extend(METRICS.iter().map(|m| m.to_string()));
+    h.extend(METRICS.iter().map(|(name, _)| name.to_string()));
     h.extend(["reproduce".to_string(), "wall_time_s".into()]);
     h
 }
@@ -347,6 +356,18 @@ pub struct SweepOptions {
     pub interrupt: Arc<AtomicBool>,
 }
 
+impl SweepOptions {
+    /// Parallel jobs: the option, or all cores.
+    fn jobs(&self) -> usize {
+        self.jobs.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)).max(1)
+    }
+}
+
+/// The folder of run `index` of a sweep writing to `out` (score, track, logs).
+pub(crate) fn run_dir(out: &Path, index: u64) -> PathBuf {
+    out.join("runs").join(format!("{index:05}"))
+}
+
 /// What a sweep did.
 #[derive(Clone, Debug)]
 pub struct SweepResult {
@@ -367,7 +388,7 @@ fn run_one(
     keep: KeepLogs,
     interrupt: Arc<AtomicBool>,
 ) -> Result<Option<Row>> {
-    let dir = out.join("runs").join(format!("{:05}", plan.index));
+    let dir = run_dir(out, plan.index);
     let loaded = scenario::load(&sweep.scenario_path, &plan.overrides)?;
     let opts = RunOptions {
         seed: Some(plan.seed),
@@ -388,21 +409,10 @@ fn run_one(
             let _ = std::fs::remove_file(dir.join(f));
         }
     }
-    let m = &score.metrics;
-    let opt = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
-    let metrics = vec![
-        format!("{:.3}", score.sim_time_s),
-        format!("{:.6}", m.distance_m),
-        opt(m.final_position_error_m),
-        opt(m.position_error_rms_m),
-        m.canister_stowed.to_string(),
-        m.collisions.to_string(),
-        format!("{:.6}", m.max_tilt_deg),
-        m.final_state.clone(),
-    ];
+    let metrics = METRICS.iter().map(|(_, value)| value(&score)).collect();
     let mut reproduce = format!("rover-twin run {} --seed {}", sweep.scenario_path.display(), plan.seed);
     if let Some(f) = sweep.file.sweep.fidelity {
-        reproduce += &format!(" --fidelity {}", format!("{f:?}").to_lowercase());
+        reproduce += &format!(" --fidelity {}", f.name());
     }
     for (k, v) in &plan.overrides {
         reproduce += &format!(" --set '{k}={v}'");
@@ -451,8 +461,7 @@ pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
         runs,
     };
     std::fs::write(o.out.join("campaign.json"), serde_json::to_string_pretty(&campaign)?)?;
-    let jobs =
-        o.jobs.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)).max(1);
+    let jobs = o.jobs();
     let keep = o.keep_logs.unwrap_or(sweep.file.sweep.keep_logs);
     // Rows are appended (and flushed) as runs finish, so an interrupted sweep keeps them all.
     let csv_path = o.out.join("runs.csv");
@@ -536,7 +545,7 @@ pub fn write_results(
     campaign: Option<&Campaign>,
 ) -> Result<()> {
     write_csv(&out.join("runs.csv"), sweep, rows)?;
-    let summary = summarize(sweep, rows, partial);
+    let summary = summarize(rows, partial);
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
     crate::report::write(out, sweep, rows, &summary, campaign)?;
     Ok(())
@@ -619,10 +628,10 @@ pub fn metric_values(rows: &[Row], k: usize) -> Vec<f64> {
         .collect()
 }
 
-fn summarize(_sweep: &SweepFile, rows: &[Row], partial: bool) -> Summary {
+fn summarize(rows: &[Row], partial: bool) -> Summary {
     let successes = rows.iter().filter(|r| r.success).count();
     let mut metrics = BTreeMap::new();
-    for (k, name) in METRICS.iter().enumerate() {
+    for (k, (name, _)) in METRICS.iter().enumerate() {
         let mut v = metric_values(rows, k);
         if v.is_empty() {
             continue;
@@ -723,8 +732,7 @@ pub fn say(s: &str) {
 /// independent single-job processes (one shard each) started side by side — the reference a
 /// parallel sweep is measured against on a machine whose cores do not scale perfectly. No logs.
 pub fn bench(sw: &Sweep, o: &SweepOptions, path: &Path) -> Result<()> {
-    let jobs =
-        o.jobs.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)).max(1);
+    let jobs = o.jobs();
     let runs = o.runs.unwrap_or((2 * jobs as u64).max(4));
     let base = o.out.join("bench");
     let opts = |j: usize, dir: &str| SweepOptions {

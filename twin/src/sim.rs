@@ -970,8 +970,12 @@ impl Twin {
 
     /// Runs for `d` of simulated time.
     pub fn run_for(&mut self, d: Duration) {
-        let end = self.time + d;
-        while self.time < end {
+        self.step_to(self.time + d);
+    }
+
+    /// Steps until the simulated time reaches `t` (none when it already has).
+    pub fn step_to(&mut self, t: Time) {
+        while self.time < t {
             self.step();
         }
     }

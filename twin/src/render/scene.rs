@@ -300,11 +300,7 @@ fn urdf_parts(out: &mut Vec<(MeshData, [f32; 4], Placement)>) {
         };
         let mut m = MeshData::default();
         for v in &l.visual {
-            let o = &v.origin;
-            let t = Isometry3::from_parts(
-                nalgebra::Translation3::new(o.xyz[0], o.xyz[1], o.xyz[2]),
-                UnitQuaternion::from_euler_angles(o.rpy[0], o.rpy[1], o.rpy[2]),
-            );
+            let t = framework::mechanism::urdf_pose(&v.origin);
             use rapier3d_urdf::urdf_rs::Geometry;
             match &v.geometry {
                 Geometry::Box { size } => {

@@ -236,12 +236,12 @@ impl LocomotorModel {
     /// The body twist that wheel rates would give on firm ground without slip (least squares).
     pub fn body_twist(&self, rates: &[f64]) -> BodyTwist {
         let n = rates.len().min(self.wheel_positions.len()) as f64;
-        let speeds: Vec<f64> = rates.iter().map(|r| r * self.wheel_radius).collect();
-        let mean_v = speeds.iter().sum::<f64>() / n;
+        let speed = |r: &f64| r * self.wheel_radius;
+        let mean_v = rates.iter().map(speed).sum::<f64>() / n;
         let mean_y = self.wheel_positions.iter().map(|p| p.y).sum::<f64>() / n;
         let (mut sxy, mut syy) = (0.0, 0.0);
-        for (s, p) in speeds.iter().zip(&self.wheel_positions) {
-            sxy += (p.y - mean_y) * (s - mean_v);
+        for (r, p) in rates.iter().zip(&self.wheel_positions) {
+            sxy += (p.y - mean_y) * (speed(r) - mean_v);
             syy += (p.y - mean_y).powi(2);
         }
         let omega = if syy > 0.0 { -sxy / syy } else { 0.0 };

@@ -1066,27 +1066,24 @@ impl<M: Module> Cell<M> {
             l => self.lifecycle_fns.get(&l).copied(),
         };
         let Some(f) = f else { return Duration::ZERO };
-        if let Some(kind) = self.injected.take() {
+        // An injected fault takes the state function's place and goes the same way to isolation.
+        let injected = self.injected.take();
+        let mut ctx =
+            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
+        let module = &mut self.module;
+        let r = catch_unwind(AssertUnwindSafe(|| {
+            let Some(kind) = injected else { return f(module, &mut ctx) };
             let text = format!("fault injected through the debug queue ({kind:?})");
-            let fault = match kind {
-                InjectedFault::Panic => {
-                    let r = catch_unwind(|| -> () { panic!("{text}") });
-                    Fault::Panic(r.err().map(|p| panic_text(&*p)).unwrap_or(text))
-                }
-                InjectedFault::Error => Fault::Error(text),
+            match kind {
+                InjectedFault::Panic => panic!("{text}"),
+                InjectedFault::Error => Err(ModuleError(text)),
                 InjectedFault::Hang => loop {
                     // Never returns: the watchdog isolates the module after its hang timeout (and,
                     // under lockstep, calls the executor's hang handler).
                     std::thread::park();
                 },
-            };
-            self.isolate(core, now, fault);
-            return Duration::ZERO;
-        }
-        let mut ctx =
-            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
-        let module = &mut self.module;
-        let r = catch_unwind(AssertUnwindSafe(|| f(module, &mut ctx)));
+            }
+        }));
         let (goto, charged) = (ctx.goto, ctx.charged);
         drop(ctx);
         match r {

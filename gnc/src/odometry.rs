@@ -170,16 +170,16 @@ impl Odometry {
         }
 
         // Wheel motion since the last fresh reading.
-        let (ds, dyaw_wheels, dt_enc, rates) = if enc_fresh {
+        let (ds, dyaw_wheels, dt_enc) = if enc_fresh {
             let dt = (enc.stamp - s.last_enc.stamp).as_secs_f64();
             let r = self.params.wheel_radius_scale;
             let dq: Vec<f64> = enc.angles.iter().zip(&s.last_enc.angles).map(|(a, b)| (a - b) * r).collect();
             let twist = self.model.body_twist(&dq);
-            (twist.v, twist.omega, dt, enc.rates.clone())
+            (twist.v, twist.omega, dt)
         } else {
-            (0.0, 0.0, 0.0, vec![0.0; self.model.wheels.len()])
+            (0.0, 0.0, 0.0)
         };
-        let still = enc_fresh && rates.iter().all(|w| w.abs() < p.still_wheel_rate);
+        let still = enc_fresh && enc.rates.iter().all(|w| w.abs() < p.still_wheel_rate);
         if !still {
             s.still_since = None;
         } else if s.still_since.is_none() {

@@ -77,21 +77,17 @@ fn sub_seed(seed: u64, purpose: &str) -> u64 {
 impl World {
     /// Loads, validates and generates a world file.
     pub fn load(path: impl AsRef<Path>) -> Result<World, ConfigError> {
-        let path = path.as_ref();
-        let text = read_file(path)?;
-        Self::from_str(&text, &path.display().to_string(), path.parent().unwrap_or(Path::new(".")), None)
+        Self::load_from(path.as_ref(), None)
     }
 
     /// Loads with the seed replaced (Monte Carlo dispersions of the terrain).
     pub fn load_with_seed(path: impl AsRef<Path>, seed: u64) -> Result<World, ConfigError> {
-        let path = path.as_ref();
+        Self::load_from(path.as_ref(), Some(seed))
+    }
+
+    fn load_from(path: &Path, seed: Option<u64>) -> Result<World, ConfigError> {
         let text = read_file(path)?;
-        Self::from_str(
-            &text,
-            &path.display().to_string(),
-            path.parent().unwrap_or(Path::new(".")),
-            Some(seed),
-        )
+        Self::from_str(&text, &path.display().to_string(), path.parent().unwrap_or(Path::new(".")), seed)
     }
 
     /// Parses, validates and generates a world from TOML text; `base` resolves relative file names.

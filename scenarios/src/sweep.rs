@@ -666,10 +666,12 @@ fn summarize(rows: &[Row], partial: bool) -> Summary {
 }
 
 /// Joins shard folders into `out`: the same `runs.csv`, `summary.json` and report an unsharded
-/// sweep gives (wall-clock columns aside).
+/// sweep gives (wall-clock columns aside). Each run's score and track are copied into
+/// `out/runs/<index>/` (the report draws the tracks from there); logs stay in their shard.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Vec<Row>> {
     let mut campaign: Option<Campaign> = None;
     let mut rows: BTreeMap<u64, Row> = BTreeMap::new();
+    let mut shard_of: BTreeMap<u64, &Path> = BTreeMap::new();
     for d in dirs {
         let c: Campaign = serde_json::from_str(
             &std::fs::read_to_string(d.join("campaign.json"))
@@ -687,6 +689,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Vec<Row>> {
         for (line, rec) in r.records().enumerate() {
             let rec = rec.with_context(|| format!("{}:{}", path.display(), line + 2))?;
             let row = parse_row(&rec, n_disp).with_context(|| format!("{}:{}", path.display(), line + 2))?;
+            shard_of.insert(row.index, d);
             if rows.insert(row.index, row).is_some() {
                 bail!(
                     "{}:{}: run {} appears in two shards",
@@ -700,6 +703,16 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Vec<Row>> {
     }
     let c = campaign.ok_or_else(|| anyhow!("no shard folders given"))?;
     std::fs::create_dir_all(out)?;
+    for (&index, shard) in &shard_of {
+        let (from, to) = (run_dir(shard, index), run_dir(out, index));
+        for f in ["score.json", "track.csv"] {
+            if from.join(f).exists() {
+                std::fs::create_dir_all(&to)?;
+                std::fs::copy(from.join(f), to.join(f))
+                    .with_context(|| format!("copying {}", from.join(f).display()))?;
+            }
+        }
+    }
     let rows: Vec<Row> = rows.into_values().collect();
     let partial = rows.len() as u64 != c.runs;
     let merged = Campaign { shard: None, ..c };

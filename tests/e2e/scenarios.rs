@@ -311,7 +311,12 @@ fn sweeps_do_not_depend_on_jobs_or_sharding() {
     };
     assert_eq!(summary(one.path()), summary(merged.path()));
     assert_eq!(summary(one.path())["runs"], 6);
-    assert!(std::fs::read_to_string(merged.path().join("report.html")).unwrap().contains("<svg"));
+    // The merged report draws the same plots, the rover tracks included (their files are copied
+    // from the shards).
+    let report = |d: &Path| std::fs::read_to_string(d.join("report.html")).unwrap();
+    assert!(report(one.path()).contains("rover tracks"));
+    assert!(report(merged.path()).contains("rover tracks"), "the merged report lacks the tracks");
+    assert_eq!(report(one.path()).matches("<svg").count(), report(merged.path()).matches("<svg").count());
     // Each run reproduces on its own with the command in its row.
     let header: Vec<String> = csv::Reader::from_path(one.path().join("runs.csv"))
         .unwrap()

@@ -51,6 +51,19 @@ pub struct JointInfo {
     pub dof: Option<usize>,
 }
 
+impl JointInfo {
+    /// Position limits, infinite for a joint without any (continuous).
+    pub fn position_limits(&self) -> (f64, f64) {
+        self.limits.unwrap_or((f64::NEG_INFINITY, f64::INFINITY))
+    }
+
+    /// Position, velocity and effort limits as the HAL reports them.
+    pub fn hal_limits(&self) -> crate::hal::JointLimits {
+        let (lower, upper) = self.position_limits();
+        crate::hal::JointLimits { lower, upper, velocity: self.velocity_limit, effort: self.effort_limit }
+    }
+}
+
 /// A link of the tree.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LinkInfo {
@@ -365,11 +378,7 @@ impl Chain {
     }
     /// Limits of the movable joints (infinite for continuous joints).
     pub fn limits(&self) -> Vec<(f64, f64)> {
-        self.elements
-            .iter()
-            .filter(|j| j.kind != JointKind::Fixed)
-            .map(|j| j.limits.unwrap_or((f64::NEG_INFINITY, f64::INFINITY)))
-            .collect()
+        self.elements.iter().filter(|j| j.kind != JointKind::Fixed).map(JointInfo::position_limits).collect()
     }
 
     /// Frames of each movable joint (in the base frame) and the tip pose.

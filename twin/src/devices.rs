@@ -107,14 +107,8 @@ impl DeviceMap for DryRunDeviceMap {
                 JOINT_GROUPS.iter().map(|(g, _)| *g).collect::<Vec<_>>().join(", ")
             ),
         })?;
-        let limits = joints
-            .iter()
-            .map(|j| {
-                let info = t.mechanism().joint(j).expect("group joints exist");
-                let (lower, upper) = info.limits.unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
-                JointLimits { lower, upper, velocity: info.velocity_limit, effort: info.effort_limit }
-            })
-            .collect();
+        let limits =
+            joints.iter().map(|j| t.mechanism().joint(j).expect("group joints exist").hal_limits()).collect();
         drop(t);
         Ok(Box::new(DryRunJointGroup {
             twin: self.twin.clone(),

@@ -325,13 +325,12 @@ impl Twin {
             if j.kind == JointKind::Fixed {
                 continue;
             }
-            let (lower, upper) = j.limits.unwrap_or((f64::NEG_INFINITY, f64::INFINITY));
             self.joint_of_mech.insert(k, self.joints.len());
             self.joints.push(SimJoint {
                 mech: k,
                 handle: None,
                 kind: j.kind,
-                limits: JointLimits { lower, upper, velocity: j.velocity_limit, effort: j.effort_limit },
+                limits: j.hal_limits(),
                 q: 0.0,
                 qd: 0.0,
             });

@@ -4,9 +4,15 @@
 //! p1, p2), in the camera's optical frame: z forward, x right, y down (the URDF `*_optical` links).
 //! Pixels are (u, v) with (0, 0) at the top-left corner of the top-left pixel, so the centre of pixel
 //! (i, j) is at (i + 0.5, j + 0.5). Depth images hold the z coordinate in metres (NaN: no return).
+//!
+//! What a robot's software knows of its cameras is a calibration, never the truth: a
+//! [`CameraCalibration`] (intrinsics, distortion, and the optical frame's pose on the link it is
+//! mounted on) and a [`StereoCalibration`] (each camera's own intrinsics and the pair's extrinsics),
+//! as a calibration file would give them. A real pair is not rectified: its two cameras differ and
+//! their axes are not parallel; rectification (to a [`StereoModel`]) is the software's job.
 
 use crate::time::Time;
-use nalgebra::{Point2, Point3, Vector2};
+use nalgebra::{Isometry3, Point2, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Pinhole intrinsics.
@@ -123,7 +129,73 @@ impl CameraModel {
     }
 }
 
+/// A camera as a calibration file describes it: the model, and where its optical frame sits on the
+/// link it is mounted on (a pan-tilt link, the body).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CameraCalibration {
+    /// Intrinsics and distortion; `model.frame` names the optical frame.
+    pub model: CameraModel,
+    /// The link the camera is mounted on (a link of the robot description).
+    pub mount: String,
+    /// Pose of the optical frame in the mount link's frame.
+    pub mount_from_optical: Isometry3<f64>,
+}
+
+/// A stereo pair as a calibration file describes it: each camera's own intrinsics and distortion,
+/// the right camera's pose in the left camera's optical frame (not a pure +x translation: real pairs
+/// are not rectified), and the left camera's mounting.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StereoCalibration {
+    /// The left camera and its mounting.
+    pub left: CameraCalibration,
+    /// The right camera's intrinsics and distortion.
+    pub right: CameraModel,
+    /// Pose of the right optical frame in the left optical frame.
+    pub left_from_right: Isometry3<f64>,
+}
+
+impl StereoCalibration {
+    /// The baseline: distance between the optical centres, m.
+    pub fn baseline(&self) -> f64 {
+        self.left_from_right.translation.vector.norm()
+    }
+
+    /// The right camera with its mounting, derived from the left's and the pair's extrinsics.
+    pub fn right_calibration(&self) -> CameraCalibration {
+        CameraCalibration {
+            model: self.right.clone(),
+            mount: self.left.mount.clone(),
+            mount_from_optical: self.left.mount_from_optical * self.left_from_right,
+        }
+    }
+
+    /// Triangulates a point seen at `left` and `right` (distorted pixel coordinates) as the
+    /// midpoint of the closest approach of the two rays, in the left optical frame. None when the
+    /// rays are parallel or the point is behind the cameras.
+    pub fn triangulate(&self, left: &Point2<f64>, right: &Point2<f64>) -> Option<Point3<f64>> {
+        let rl = self.left.model.ray(left);
+        let rr = self.right.ray(right);
+        let d1 = Vector3::new(rl.x, rl.y, 1.0);
+        let d2 = self.left_from_right.rotation * Vector3::new(rr.x, rr.y, 1.0);
+        let c2 = self.left_from_right.translation.vector;
+        // Closest points c1 + s d1 and c2 + t d2 with c1 = 0.
+        let (a, b, c) = (d1.dot(&d1), d1.dot(&d2), d2.dot(&d2));
+        let (d, e) = (d1.dot(&-c2), d2.dot(&-c2));
+        let den = a * c - b * b;
+        if den.abs() < 1e-15 {
+            return None;
+        }
+        let s = (b * e - c * d) / den;
+        let t = (a * e - b * d) / den;
+        if s <= 0.0 || t <= 0.0 {
+            return None;
+        }
+        Some(Point3::from((d1 * s + (c2 + d2 * t)) * 0.5))
+    }
+}
+
 /// A rectified stereo pair: identical cameras, the right one `baseline` metres along the left's +x.
+/// What software makes of a [`StereoCalibration`] by rectifying; no camera delivers one.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StereoModel {
     /// Left camera.
@@ -206,6 +278,33 @@ mod tests {
         assert!(c.project(&Point3::new(0.0, 0.0, -1.0)).is_none());
         let (h, v) = c.fov();
         assert!((h - 60f64.to_radians()).abs() < 1e-12 && v < h);
+    }
+
+    #[test]
+    fn triangulation_recovers_a_point_seen_by_a_verged_pair_with_distortion() {
+        let mut left = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
+        left.distortion = Distortion { k1: -0.05, ..Default::default() };
+        let mut right = CameraModel::from_hfov(640, 480, 68f64.to_radians(), "r");
+        right.pinhole.cx += 3.0;
+        let left_from_right =
+            Isometry3::new(Vector3::new(0.2, 0.002, -0.001), Vector3::new(0.001, -0.02, 0.003));
+        let cal = StereoCalibration {
+            left: CameraCalibration {
+                model: left,
+                mount: "m".into(),
+                mount_from_optical: Isometry3::identity(),
+            },
+            right,
+            left_from_right,
+        };
+        let p = Point3::new(0.4, -0.3, 5.0);
+        let ul = cal.left.model.project(&p).unwrap();
+        let ur = cal.right.project(&(left_from_right.inverse() * p)).unwrap();
+        let q = cal.triangulate(&ul, &ur).unwrap();
+        assert!((q - p).norm() < 1e-6, "{q} vs {p}");
+        assert!((cal.baseline() - 0.2).abs() < 1e-4);
+        let r = cal.right_calibration();
+        assert_eq!(r.mount_from_optical, left_from_right);
     }
 
     #[test]

@@ -270,26 +270,28 @@ pub trait Locomotor: Send {
 /// A wheel encoder reading: what the motors turned, slip included.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EncoderReading {
-    /// Acquisition time.
+    /// Capture time: when the counts were latched (the reading arrives later, after the
+    /// device's latency).
     pub stamp: Time,
     /// Wheel joint names.
     pub wheels: Vec<String>,
-    /// Accumulated wheel angles, rad (quantized to the encoder resolution).
+    /// Accumulated wheel angles, rad: whole encoder counts times the angle of one count.
     pub angles: Vec<f64>,
-    /// Wheel rates, rad/s.
+    /// Wheel rates, rad/s: the count difference over the last sample period (so they step in
+    /// counts too, and lag the true rate by half a period).
     pub rates: Vec<f64>,
 }
 
 /// Wheel encoders.
 pub trait WheelEncoders: Send {
-    /// The latest reading.
-    fn read(&mut self) -> EncoderReading;
+    /// The newest reading available now; None before the first one has arrived.
+    fn read(&mut self) -> Option<EncoderReading>;
 }
 
 /// An inertial measurement in the IMU frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ImuSample {
-    /// Acquisition time.
+    /// Capture time: the end of the interval the sample averages over.
     pub stamp: Time,
     /// Specific force (acceleration minus gravity), m/s^2, frame `imu_link`. At rest it points up.
     pub specific_force: Vector3<f64>,
@@ -297,10 +299,13 @@ pub struct ImuSample {
     pub angular_rate: Vector3<f64>,
 }
 
-/// An inertial measurement unit.
+/// An inertial measurement unit. Each handle is a reader of its own: every reader gets every
+/// sample, and two readers get the same samples.
 pub trait Imu: Send {
-    /// The latest sample.
-    fn read(&mut self) -> ImuSample;
+    /// Every sample that has arrived since this reader's last call, oldest first (empty when none
+    /// has). A reader that falls far behind loses the oldest samples (the device's buffer is
+    /// bounded); their absence shows as a gap in the stamps.
+    fn read(&mut self) -> Vec<ImuSample>;
     /// Sample period, s.
     fn period(&self) -> f64;
 }
@@ -322,6 +327,9 @@ pub trait DeviceMap {
     fn stereo_camera(&self, name: &str) -> Result<Box<dyn StereoCamera>, DeviceError>;
     /// A Time-of-Flight camera by name (`tof_left`, `tof_right`).
     fn tof_camera(&self, name: &str) -> Result<Box<dyn TofCamera>, DeviceError>;
+    /// The robot's mechanism model as its calibration gives it (joint zero offsets and link lengths
+    /// as measured, which differ from the hardware's by the calibration error).
+    fn mechanism(&self) -> Result<crate::mechanism::MechanismModel, DeviceError>;
 }
 
 /// Checks that `token` reserves `device` and is still valid.
@@ -337,26 +345,36 @@ pub fn check_token(
     Ok(())
 }
 
-/// A rectified stereo camera pair.
+/// A stereo camera pair. Its images are raw (distorted, unrectified); its calibration is what a
+/// calibration file says of it, which is close to, but not, the truth.
 pub trait StereoCamera: Send {
     /// Device name.
     fn device(&self) -> &str;
-    /// The pair's model (intrinsics, baseline, optical frames).
-    fn model(&self) -> &crate::camera::StereoModel;
-    /// The latest pair of images; a new one is acquired only when the camera's period has passed.
-    fn capture(&mut self) -> Result<(crate::camera::GreyImage, crate::camera::GreyImage), DeviceError>;
+    /// The pair's calibration: each camera's intrinsics and distortion, the pair's extrinsics, the
+    /// mounting.
+    fn calibration(&self) -> &crate::camera::StereoCalibration;
+    /// Sets the frame rate, Hz: at most the camera's own; 0 stops capturing.
+    fn set_rate(&mut self, hz: f64) -> Result<(), DeviceError>;
+    /// The newest pair that has arrived since the last call, if any. Images carry their capture
+    /// time; they arrive after the camera's latency.
+    fn capture(
+        &mut self,
+    ) -> Result<Option<(crate::camera::GreyImage, crate::camera::GreyImage)>, DeviceError>;
 }
 
 /// A Time-of-Flight depth camera.
 pub trait TofCamera: Send {
     /// Device name.
     fn device(&self) -> &str;
-    /// The camera model.
-    fn model(&self) -> &crate::camera::CameraModel;
+    /// The camera's calibration (intrinsics, mounting).
+    fn calibration(&self) -> &crate::camera::CameraCalibration;
     /// Range limits, m.
     fn range_limits(&self) -> (f64, f64);
-    /// The latest frame; a new one is acquired only when the camera's period has passed.
-    fn capture(&mut self) -> Result<crate::camera::TofFrame, DeviceError>;
+    /// Sets the frame rate, Hz: at most the camera's own; 0 stops capturing.
+    fn set_rate(&mut self, hz: f64) -> Result<(), DeviceError>;
+    /// The newest frame that has arrived since the last call, if any (stamped with its capture
+    /// time; it arrives after the camera's latency).
+    fn capture(&mut self) -> Result<Option<crate::camera::TofFrame>, DeviceError>;
 }
 
 #[cfg(test)]

@@ -259,6 +259,27 @@ impl MechanismModel {
             .ok_or_else(|| MechanismError::Unknown(name.to_string()))
     }
 
+    /// Replaces the origin (pose in the parent link frame) of joint `name`: a calibration that
+    /// measured the robot differently from its drawing (a link length, a joint's zero).
+    pub fn set_joint_origin(&mut self, name: &str, origin: Isometry3<f64>) -> Result<(), MechanismError> {
+        let k = *self.joint_index.get(name).ok_or_else(|| MechanismError::Unknown(name.to_string()))?;
+        self.joints[k].origin = origin;
+        Ok(())
+    }
+
+    /// The nearest ancestor of link `link` (itself included) that a movable joint moves, or the
+    /// root: the link a fixed part (a camera) is mounted on.
+    pub fn mount_link(&self, link: &str) -> Result<&str, MechanismError> {
+        let mut l = self.link(link)?;
+        while let Some(j) = self.links[l].parent_joint {
+            if self.joints[j].kind != JointKind::Fixed {
+                break;
+            }
+            l = self.joints[j].parent;
+        }
+        Ok(&self.links[l].name)
+    }
+
     /// Motion of one joint at value `q`: the transform from the joint frame to the child link frame.
     pub fn joint_motion(j: &JointInfo, q: f64) -> Isometry3<f64> {
         match j.kind {

@@ -1,6 +1,8 @@
-//! Cameras: the sensor module that captures the rover's cameras at their configured rates and
-//! publishes the frames on the blackboard (`cameras/<device>`): stereo pairs as
-//! [`StereoImages`], Time-of-Flight frames as [`TofFrame`]. Perception modules read them from there.
+//! Cameras: the sensor module that sets the rover's cameras to their configured frame rates, polls
+//! them every cycle and publishes each frame that arrives on the blackboard (`cameras/<device>`),
+//! stamped with its capture time: stereo pairs as [`StereoImages`], Time-of-Flight frames as
+//! [`TofFrame`]. Perception modules read them from there, with the cameras' calibrations from the
+//! HAL. Frames arrive after each camera's latency, so a slot's stamp lags its write.
 //!
 //! A device that delivers nothing (a dropout, a renderer fault) is noted once and skipped until it
 //! recovers; the module itself keeps running.
@@ -12,24 +14,37 @@ use framework::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeSet;
 
-/// Camera rates.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// Camera frame rates (each at most the camera's own; 0: off).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct CamerasParams {
-    /// Stereo capture rate, Hz (0: off).
-    pub stereo_hz: f64,
-    /// Time-of-Flight capture rate, Hz (0: off).
+    /// Head (tracking) stereo pair, Hz.
+    pub head_stereo_hz: f64,
+    /// Localization stereo pair, Hz.
+    pub loc_stereo_hz: f64,
+    /// Time-of-Flight cameras, Hz.
     pub tof_hz: f64,
 }
 
 impl Default for CamerasParams {
     fn default() -> Self {
-        CamerasParams { stereo_hz: 1.0, tof_hz: 1.0 }
+        CamerasParams { head_stereo_hz: 1.0, loc_stereo_hz: 1.0, tof_hz: 1.0 }
     }
 }
 
-/// A camera, the slot it publishes to, and when it last captured.
-type Channel<C, T> = (Box<C>, Option<Writer<T>>, Option<Time>);
+impl CamerasParams {
+    /// The rate for a device.
+    fn rate(&self, device: &str) -> f64 {
+        match device {
+            "head_stereo" => self.head_stereo_hz,
+            "loc_stereo" => self.loc_stereo_hz,
+            _ => self.tof_hz,
+        }
+    }
+}
+
+/// A camera, the slot it publishes to, and the rate it was last set to.
+type Channel<C, T> = (Box<C>, Option<Writer<T>>, Option<f64>);
 
 /// The cameras module.
 pub struct Cameras {
@@ -48,10 +63,6 @@ impl Cameras {
             params: CamerasParams::default(),
             failing: BTreeSet::new(),
         }
-    }
-
-    fn due(last: Option<Time>, now: Time, hz: f64) -> bool {
-        hz > 0.0 && last.is_none_or(|t| now - t >= Duration::from_hz(hz) - Duration::from_micros(1))
     }
 
     fn outcome<T>(
@@ -77,15 +88,18 @@ impl Cameras {
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
-        let now = ctx.now();
         for k in 0..self.stereo.len() {
-            if !Self::due(self.stereo[k].2, now, self.params.stereo_hz) {
+            let device = self.stereo[k].0.device().to_string();
+            let hz = self.params.rate(&device);
+            if self.stereo[k].2 != Some(hz) {
+                let r = self.stereo[k].0.set_rate(hz);
+                self.stereo[k].2 = self.outcome(ctx, &device, r).map(|_| hz);
+            }
+            if hz <= 0.0 {
                 continue;
             }
-            self.stereo[k].2 = Some(now);
-            let device = self.stereo[k].0.device().to_string();
             let r = self.stereo[k].0.capture();
-            if let Some((left, right)) = self.outcome(ctx, &device, r) {
+            if let Some(Some((left, right))) = self.outcome(ctx, &device, r) {
                 let stamp = left.stamp;
                 if let Some(w) = &self.stereo[k].1 {
                     ctx.write_stamped(w, StereoImages { left, right }, stamp);
@@ -93,13 +107,17 @@ impl Cameras {
             }
         }
         for k in 0..self.tof.len() {
-            if !Self::due(self.tof[k].2, now, self.params.tof_hz) {
+            let device = self.tof[k].0.device().to_string();
+            let hz = self.params.tof_hz;
+            if self.tof[k].2 != Some(hz) {
+                let r = self.tof[k].0.set_rate(hz);
+                self.tof[k].2 = self.outcome(ctx, &device, r).map(|_| hz);
+            }
+            if hz <= 0.0 {
                 continue;
             }
-            self.tof[k].2 = Some(now);
-            let device = self.tof[k].0.device().to_string();
             let r = self.tof[k].0.capture();
-            if let Some(frame) = self.outcome(ctx, &device, r) {
+            if let Some(Some(frame)) = self.outcome(ctx, &device, r) {
                 let stamp = frame.depth.stamp;
                 if let Some(w) = &self.tof[k].1 {
                     ctx.write_stamped(w, frame, stamp);
@@ -126,7 +144,9 @@ impl Module for Cameras {
     }
 
     fn configure(&mut self, p: &CamerasParams) -> Result<(), String> {
-        for (k, v) in [("stereo_hz", p.stereo_hz), ("tof_hz", p.tof_hz)] {
+        for (k, v) in
+            [("head_stereo_hz", p.head_stereo_hz), ("loc_stereo_hz", p.loc_stereo_hz), ("tof_hz", p.tof_hz)]
+        {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{k} must be >= 0 (0: off), got {v}"));
             }

@@ -277,7 +277,8 @@ impl Locomotion {
 
     /// Checks every wheel against its commanded rate; the name of a stalled one.
     fn stalled_wheel(&mut self, now: Time) -> Option<String> {
-        let reading = self.encoders.read();
+        // No reading yet (the first is on its way): no evidence either way.
+        let reading = self.encoders.read()?;
         let model = self.locomotor.model();
         let want = model.wheel_rates(self.command)?;
         let dt = self.last_cycle.map(|t| (now - t).as_secs_f64()).unwrap_or(0.0);

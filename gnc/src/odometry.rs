@@ -1,7 +1,7 @@
 //! Wheel-inertial odometry: the rover's dead-reckoning pose estimate from its wheel encoders and IMU.
 //!
-//! - Distance travelled comes from the encoders (skid-steer kinematics of the locomotor model, with
-//!   the wheel radius this estimator believes in: `wheel_radius_scale` disperses that belief).
+//! - Distance travelled comes from the encoders (skid-steer kinematics of the locomotor model the
+//!   HAL gives: the calibrated wheel radius and track, not the true ones).
 //! - Heading comes from the gyro (rate about the world vertical from the body rates and the tilt),
 //!   minus a gyro bias learned whenever the wheels stand still (zero-velocity updates).
 //! - Roll and pitch come from the accelerometer's gravity direction, low-pass filtered; distance is
@@ -31,8 +31,6 @@ pub struct OdometryParams {
     pub initial_pose: [f64; 4],
     /// Standard deviations of the start pose: position (m) and yaw (degrees).
     pub initial_sigma: [f64; 2],
-    /// Believed wheel radius as a fraction of the locomotor model's (calibration error).
-    pub wheel_radius_scale: f64,
     /// Where the rover turns about when it skid-steers, m ahead of `base_link` (a calibration: the
     /// mass distribution, not the wheel layout, sets it); turning moves `base_link` sideways.
     pub turn_center_x_m: f64,
@@ -62,7 +60,6 @@ impl Default for OdometryParams {
         OdometryParams {
             initial_pose: [0.0, 0.0, 0.0, 0.0],
             initial_sigma: [0.02, 0.5],
-            wheel_radius_scale: 1.0,
             turn_center_x_m: 0.0,
             along_sigma_per_m: 0.02,
             cross_sigma_per_m: 0.02,
@@ -144,15 +141,18 @@ impl Odometry {
         let enc = self.encoders.read();
         let imu = self.imu.read();
         let Some(mut s) = self.state.take() else {
-            let s = self.init(enc, imu);
-            self.state = Some(s);
-            self.publish(ctx, now, Default::default());
+            // The first estimate once both sensors have delivered.
+            if let (Some(enc), Some(last)) = (enc, imu.last()) {
+                let s = self.init(enc, last.clone());
+                self.state = Some(s);
+                self.publish(ctx, now, Default::default());
+            }
             return Ok(());
         };
         let p = self.params.clone();
-        // Fresh data? A sensor repeating its stamp is silent.
-        let enc_fresh = enc.stamp > s.last_enc.stamp;
-        let imu_fresh = imu.stamp > s.last_imu.stamp;
+        // Fresh data? Encoders repeating their stamp, or no IMU samples, are silent.
+        let enc = enc.filter(|e| e.stamp > s.last_enc.stamp);
+        let (enc_fresh, imu_fresh) = (enc.is_some(), !imu.is_empty());
         let silent = |fresh: bool, last: Time| !fresh && (now - last).as_secs_f64() >= p.silent_after_s;
         let (enc_silent, imu_silent) =
             (silent(enc_fresh, s.last_enc.stamp), silent(imu_fresh, s.last_imu.stamp));
@@ -170,16 +170,16 @@ impl Odometry {
         }
 
         // Wheel motion since the last fresh reading.
-        let (ds, dyaw_wheels, dt_enc) = if enc_fresh {
-            let dt = (enc.stamp - s.last_enc.stamp).as_secs_f64();
-            let r = self.params.wheel_radius_scale;
-            let dq: Vec<f64> = enc.angles.iter().zip(&s.last_enc.angles).map(|(a, b)| (a - b) * r).collect();
-            let twist = self.model.body_twist(&dq);
-            (twist.v, twist.omega, dt)
-        } else {
-            (0.0, 0.0, 0.0)
+        let (ds, dyaw_wheels, dt_enc) = match &enc {
+            Some(e) => {
+                let dt = (e.stamp - s.last_enc.stamp).as_secs_f64();
+                let dq: Vec<f64> = e.angles.iter().zip(&s.last_enc.angles).map(|(a, b)| a - b).collect();
+                let twist = self.model.body_twist(&dq);
+                (twist.v, twist.omega, dt)
+            }
+            None => (0.0, 0.0, 0.0),
         };
-        let still = enc_fresh && enc.rates.iter().all(|w| w.abs() < p.still_wheel_rate);
+        let still = enc.as_ref().is_some_and(|e| e.rates.iter().all(|w| w.abs() < p.still_wheel_rate));
         if !still {
             s.still_since = None;
         } else if s.still_since.is_none() {
@@ -187,26 +187,33 @@ impl Odometry {
         }
         let settled = s.still_since.is_some_and(|t| (now - t).as_secs_f64() >= p.still_settle_s);
 
-        // Attitude and heading change from the IMU.
-        let (dyaw, yaw_var) = if imu_fresh && !imu_silent {
-            let dt = (imu.stamp - s.last_imu.stamp).as_secs_f64();
-            if settled && p.bias_gain > 0.0 {
-                s.bias += p.bias_gain * (imu.angular_rate - s.bias);
-                s.bias_learnt = true;
+        // Attitude and heading change from every IMU sample since the last cycle.
+        let (dyaw, yaw_var) = if imu_fresh {
+            let (mut dyaw, mut var) = (0.0, 0.0);
+            for sample in &imu {
+                let dt = (sample.stamp - s.last_imu.stamp).as_secs_f64().max(0.0);
+                if settled && p.bias_gain > 0.0 {
+                    s.bias += p.bias_gain * (sample.angular_rate - s.bias);
+                    s.bias_learnt = true;
+                }
+                let w = sample.angular_rate - s.bias;
+                if let Some((roll, pitch)) = tilt_from_gravity(&sample.specific_force) {
+                    let a = (dt / p.tilt_time_constant_s).min(1.0);
+                    s.roll += a * wrap(roll - s.roll);
+                    s.pitch += a * wrap(pitch - s.pitch);
+                }
+                // Rate of yaw (about the world vertical) from body rates, ZYX Euler kinematics.
+                let (sr, cr) = s.roll.sin_cos();
+                let yaw_rate = (w.y * sr + w.z * cr) / s.pitch.cos().max(0.2);
+                // Until a bias is known, a standing rover is taken not to turn (its rocking and the
+                // unknown bias are alike); afterwards the gyro is integrated always.
+                if !still || s.bias_learnt {
+                    dyaw += yaw_rate * dt;
+                }
+                var += p.gyro_noise.powi(2) * dt;
+                s.last_imu = sample.clone();
             }
-            let w = imu.angular_rate - s.bias;
-            if let Some((roll, pitch)) = tilt_from_gravity(&imu.specific_force) {
-                let a = (dt / p.tilt_time_constant_s).min(1.0);
-                s.roll += a * wrap(roll - s.roll);
-                s.pitch += a * wrap(pitch - s.pitch);
-            }
-            // Rate of yaw (about the world vertical) from body rates, ZYX Euler kinematics.
-            let (sr, cr) = s.roll.sin_cos();
-            let yaw_rate = (w.y * sr + w.z * cr) / s.pitch.cos().max(0.2);
-            // Until a bias is known, a standing rover is taken not to turn (its rocking and the
-            // unknown bias are alike); afterwards the gyro is integrated always.
-            let dyaw = if still && !s.bias_learnt { 0.0 } else { yaw_rate * dt };
-            (dyaw, p.gyro_noise.powi(2) * dt)
+            (dyaw, var)
         } else if enc_fresh {
             (dyaw_wheels, (p.wheel_yaw_sigma_per_rad * dyaw_wheels).powi(2))
         } else {
@@ -235,11 +242,8 @@ impl Odometry {
             s.p[(0, 0)] += grow;
             s.p[(1, 1)] += grow;
         }
-        if enc_fresh {
-            s.last_enc = enc;
-        }
-        if imu_fresh {
-            s.last_imu = imu;
+        if let Some(e) = enc {
+            s.last_enc = e;
         }
         self.state = Some(s);
         let vel = if dt_enc > 0.0 {
@@ -315,9 +319,6 @@ impl Module for Odometry {
                 "turn_center_x_m must be within 2 m of base_link, got {}",
                 p.turn_center_x_m
             ));
-        }
-        if !(p.wheel_radius_scale > 0.5 && p.wheel_radius_scale < 1.5) {
-            return Err(format!("wheel_radius_scale must be in (0.5, 1.5), got {}", p.wheel_radius_scale));
         }
         if p.tilt_time_constant_s.is_nan()
             || p.tilt_time_constant_s <= 0.0

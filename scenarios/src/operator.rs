@@ -4,10 +4,10 @@
 //! true pose) — the only use of ground truth on the GNC side, marked as operator input: the
 //! selection is published as `operator/target_selection` with `source = "operator"`.
 
-use framework::camera::CameraModel;
 use framework::data::{StereoImages, TargetSelection};
 use framework::prelude::*;
 use nalgebra::Point3;
+use twin::belief::CameraTruth;
 use twin::devices::SharedTwin;
 
 /// Module name.
@@ -17,23 +17,23 @@ pub const NAME: &str = "operator";
 pub struct Operator {
     twin: SharedTwin,
     camera: String,
-    model: CameraModel,
+    truth: CameraTruth,
     image: Option<Reader<StereoImages>>,
     out: Option<Writer<TargetSelection>>,
     done: bool,
 }
 
 impl Operator {
-    /// An operator who looks at the left image of stereo camera `camera` (model `model`).
-    pub fn new(twin: SharedTwin, camera: &str, model: CameraModel) -> Self {
-        Operator { twin, camera: camera.to_string(), model, image: None, out: None, done: false }
+    /// An operator who looks at the left image of stereo camera `camera` (as built: `truth`).
+    pub fn new(twin: SharedTwin, camera: &str, truth: CameraTruth) -> Self {
+        Operator { twin, camera: camera.to_string(), truth, image: None, out: None, done: false }
     }
 
     /// The canister's image region, if enough of it is in view.
     fn select(&self) -> Option<[f64; 4]> {
         let t = self.twin.lock();
         let can = t.canister_truth()?;
-        let cam = t.link_pose(&self.model.frame)?;
+        let cam = t.link_pose(&self.truth.model.frame)? * self.truth.offset;
         drop(t);
         // The canister body's corners (0.1 x 0.1 x 0.15 m box plus handle, canister frame).
         let mut pts = Vec::new();
@@ -45,11 +45,11 @@ impl Operator {
             }
         }
         let to_cam = cam.inverse() * can;
-        let uv: Vec<_> = pts.iter().filter_map(|p| self.model.project(&(to_cam * p))).collect();
+        let uv: Vec<_> = pts.iter().filter_map(|p| self.truth.model.project(&(to_cam * p))).collect();
         if uv.len() < pts.len() {
             return None; // partly behind the camera
         }
-        let (w, h) = (self.model.pinhole.width as f64, self.model.pinhole.height as f64);
+        let (w, h) = (self.truth.model.pinhole.width as f64, self.truth.model.pinhole.height as f64);
         let u0 = uv.iter().map(|p| p.x).fold(f64::INFINITY, f64::min).max(0.0);
         let u1 = uv.iter().map(|p| p.x).fold(f64::NEG_INFINITY, f64::max).min(w);
         let v0 = uv.iter().map(|p| p.y).fold(f64::INFINITY, f64::min).max(0.0);

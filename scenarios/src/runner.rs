@@ -136,13 +136,15 @@ fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: boo
     b.trace_messages(log_messages);
     let map = DryRunDeviceMap::new(twin.clone(), b.resources().clone(), seed);
     let model = map.locomotor()?.model().clone();
-    let ground_z = twin.lock().world().ground_height(s.rover.x, s.rover.y);
     let mut odo_extra = toml::Table::new();
     let mut params = toml::Table::new();
-    // What the operator knows of the start: the planned pose and the terrain map's height there.
+    // What the operator knows of the start: base_link's pose as surveyed, off the truth by the
+    // scenario's uncertainty (drawn from the run's seed).
+    let known = known_start(&twin.lock().base_pose(), &s.rover, seed);
+    params.insert("initial_pose".into(), toml::Value::Array(known.iter().map(|v| (*v).into()).collect()));
     params.insert(
-        "initial_pose".into(),
-        toml::Value::Array(vec![s.rover.x.into(), s.rover.y.into(), ground_z.into(), s.rover.yaw_deg.into()]),
+        "initial_sigma".into(),
+        toml::Value::Array(vec![s.rover.known_sigma_m.into(), s.rover.known_sigma_deg.into()]),
     );
     odo_extra.insert("params".into(), toml::Value::Table(params));
     let p = &loaded.path;
@@ -155,19 +157,37 @@ fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: boo
         add_module(&mut b, name, &map, twin, model.clone(), module_config(name, s, p, extra)?)?;
     }
     if s.operator.select_target && cameras {
-        let model = map.stereo_camera("head_stereo")?.model().left.clone();
+        let truth = map.stereo_belief("head_stereo")?.left;
         let source = ConfigSource::inline(
             format!("<operator of {}>", loaded.path.display()),
             "[framework]\nperiod_s = 0.1\n",
         );
         b.add(
             crate::operator::NAME,
-            crate::operator::Operator::new(twin.clone(), "head_stereo", model),
+            crate::operator::Operator::new(twin.clone(), "head_stereo", truth),
             source,
         );
     }
     b.endpoint("ground").endpoint("events");
     Ok(b)
+}
+
+/// What the operator knows of the start pose of `base_link` (`truth`): [x, y, z, yaw_deg], each off
+/// the truth by a normal draw with the scenario's sigmas, from the run's seed.
+pub fn known_start(
+    truth: &nalgebra::Isometry3<f64>,
+    rover: &crate::scenario::RoverStart,
+    seed: u64,
+) -> [f64; 4] {
+    let mut d = twin::belief::Draws::new(seed, "operator:start");
+    let p = truth.translation.vector;
+    let yaw = truth.rotation.euler_angles().2.to_degrees();
+    [
+        p.x + d.normal(rover.known_sigma_m),
+        p.y + d.normal(rover.known_sigma_m),
+        p.z + d.normal(rover.known_sigma_m),
+        yaw + d.normal(rover.known_sigma_deg),
+    ]
 }
 
 /// The cameras run when the scenario has a `[modules.cameras]` table with a non-zero rate (sweeps
@@ -178,7 +198,7 @@ fn cameras_enabled(s: &Scenario) -> bool {
         t.get("params").and_then(|p| p.get(k)).and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
     };
     // Absent rates take the module defaults (on).
-    rate("stereo_hz").is_none_or(|r| r > 0.0) || rate("tof_hz").is_none_or(|r| r > 0.0)
+    ["head_stereo_hz", "loc_stereo_hz", "tof_hz"].iter().any(|k| rate(k).is_none_or(|r| r > 0.0))
 }
 
 /// Registers module `name` of the runner's system, with its devices from `map`.
@@ -198,7 +218,7 @@ fn add_module(
         "cameras" => b.add(
             name,
             gnc::cameras::Cameras::new(
-                vec![map.stereo_camera("head_stereo")?],
+                vec![map.stereo_camera("head_stereo")?, map.stereo_camera("loc_stereo")?],
                 vec![map.tof_camera("tof_left")?, map.tof_camera("tof_right")?],
             ),
             config,

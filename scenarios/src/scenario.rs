@@ -137,6 +137,20 @@ pub struct RoverStart {
     /// Heading, degrees counter-clockwise from east.
     #[serde(default)]
     pub yaw_deg: f64,
+    /// How well the operator knows the start position of `base_link` (1-sigma per axis), m: the
+    /// GNC starts from the true pose off by a draw of this.
+    #[serde(default = "default_known_sigma_m")]
+    pub known_sigma_m: f64,
+    /// How well the operator knows the start heading (1-sigma), degrees.
+    #[serde(default = "default_known_sigma_deg")]
+    pub known_sigma_deg: f64,
+}
+
+fn default_known_sigma_m() -> f64 {
+    0.05
+}
+fn default_known_sigma_deg() -> f64 {
+    1.0
 }
 
 /// The canister's start pose, on the ground.
@@ -607,6 +621,13 @@ fn validate(s: &Scenario, files: &[FileText], overrides: &[(String, String)]) ->
     positive("run.time_limit_s", s.run.time_limit_s)?;
     positive("run.base_period_s", s.run.base_period_s)?;
     for (k, v) in [("run.settle_s", s.run.settle_s), ("run.observe_s", s.run.observe_s)] {
+        if !(v >= 0.0 && v.is_finite()) {
+            return err(k, format!("must be >= 0, got {v}"));
+        }
+    }
+    for (k, v) in
+        [("rover.known_sigma_m", s.rover.known_sigma_m), ("rover.known_sigma_deg", s.rover.known_sigma_deg)]
+    {
         if !(v >= 0.0 && v.is_finite()) {
             return err(k, format!("must be >= 0, got {v}"));
         }

@@ -79,34 +79,39 @@ fn tof_pair(b: Bencher<'_, '_>) {
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
     b.bench_local(|| {
         for (c, p) in cams.iter().zip(&poses) {
-            black_box(r.tof(&t, c, p, &cfg.tof, &mut rng).expect("render"));
+            black_box(r.tof(&t, c, p, &cfg.tof, c, &mut rng).expect("render"));
         }
     });
 }
 
-/// One stereo pair rendered in one submission, distortion and noise applied.
+/// One stereo pair (as built: each camera its own intrinsics and distortion) rendered in one
+/// submission, lens and photometric model applied.
 fn stereo_pair(
     b: Bencher<'_, '_>,
+    name: &str,
     which: fn(&twin::render::SensorConfig) -> &twin::render::sensors::StereoConfig,
 ) {
     use rand::SeedableRng;
     let (t, mut r, cfg) = sensing();
     let s = which(&cfg);
-    let m = twin::render::sensors::stereo_model(s, &t).expect("stereo model");
-    let poses = [t.link_pose(&m.left.frame).expect("left"), t.link_pose(&m.right.frame).expect("right")];
+    let c = t.config();
+    let pair = twin::belief::StereoBelief::draw(name, s, t.mechanism(), &c.camera_build, &c.calibration, 1)
+        .expect("stereo pair");
+    let pose = |cam: &twin::belief::CameraTruth| t.link_pose(&cam.model.frame).expect("frame") * cam.offset;
+    let cams = [(&pair.left.model, pose(&pair.left)), (&pair.right.model, pose(&pair.right))];
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
-    let cams = [(&m.left, poses[0]), (&m.right, poses[1])];
-    b.bench_local(|| black_box(r.grey_views(&t, &cams, s.noise_dn, &mut rng).expect("pair")));
+    let exposure = twin::render::sensors::Exposure::NOMINAL;
+    b.bench_local(|| black_box(r.grey_views(&t, &cams, &s.photometry, exposure, &mut rng).expect("pair")));
 }
 
 /// The head stereo pair on the pan-tilt (640 x 480 each, 70 degrees).
 #[divan::bench(sample_count = 30, sample_size = 5)]
 fn stereo_pair_640x480(b: Bencher<'_, '_>) {
-    stereo_pair(b, |c| &c.head_stereo);
+    stereo_pair(b, "head_stereo", |c| &c.head_stereo);
 }
 
 /// The localization stereo pair on the body (640 x 480 each, 80 degrees, looking ahead and down).
 #[divan::bench(sample_count = 30, sample_size = 5)]
 fn loc_stereo_pair_640x480(b: Bencher<'_, '_>) {
-    stereo_pair(b, |c| &c.loc_stereo);
+    stereo_pair(b, "loc_stereo", |c| &c.loc_stereo);
 }

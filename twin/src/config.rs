@@ -24,6 +24,10 @@ pub struct TwinConfig {
     pub imu: ImuConfig,
     /// Encoder model.
     pub encoders: EncoderConfig,
+    /// How far what the robot's software is told (calibration files, models) is from the truth.
+    pub calibration: CalibrationConfig,
+    /// How each real camera differs from its nominal design.
+    pub camera_build: CameraBuildConfig,
 }
 
 /// Physics engine parameters.
@@ -151,6 +155,10 @@ pub struct ImuConfig {
     pub accel_bias_initial: f64,
     /// Gyro turn-on bias sigma.
     pub gyro_bias_initial: f64,
+    /// Capture to availability, s.
+    pub latency_s: f64,
+    /// Extra delay, uniform in [0, jitter_s], per sample, s.
+    pub jitter_s: f64,
 }
 
 /// Encoder model.
@@ -159,6 +167,58 @@ pub struct ImuConfig {
 pub struct EncoderConfig {
     /// Counts per wheel revolution.
     pub counts_per_rev: u32,
+    /// Sample rate, Hz.
+    pub rate_hz: f64,
+    /// Capture to availability, s.
+    pub latency_s: f64,
+    /// Extra delay, uniform in [0, jitter_s], per reading, s.
+    pub jitter_s: f64,
+}
+
+/// Errors of the models and calibrations the robot's software is given, relative to the simulated
+/// truth: standard deviations of the errors drawn for each run from its seed (0: the software is
+/// told the truth). Seed 004: the software believes a model, the hardware does what it does.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationConfig {
+    /// Believed wheel radius, as a fraction of the true one.
+    pub wheel_radius_fraction: f64,
+    /// Believed track (wheel spacing across), as a fraction of the true one.
+    pub track_fraction: f64,
+    /// Believed zero of each arm joint, degrees.
+    pub arm_joint_zero_deg: f64,
+    /// Believed length of each arm link (the offset between consecutive joints), m.
+    pub arm_link_length_m: f64,
+    /// Believed focal lengths of each camera, as a fraction of the true ones.
+    pub camera_focal_fraction: f64,
+    /// Believed principal point of each camera, pixels.
+    pub camera_principal_point_px: f64,
+    /// Believed radial distortion k1 of each camera.
+    pub camera_k1: f64,
+    /// Believed rotation between the two cameras of a pair, degrees (about each axis).
+    pub stereo_rotation_deg: f64,
+    /// Believed translation between the two cameras of a pair, m (along each axis).
+    pub stereo_translation_m: f64,
+    /// Believed rotation of a camera (pair) on its mount link, degrees (about each axis).
+    pub camera_mount_rotation_deg: f64,
+    /// Believed position of a camera (pair) on its mount link, m (along each axis).
+    pub camera_mount_translation_m: f64,
+}
+
+/// How each real camera differs from its nominal design (`sensors.toml` and the URDF): standard
+/// deviations of the differences drawn for each run from its seed. The twin renders with the
+/// drawn cameras; the calibration the software gets is close to them, not to the design.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraBuildConfig {
+    /// Focal lengths, as a fraction of the nominal.
+    pub focal_fraction: f64,
+    /// Principal point, pixels.
+    pub principal_point_px: f64,
+    /// Radial distortion k1 (added to the nominal).
+    pub k1: f64,
+    /// Rotation of the optical frame relative to the URDF's, degrees (about each axis).
+    pub rotation_deg: f64,
 }
 
 impl TwinConfig {
@@ -206,6 +266,45 @@ impl TwinConfig {
         pos("locomotor.max_slope_deg", c.locomotor.max_slope_deg)?;
         if c.encoders.counts_per_rev == 0 {
             return Err(src.error_at_key("encoders.counts_per_rev", "must be at least 1"));
+        }
+        pos("encoders.rate_hz", c.encoders.rate_hz)?;
+        let non_negative = |k: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(src.error_at_key(k, format!("must be >= 0, got {v}")))
+            }
+        };
+        for (k, v) in [
+            ("imu.latency_s", c.imu.latency_s),
+            ("imu.jitter_s", c.imu.jitter_s),
+            ("encoders.latency_s", c.encoders.latency_s),
+            ("encoders.jitter_s", c.encoders.jitter_s),
+        ] {
+            non_negative(k, v)?;
+        }
+        let k = &c.calibration;
+        for (key, v) in [
+            ("calibration.wheel_radius_fraction", k.wheel_radius_fraction),
+            ("calibration.track_fraction", k.track_fraction),
+            ("calibration.arm_joint_zero_deg", k.arm_joint_zero_deg),
+            ("calibration.arm_link_length_m", k.arm_link_length_m),
+            ("calibration.camera_focal_fraction", k.camera_focal_fraction),
+            ("calibration.camera_principal_point_px", k.camera_principal_point_px),
+            ("calibration.camera_k1", k.camera_k1),
+            ("calibration.stereo_rotation_deg", k.stereo_rotation_deg),
+            ("calibration.stereo_translation_m", k.stereo_translation_m),
+            ("calibration.camera_mount_rotation_deg", k.camera_mount_rotation_deg),
+            ("calibration.camera_mount_translation_m", k.camera_mount_translation_m),
+            ("camera_build.focal_fraction", c.camera_build.focal_fraction),
+            ("camera_build.principal_point_px", c.camera_build.principal_point_px),
+            ("camera_build.k1", c.camera_build.k1),
+            ("camera_build.rotation_deg", c.camera_build.rotation_deg),
+        ] {
+            non_negative(key, v)?;
+        }
+        if k.wheel_radius_fraction > 0.2 || k.track_fraction > 0.2 || c.camera_build.focal_fraction > 0.2 {
+            return Err(src.error_at_key("calibration", "fractional errors above 0.2 are no calibration"));
         }
         Ok(c)
     }

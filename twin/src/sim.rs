@@ -242,8 +242,8 @@ pub struct Twin {
     prev_base_vel: Vector3<f64>,
     specific_force: Vector3<f64>,
     angular_rate: Vector3<f64>,
-    /// Sums of specific force and rate times dt since the IMU last took them, and their duration.
-    imu_sum: (Vector3<f64>, Vector3<f64>, f64),
+    /// The IMU's and the encoders' sampled signals.
+    proprio: crate::proprio::Proprioception,
     collisions: u64,
     touching: std::collections::BTreeSet<(usize, usize)>,
 }
@@ -300,7 +300,7 @@ impl Twin {
             prev_base_vel: Vector3::zeros(),
             specific_force: Vector3::new(0.0, 0.0, config.physics.gravity_m_s2),
             angular_rate: Vector3::zeros(),
-            imu_sum: (Vector3::zeros(), Vector3::zeros(), 0.0),
+            proprio: crate::proprio::Proprioception::new(config.imu.rate_hz, config.encoders.rate_hz),
             collisions: 0,
             touching: Default::default(),
             config,
@@ -948,11 +948,9 @@ impl Twin {
         (self.specific_force, self.angular_rate)
     }
 
-    /// Mean specific force and angular rate since the last call (an IMU integrates over its sample
-    /// period), IMU frame; the instantaneous values if no step ran since.
-    pub fn take_imu_average(&mut self) -> (Vector3<f64>, Vector3<f64>) {
-        let (f, w, t) = std::mem::replace(&mut self.imu_sum, (Vector3::zeros(), Vector3::zeros(), 0.0));
-        if t > 0.0 { (f / t, w / t) } else { (self.specific_force, self.angular_rate) }
+    /// The IMU's and the encoders' true signals, sampled at their rates (for the Dry-Run drivers).
+    pub fn proprioception(&self) -> &crate::proprio::Proprioception {
+        &self.proprio
     }
 
     /// Runs steps until `done(self)` holds or `timeout` of simulated time passes; true if it held.
@@ -989,9 +987,15 @@ impl Twin {
         }
         self.time += self.dt;
         self.update_measurements();
-        self.imu_sum.0 += self.specific_force * dt;
-        self.imu_sum.1 += self.angular_rate * dt;
-        self.imu_sum.2 += dt;
+        let (now, wheels, joints, dropouts) = (self.time, &self.wheels, &self.joints, &self.dropouts);
+        self.proprio.step(
+            now,
+            dt,
+            self.specific_force,
+            self.angular_rate,
+            || wheels.iter().map(|&w| joints[w].q).collect(),
+            |device| dropouts.get(device).is_some_and(|&until| now < until),
+        );
         self.update_moves(dt);
         self.update_latch();
     }

@@ -2,7 +2,7 @@
 //! a GPU or Mesa's software Vulkan (`scripts/setup.sh` installs it). Without one they fail with the
 //! renderer's message naming the package to install.
 
-use framework::camera::{CameraModel, StereoModel};
+use framework::camera::CameraModel;
 use framework::hal::{StereoCamera, TofCamera};
 use framework::time::Duration;
 use nalgebra::{Isometry3, Matrix3, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
@@ -10,8 +10,10 @@ use parking_lot::Mutex;
 use rand::SeedableRng;
 use rand_pcg::Pcg64Mcg;
 use std::sync::Arc;
+use twin::belief::{CameraTruth, StereoBelief, TofBelief};
+use twin::devices::cameras::{DryRunStereo, DryRunTof};
 use twin::devices::share;
-use twin::render::sensors::{DryRunStereo, DryRunTof, SensorConfig, TofConfig, stereo_model, tof_model};
+use twin::render::sensors::{Exposure, Photometry, SensorConfig, TofConfig, tof_model};
 use twin::render::{SensorRenderer, Shading};
 use twin::{Fidelity, StartPose, Twin};
 use worlds::World;
@@ -39,6 +41,11 @@ fn down_at(h: f64) -> Isometry3<f64> {
     look(Vector3::new(0.0, 0.0, h), -Vector3::z(), -Vector3::y())
 }
 
+/// The head camera's photometric model (shot and read noise, vignetting).
+fn noisy() -> Photometry {
+    SensorConfig::load(SensorConfig::default_path()).unwrap().head_stereo.photometry
+}
+
 fn tof_cfg() -> TofConfig {
     SensorConfig::load(SensorConfig::default_path()).unwrap().tof
 }
@@ -54,7 +61,7 @@ fn tof_image_of_a_flat_plane_equals_the_analytic_depth() {
     let cam = tof_model(&cfg, "virtual");
     let mut rng = Pcg64Mcg::seed_from_u64(1);
     for h in [0.7, 2.0, 4.2] {
-        let f = r.tof(&t, &cam, &down_at(h), &cfg, &mut rng).unwrap();
+        let f = r.tof(&t, &cam, &down_at(h), &cfg, &cam, &mut rng).unwrap();
         assert_eq!(f.depth.valid(), (176 * 144) as usize, "every pixel sees the plane at {h} m");
         let worst = f.depth.data.iter().map(|d| (*d as f64 - h).abs()).fold(0.0, f64::max);
         assert!(worst < 1e-3, "depth off by {worst} m at {h} m");
@@ -73,10 +80,16 @@ fn tof_range_limits_noise_and_grazing_returns_behave_as_configured() {
     let cfg = tof_cfg();
     let cam = tof_model(&cfg, "virtual");
     let mut rng = Pcg64Mcg::seed_from_u64(2);
-    assert_eq!(r.tof(&t, &cam, &down_at(cfg.max_range_m + 0.5), &cfg, &mut rng).unwrap().depth.valid(), 0);
-    assert_eq!(r.tof(&t, &cam, &down_at(cfg.min_range_m * 0.8), &cfg, &mut rng).unwrap().depth.valid(), 0);
+    assert_eq!(
+        r.tof(&t, &cam, &down_at(cfg.max_range_m + 0.5), &cfg, &cam, &mut rng).unwrap().depth.valid(),
+        0
+    );
+    assert_eq!(
+        r.tof(&t, &cam, &down_at(cfg.min_range_m * 0.8), &cfg, &cam, &mut rng).unwrap().depth.valid(),
+        0
+    );
     // Noise grows with range: about 1% of the depth.
-    let f = r.tof(&t, &cam, &down_at(4.0), &cfg, &mut rng).unwrap();
+    let f = r.tof(&t, &cam, &down_at(4.0), &cfg, &cam, &mut rng).unwrap();
     let n = f.depth.valid() as f64;
     assert!(n > 20000.0, "{n} valid returns at 4 m");
     let sd = (f.depth.data.iter().filter(|d| d.is_finite()).map(|d| (*d as f64 - 4.0).powi(2)).sum::<f64>()
@@ -86,7 +99,7 @@ fn tof_range_limits_noise_and_grazing_returns_behave_as_configured() {
     // Looking at the ground from 1 m high, 10 degrees below the horizon: far pixels graze.
     let dir = Vector3::new(1.0, 0.0, -(10f64.to_radians()).tan()).normalize();
     let pose = look(Vector3::new(-3.0, 0.0, 1.0), dir, dir.cross(&Vector3::y()).normalize());
-    let f = r.tof(&t, &cam, &pose, &cfg, &mut rng).unwrap();
+    let f = r.tof(&t, &cam, &pose, &cfg, &cam, &mut rng).unwrap();
     let (valid, invalid) = (f.depth.valid(), f.depth.data.len() - f.depth.valid());
     assert!(valid > 0 && invalid > 0, "valid {valid}, invalid {invalid}");
     for (i, d) in f.depth.data.iter().enumerate() {
@@ -156,8 +169,8 @@ fn a_point_seen_by_the_stereo_pair_has_disparity_f_b_over_z() {
     let left_pose = down_at(z);
     let right_pose = left_pose * Isometry3::translation(b, 0.0, 0.0);
     let mut rng = Pcg64Mcg::seed_from_u64(4);
-    let l = r.grey(&t, &cam, &left_pose, 0.0, &mut rng).unwrap();
-    let rt = r.grey(&t, &cam, &right_pose, 0.0, &mut rng).unwrap();
+    let l = r.grey(&t, &cam, &left_pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+    let rt = r.grey(&t, &cam, &right_pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
     let expected = cam.pinhole.fx * b / z;
     let (w, half) = (640usize, 7usize);
     let mut found = Vec::new();
@@ -172,11 +185,6 @@ fn a_point_seen_by_the_stereo_pair_has_disparity_f_b_over_z() {
     for d in &found {
         assert!((d - expected).abs() < 0.5, "disparity {d} px, expected f B / Z = {expected} px ({found:?})");
     }
-    // The device's stereo model from the robot description has the URDF's baseline.
-    let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
-    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
-    assert!((m.baseline - 0.25).abs() < 1e-9);
-    assert!((m.disparity(4.0) - m.left.pinhole.fx * m.baseline / 4.0).abs() < 1e-12);
 }
 
 #[test]
@@ -191,7 +199,7 @@ fn the_canister_marker_is_decodable_at_one_metre() {
     let face = base * Point3::new(0.0, 0.05, 0.075);
     let pose = look(face.coords + Vector3::new(0.0, 1.0, 0.0), -Vector3::y(), -Vector3::z());
     let mut rng = Pcg64Mcg::seed_from_u64(5);
-    let img = r.grey(&t, &cam, &pose, 1.5, &mut rng).unwrap();
+    let img = r.grey(&t, &cam, &pose, &noisy(), Exposure::NOMINAL, &mut rng).unwrap();
     use kornia_apriltag::family::TagFamilyKind;
     let size = kornia_image::ImageSize { width: 640, height: 480 };
     let config = kornia_apriltag::DecodeTagsConfig::new(vec![TagFamilyKind::Tag36H11]).unwrap();
@@ -217,52 +225,115 @@ fn the_same_scene_and_seed_give_byte_identical_images_and_depth() {
         let cfg = tof_cfg();
         let cam = tof_model(&cfg, "virtual");
         let mut rng = Pcg64Mcg::seed_from_u64(11);
-        let tof = r.tof(&t, &cam, &down_at(2.0), &cfg, &mut rng).unwrap();
-        let grey =
-            r.grey(&t, &CameraModel::from_hfov(320, 240, 1.0, "v"), &down_at(1.5), 2.0, &mut rng).unwrap();
+        let tof = r.tof(&t, &cam, &down_at(2.0), &cfg, &cam, &mut rng).unwrap();
+        let grey = r
+            .grey(
+                &t,
+                &CameraModel::from_hfov(320, 240, 1.0, "v"),
+                &down_at(1.5),
+                &noisy(),
+                Exposure::NOMINAL,
+                &mut rng,
+            )
+            .unwrap();
         (tof.depth.data.iter().map(|d| d.to_bits()).collect::<Vec<_>>(), tof.amplitude, grey.data)
     };
     assert!(run() == run());
 }
 
 #[test]
-fn devices_render_only_when_a_new_frame_is_due() {
+fn a_frame_arrives_after_its_latency_stamped_with_its_capture_time() {
     let w = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
     let tw = Twin::with_defaults(w, StartPose { x: 4.5, y: 3.5, yaw: 0.7 }, Fidelity::Kinematic).unwrap();
     let shared = share(tw);
     let renderer = Arc::new(Mutex::new(SensorRenderer::new(&shared.lock()).unwrap()));
     let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
-    let mut tof =
-        DryRunTof::new("tof_left", &cfg.tof.frames[0], shared.clone(), renderer.clone(), &cfg.tof, 1);
-    let mut stereo = DryRunStereo::new("head_stereo", shared.clone(), renderer, &cfg.head_stereo, 2).unwrap();
+    let (mech, tc) = {
+        let t = shared.lock();
+        (t.mechanism().clone(), t.config().clone())
+    };
+    let tof_belief = TofBelief::draw(
+        "tof_left",
+        &cfg.tof.frames[0],
+        &cfg.tof,
+        &mech,
+        &tc.camera_build,
+        &tc.calibration,
+        1,
+    )
+    .unwrap();
+    let mut tof = DryRunTof::new("tof_left", shared.clone(), renderer.clone(), &cfg.tof, tof_belief, 1);
+    let stereo_belief =
+        StereoBelief::draw("head_stereo", &cfg.head_stereo, &mech, &tc.camera_build, &tc.calibration, 2)
+            .unwrap();
+    let mut stereo =
+        DryRunStereo::new("head_stereo", shared.clone(), renderer, &cfg.head_stereo, stereo_belief, 2);
     // Point the pan-tilt at the ground ahead.
     let id = shared.lock().start_move("ptu", &[0.0, 0.6], 1.0).unwrap();
     shared.lock().run_until(Duration::from_secs(3), |t| t.move_status(id).is_over());
-    let a = tof.capture().unwrap();
-    assert!(a.depth.valid() > 1000, "ToF sees the ground: {} valid pixels", a.depth.valid());
-    shared.lock().run_for(Duration::from_millis(100));
-    let b = tof.capture().unwrap();
-    assert_eq!(a.depth.stamp, b.depth.stamp, "not due yet: the same frame");
-    shared.lock().run_for(Duration::from_millis(150));
-    let c = tof.capture().unwrap();
-    assert!(c.depth.stamp > a.depth.stamp);
-    let (l, r) = stereo.capture().unwrap();
-    assert_eq!((l.width, l.height, l.stamp), (640, 480, r.stamp));
+    let captured = shared.lock().time();
+    // Polled every physics step: the frame captured at the first poll arrives no earlier than its
+    // latency and no later than latency + jitter (+ one step), stamped with the capture time.
+    let (mut tof_frame, mut pair) = (None, None);
+    let step = shared.lock().dt();
+    while tof_frame.is_none() || pair.is_none() {
+        if let Some(f) = tof.capture().unwrap() {
+            tof_frame = Some((shared.lock().time(), f));
+        }
+        if let Some(p) = stereo.capture().unwrap() {
+            pair = Some((shared.lock().time(), p));
+        }
+        assert!(shared.lock().time() - captured < Duration::from_secs(1), "no frame within a second");
+        shared.lock().step();
+    }
+    let (at, f) = tof_frame.unwrap();
+    assert_eq!(f.depth.stamp, captured);
+    let delay = (at - captured).as_secs_f64();
+    assert!(
+        delay >= cfg.tof.latency_s && delay <= cfg.tof.latency_s + cfg.tof.jitter_s + step.as_secs_f64(),
+        "ToF delay {delay}"
+    );
+    assert!(f.depth.valid() > 1000, "ToF sees the ground: {} valid pixels", f.depth.valid());
+    let (at, (l, r)) = pair.unwrap();
+    let delay = (at - captured).as_secs_f64();
+    let s = &cfg.head_stereo;
+    assert!(
+        delay >= s.latency_s && delay <= s.latency_s + s.jitter_s + step.as_secs_f64(),
+        "stereo delay {delay}"
+    );
+    assert_eq!((l.width, l.height, l.stamp, r.stamp), (640, 480, captured, captured));
     assert_eq!(l.frame, "head_cam_left_optical");
+    // Each frame once: nothing new until the next capture has arrived.
+    assert!(tof.capture().unwrap().is_none());
+    // A camera set to 0 Hz captures nothing; a rate above its own is refused.
+    tof.set_rate(0.0).unwrap();
+    shared.lock().run_for(Duration::from_secs(1));
+    assert!(tof.capture().unwrap().is_none());
+    assert!(tof.set_rate(cfg.tof.rate_hz * 2.0).is_err());
     assert_eq!(tof.range_limits(), (0.1, 5.0));
     // The device map builds the same devices by name.
     use framework::hal::DeviceMap;
     let map = twin::devices::DryRunDeviceMap::new(shared.clone(), framework::resources::Resources::new(), 3);
     let mut right = map.tof_camera("tof_right").unwrap();
-    assert_eq!(right.model().frame, "tof_right_optical");
-    assert!(right.capture().unwrap().depth.valid() > 1000);
-    assert!(map.stereo_camera("loc_stereo").unwrap().capture().unwrap().0.frame == "loc_cam_left_optical");
+    assert_eq!(right.calibration().model.frame, "tof_right_optical");
+    assert_eq!(right.calibration().mount, "ptu_tilt_link");
+    let mut loc = map.stereo_camera("loc_stereo").unwrap();
+    assert_eq!(loc.calibration().left.mount, "base_link");
+    for _ in 0..40 {
+        shared.lock().step();
+        if let Some(f) = right.capture().unwrap() {
+            assert!(f.depth.valid() > 1000);
+        }
+        if let Some((l, _)) = loc.capture().unwrap() {
+            assert_eq!(l.frame, "loc_cam_left_optical");
+        }
+    }
     assert!(map.tof_camera("tof_middle").is_err() && map.stereo_camera("nav").is_err());
 }
 
 /// The rover on the Mars-like yard with its pan-tilt looking at the ground ahead, a renderer, the
-/// shipped sensor configuration and the head stereo model.
-fn mars_yard_rover() -> (Twin, SensorRenderer, SensorConfig, StereoModel) {
+/// shipped sensor configuration and the head stereo pair as built in run 1.
+fn mars_yard_rover() -> (Twin, SensorRenderer, SensorConfig, StereoBelief) {
     let world = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
     let mut t =
         Twin::with_defaults(world, StartPose { x: 3.5, y: 2.0, yaw: 0.6 }, Fidelity::Kinematic).unwrap();
@@ -270,30 +341,47 @@ fn mars_yard_rover() -> (Twin, SensorRenderer, SensorConfig, StereoModel) {
     t.run_until(Duration::from_secs(3), |t| t.move_status(id).is_over());
     let r = SensorRenderer::new(&t).unwrap();
     let cfg = SensorConfig::load(SensorConfig::default_path()).unwrap();
-    let m = stereo_model(&cfg.head_stereo, &t).unwrap();
+    let c = t.config();
+    let m = StereoBelief::draw(
+        "head_stereo",
+        &cfg.head_stereo,
+        t.mechanism(),
+        &c.camera_build,
+        &c.calibration,
+        1,
+    )
+    .unwrap();
     (t, r, cfg, m)
+}
+
+/// The true world pose of a camera as built.
+fn pose_of(t: &Twin, cam: &CameraTruth) -> Isometry3<f64> {
+    t.link_pose(&cam.model.frame).unwrap() * cam.offset
 }
 
 #[test]
 fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
-    let (t, mut r, _, m) = mars_yard_rover();
-    let poses = [t.link_pose(&m.left.frame).unwrap(), t.link_pose(&m.right.frame).unwrap()];
+    let (t, mut r, _, pair) = mars_yard_rover();
+    let (m_left, m_right) = (&pair.left.model, &pair.right.model);
+    let poses = [pose_of(&t, &pair.left), pose_of(&t, &pair.right)];
     let mut rng = Pcg64Mcg::seed_from_u64(9);
-    let pair = r.grey_views(&t, &[(&m.left, poses[0]), (&m.right, poses[1])], 1.5, &mut rng).unwrap();
+    let both = r
+        .grey_views(&t, &[(m_left, poses[0]), (m_right, poses[1])], &noisy(), Exposure::NOMINAL, &mut rng)
+        .unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(9);
-    let left = r.grey(&t, &m.left, &poses[0], 1.5, &mut rng).unwrap();
-    let right = r.grey(&t, &m.right, &poses[1], 1.5, &mut rng).unwrap();
-    assert!(pair[0].data == left.data && pair[1].data == right.data);
+    let left = r.grey(&t, m_left, &poses[0], &noisy(), Exposure::NOMINAL, &mut rng).unwrap();
+    let right = r.grey(&t, m_right, &poses[1], &noisy(), Exposure::NOMINAL, &mut rng).unwrap();
+    assert!(both[0].data == left.data && both[1].data == right.data);
     // On a pool's worker thread (as in a sweep) the rows are done in order, elsewhere shared out
     // among threads: the images are the same.
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let mut rng = Pcg64Mcg::seed_from_u64(9);
-    let cams = [(&m.left, poses[0]), (&m.right, poses[1])];
-    let serial = one.install(|| r.grey_views(&t, &cams, 1.5, &mut rng).unwrap());
-    assert!(serial[0].data == pair[0].data && serial[1].data == pair[1].data);
+    let cams = [(m_left, poses[0]), (m_right, poses[1])];
+    let serial = one.install(|| r.grey_views(&t, &cams, &noisy(), Exposure::NOMINAL, &mut rng).unwrap());
+    assert!(serial[0].data == both[0].data && serial[1].data == both[1].data);
     // Without noise the two views still differ: each view has its own camera.
     let mut rng = Pcg64Mcg::seed_from_u64(9);
-    let clean = r.grey_views(&t, &cams, 0.0, &mut rng).unwrap();
+    let clean = r.grey_views(&t, &cams, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
     assert!(clean[0].data != clean[1].data, "the two cameras see different images");
 }
 
@@ -301,8 +389,8 @@ fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
 /// `LOD_ERROR_PX`: against full resolution everywhere, the images barely change.
 #[test]
 fn terrain_levels_of_detail_stay_within_their_screen_space_error() {
-    let (t, mut r, cfg, m) = mars_yard_rover();
-    let pose = t.link_pose(&m.left.frame).unwrap();
+    let (t, mut r, cfg, pair) = mars_yard_rover();
+    let pose = pose_of(&t, &pair.left);
     let mut tof = cfg.tof.clone();
     tof.noise_fraction = 0.0;
     let tof_cam = tof_model(&tof, &tof.frames[0]);
@@ -311,8 +399,9 @@ fn terrain_levels_of_detail_stay_within_their_screen_space_error() {
     for px in [0.0, twin::render::scene::LOD_ERROR_PX] {
         r.set_lod_error_px(px);
         let mut rng = Pcg64Mcg::seed_from_u64(1);
-        let grey = r.grey(&t, &m.left, &pose, 0.0, &mut rng).unwrap();
-        let depth = r.tof(&t, &tof_cam, &tof_pose, &tof, &mut rng).unwrap().depth;
+        let grey =
+            r.grey(&t, &pair.left.model, &pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+        let depth = r.tof(&t, &tof_cam, &tof_pose, &tof, &tof_cam, &mut rng).unwrap().depth;
         shots.push((grey, depth));
     }
     let (full, lod) = (&shots[0], &shots[1]);
@@ -340,4 +429,73 @@ fn terrain_levels_of_detail_stay_within_their_screen_space_error() {
     assert!(grey_diff > 0.0 && grey_diff < 0.5, "mean grey difference {grey_diff}");
     assert!(p99 < 0.25 * cfg.tof.noise_fraction, "99th percentile relative depth difference {p99}");
     assert!(worst < cfg.tof.noise_fraction, "largest relative depth difference {worst}");
+}
+
+#[test]
+fn a_distorted_lens_leaves_no_black_border_and_vignetting_darkens_the_corners() {
+    let t = twin("");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    // A wide lens with strong barrel distortion looking straight down at the ground: every pixel
+    // sees terrain, so none may be black (a pinhole render remapped through the lens leaves black
+    // corners unless it covers every ray the lens sees).
+    let mut cam = CameraModel::from_hfov(640, 480, 80f64.to_radians(), "virtual");
+    cam.distortion = framework::camera::Distortion { k1: -0.08, k2: 0.004, ..Default::default() };
+    let mut rng = Pcg64Mcg::seed_from_u64(3);
+    let clean = r.grey(&t, &cam, &down_at(1.5), &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+    let (w, h) = (640usize, 480usize);
+    let border = (0..w).flat_map(|u| [(u, 0), (u, h - 1)]).chain((0..h).flat_map(|v| [(0, v), (w - 1, v)]));
+    let darkest = border.map(|(u, v)| clean.data[v * w + u]).min().unwrap();
+    assert!(darkest > 10, "a border pixel is {darkest}: black border");
+    // Vignetting 0.3: the corners keep ~70% of the light, the centre all of it.
+    let vignetted = Photometry { vignetting: 0.3, ..Photometry::IDEAL };
+    let dim = r.grey(&t, &cam, &down_at(1.5), &vignetted, Exposure::NOMINAL, &mut rng).unwrap();
+    let patch = |img: &framework::camera::GreyImage, u0: usize, v0: usize| {
+        (v0..v0 + 8)
+            .flat_map(|v| (u0..u0 + 8).map(move |u| (u, v)))
+            .map(|(u, v)| f64::from(img.data[v * w + u]))
+            .sum::<f64>()
+    };
+    let corner = patch(&dim, 0, 0) / patch(&clean, 0, 0);
+    let centre = patch(&dim, 316, 236) / patch(&clean, 316, 236);
+    assert!((corner - 0.71).abs() < 0.04, "corner keeps {corner}");
+    assert!(centre > 0.99, "centre keeps {centre}");
+}
+
+#[test]
+fn image_noise_follows_the_shot_and_read_noise_model() {
+    let t = twin("");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(320, 240, 60f64.to_radians(), "virtual");
+    let photo = Photometry { full_well_e: 4000.0, read_noise_e: 20.0, vignetting: 0.0 };
+    let exposure = Exposure { relative: 1.5, gain: 2.0 };
+    let mut rng = Pcg64Mcg::seed_from_u64(8);
+    let ideal = Photometry { full_well_e: f64::INFINITY, read_noise_e: 0.0, vignetting: 0.0 };
+    let mean = r.grey(&t, &cam, &down_at(2.0), &ideal, exposure, &mut rng).unwrap();
+    let a = r.grey(&t, &cam, &down_at(2.0), &photo, exposure, &mut rng).unwrap();
+    let b = r.grey(&t, &cam, &down_at(2.0), &photo, exposure, &mut rng).unwrap();
+    // Per pixel: variance (gain e/DN) x mean + read noise in DN squared; the difference of two
+    // exposures has twice that (plus the quantization of both, 2/12).
+    let k = 255.0 / photo.full_well_e * exposure.gain;
+    let (mut measured, mut predicted, mut n) = (0.0, 0.0, 0.0);
+    for ((m, x), y) in mean.data.iter().zip(&a.data).zip(&b.data) {
+        let m = f64::from(*m);
+        if !(20.0..230.0).contains(&m) {
+            continue; // far from clipping at either end
+        }
+        measured += (f64::from(*x) - f64::from(*y)).powi(2);
+        predicted += 2.0 * (k * m + (k * photo.read_noise_e).powi(2)) + 2.0 / 12.0;
+        n += 1.0;
+    }
+    assert!(n > 10_000.0, "{n} usable pixels");
+    let ratio = measured / predicted;
+    assert!((ratio - 1.0).abs() < 0.12, "measured / predicted noise variance {ratio}");
+    // The mean signal scales with exposure x gain.
+    let nominal = r.grey(&t, &cam, &down_at(2.0), &ideal, Exposure::NOMINAL, &mut rng).unwrap();
+    let (s1, s3): (f64, f64) = nominal
+        .data
+        .iter()
+        .zip(&mean.data)
+        .filter(|(n, m)| **n > 10 && **m < 250)
+        .fold((0.0, 0.0), |(a, b), (n, m)| (a + f64::from(*n), b + f64::from(*m)));
+    assert!((s3 / s1 - 3.0).abs() < 0.05, "exposure x gain 3 gives {}", s3 / s1);
 }

@@ -1,19 +1,18 @@
 //! Camera sensors rendered from the twin: stereo cameras (greyscale, pinhole with radial and
-//! tangential distortion, exposure noise) and Time-of-Flight cameras (depth, amplitude and point
-//! cloud, range limits, noise growing with range, missing returns at grazing incidence and on dark
-//! or distant surfaces), with their parameters in `assets/rover/sensors.toml`.
+//! tangential distortion, a photometric model: exposure and gain, shot and read noise, vignetting,
+//! 8-bit quantization) and Time-of-Flight cameras (depth, amplitude and point cloud, range limits,
+//! noise growing with range, missing returns at grazing incidence and on dark or distant surfaces),
+//! with their parameters in `assets/rover/sensors.toml`.
 //!
-//! Devices render only when a new frame is due: `capture` returns the last frame until the sensor's
-//! period has passed in simulated time, so a mission pays only for the frames its modules read.
+//! A distorted camera is rendered as a wider undistorted pinhole that covers every ray the lens
+//! sees, then remapped: the image has no black border. The Dry-Run devices that schedule frames
+//! (rates, latency, jitter) live in [`crate::devices::cameras`].
 
 use super::gpu::{Frame, Globals, RenderError, Renderer, Shading, View};
 use super::scene::Scene;
-use crate::devices::SharedTwin;
 use crate::sim::Twin;
-use framework::camera::{CameraModel, DepthImage, Distortion, GreyImage, Pinhole, StereoModel, TofFrame};
+use framework::camera::{CameraModel, DepthImage, Distortion, GreyImage, Pinhole, TofFrame};
 use framework::config::{ConfigError, Source, read_file};
-use framework::hal::{DeviceError, StereoCamera, TofCamera};
-use framework::time::{Duration, Time};
 use nalgebra::{Isometry3, Matrix4, Point2, Point3, Vector3};
 use parking_lot::Mutex;
 use rand::SeedableRng;
@@ -39,11 +38,82 @@ pub struct StereoConfig {
     pub hfov_deg: f64,
     /// Frame rate, Hz.
     pub rate_hz: f64,
-    /// Exposure noise, grey levels (1-sigma).
-    pub noise_dn: f64,
-    /// Lens distortion.
+    /// Capture to availability, s.
+    pub latency_s: f64,
+    /// Extra delay per frame, uniform in [0, jitter_s], s.
+    pub jitter_s: f64,
+    /// Lens distortion (nominal; each real camera differs, see `camera_build` in `twin.toml`).
     #[serde(default)]
     pub distortion: Distortion,
+    /// How radiance becomes grey levels.
+    pub photometry: Photometry,
+    /// Exposure control.
+    pub exposure: ExposureControl,
+}
+
+/// The photometric model of a camera: the rendered radiance (0-255 at the nominal exposure and
+/// unit gain) becomes electrons, with shot noise (Poisson, as a Gaussian of the same variance) and read
+/// noise, then grey levels through the gain, quantized to 8 bits and saturated.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Photometry {
+    /// Electrons at 255 grey levels, gain 1 (infinite: no noise).
+    pub full_well_e: f64,
+    /// Read noise, electrons (1-sigma).
+    pub read_noise_e: f64,
+    /// Relative loss of light in the image corners (quadratic in the radius).
+    pub vignetting: f64,
+}
+
+impl Photometry {
+    /// A noiseless camera without vignetting (for tests that compare geometry).
+    pub const IDEAL: Photometry =
+        Photometry { full_well_e: f64::INFINITY, read_noise_e: 0.0, vignetting: 0.0 };
+}
+
+/// Exposure control of a camera.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ExposureControl {
+    /// Nominal exposure time, s: the rendered radiance is calibrated to it.
+    pub exposure_s: f64,
+    /// Adjust exposure (then gain) after each frame towards `target_mean_dn`.
+    pub auto: bool,
+    /// Mean grey level auto-exposure aims at.
+    pub target_mean_dn: f64,
+    /// Shortest exposure, s.
+    pub min_exposure_s: f64,
+    /// Longest exposure, s (beyond it the gain rises).
+    pub max_exposure_s: f64,
+    /// Highest analogue gain.
+    pub max_gain: f64,
+}
+
+/// The exposure of one frame.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Exposure {
+    /// Exposure time relative to the nominal one.
+    pub relative: f64,
+    /// Analogue gain.
+    pub gain: f64,
+}
+
+impl Exposure {
+    /// The nominal exposure at gain 1.
+    pub const NOMINAL: Exposure = Exposure { relative: 1.0, gain: 1.0 };
+
+    /// The next frame's exposure after one whose mean grey level was `mean_dn` (auto-exposure:
+    /// a damped step towards the target, exposure time first, then gain).
+    pub fn next(self, c: &ExposureControl, mean_dn: f64) -> Exposure {
+        if !c.auto {
+            return Exposure::NOMINAL;
+        }
+        let ratio = (c.target_mean_dn / mean_dn.max(1.0)).clamp(0.25, 4.0).powf(0.7);
+        let total = self.relative * self.gain * ratio;
+        let (lo, hi) = (c.min_exposure_s / c.exposure_s, c.max_exposure_s / c.exposure_s);
+        let relative = total.clamp(lo, hi);
+        Exposure { relative, gain: (total / relative).clamp(1.0, c.max_gain) }
+    }
 }
 
 /// Time-of-Flight camera parameters.
@@ -72,6 +142,10 @@ pub struct TofConfig {
     pub min_amplitude: f64,
     /// Frame rate, Hz.
     pub rate_hz: f64,
+    /// Capture to availability, s.
+    pub latency_s: f64,
+    /// Extra delay per frame, uniform in [0, jitter_s], s.
+    pub jitter_s: f64,
 }
 
 /// All rendered sensors.
@@ -98,6 +172,13 @@ impl SensorConfig {
         let origin = path.display().to_string();
         let src = Source::new(&origin, &text);
         let c: SensorConfig = src.parse()?;
+        let timing = |k: &str, latency: f64, jitter: f64| {
+            if latency.is_finite() && latency >= 0.0 && jitter.is_finite() && jitter >= 0.0 {
+                Ok(())
+            } else {
+                Err(src.error_at_key(k, "latency_s and jitter_s must be finite and >= 0"))
+            }
+        };
         for (k, s) in [("head_stereo", &c.head_stereo), ("loc_stereo", &c.loc_stereo)] {
             if s.width == 0
                 || s.height == 0
@@ -110,6 +191,30 @@ impl SensorConfig {
                     "needs a positive size, a field of view in (1, 179) degrees and a positive rate",
                 ));
             }
+            timing(k, s.latency_s, s.jitter_s)?;
+            let p = &s.photometry;
+            if !(p.full_well_e > 0.0 && p.read_noise_e >= 0.0 && (0.0..1.0).contains(&p.vignetting)) {
+                return Err(src.error_at_key(
+                    &format!("{k}.photometry"),
+                    "needs full_well_e > 0, read_noise_e >= 0 and vignetting in [0, 1)",
+                ));
+            }
+            let e = &s.exposure;
+            if !(e.exposure_s > 0.0
+                && e.min_exposure_s > 0.0
+                && e.min_exposure_s <= e.exposure_s
+                && e.exposure_s <= e.max_exposure_s
+                && e.max_exposure_s.is_finite()
+                && e.max_gain >= 1.0
+                && e.max_gain.is_finite()
+                && (1.0..=254.0).contains(&e.target_mean_dn))
+            {
+                return Err(src.error_at_key(
+                    &format!("{k}.exposure"),
+                    "needs 0 < min_exposure_s <= exposure_s <= max_exposure_s, max_gain >= 1 and \
+                     target_mean_dn in [1, 254]",
+                ));
+            }
         }
         let t = &c.tof;
         if !(t.min_range_m > 0.0 && t.max_range_m > t.min_range_m) {
@@ -120,6 +225,7 @@ impl SensorConfig {
         if !t.rate_hz.is_finite() || t.rate_hz <= 0.0 || t.frames.is_empty() {
             return Err(src.error_at_key("tof", "needs at least one frame and a positive rate"));
         }
+        timing("tof", t.latency_s, t.jitter_s)?;
         Ok(c)
     }
 }
@@ -131,40 +237,99 @@ pub fn tof_model(t: &TofConfig, frame: &str) -> CameraModel {
     m
 }
 
-/// Stereo model of a stereo configuration, baseline from the robot description.
-pub fn stereo_model(s: &StereoConfig, twin: &Twin) -> Result<StereoModel, String> {
-    let mech = twin.mechanism();
-    let q = vec![0.0; mech.dof_count()];
-    let rel = mech.transform(&s.left_frame, &s.right_frame, &q).map_err(|e| e.to_string())?;
-    let mut left = CameraModel::from_hfov(s.width, s.height, s.hfov_deg.to_radians(), &s.left_frame);
-    left.distortion = s.distortion;
-    let mut right = left.clone();
-    right.frame = s.right_frame.clone();
-    Ok(StereoModel { left, right, baseline: rel.translation.vector.x })
+/// The nominal camera of a stereo configuration (its design; each real camera differs).
+pub fn nominal_camera(s: &StereoConfig, frame: &str) -> CameraModel {
+    let mut m = CameraModel::from_hfov(s.width, s.height, s.hfov_deg.to_radians(), frame);
+    m.distortion = s.distortion;
+    m
 }
 
 /// The renderer bound to one twin's scene.
 pub struct SensorRenderer {
     gpu: Renderer,
     scene: Scene,
-    /// Per distorted camera: for each output pixel, where it samples the undistorted render.
-    remaps: Vec<((Pinhole, Distortion), Vec<Tap>)>,
+    /// Per camera (intrinsics, distortion, vignetting): how its image is made from a render.
+    lenses: Vec<(LensKey, Lens)>,
     lod_error_px: f64,
+}
+
+type LensKey = (Pinhole, Distortion, u64);
+
+/// How a camera's image is made from an undistorted render.
+struct Lens {
+    /// The pinhole rendered: the camera's own when it has no distortion, else a wider one whose
+    /// field covers every ray the distorted camera sees (no black border).
+    render: Pinhole,
+    /// For each output pixel, where it samples the render (None: the render is the image).
+    taps: Option<Vec<Tap>>,
+    /// For each output pixel, the light left after vignetting, 1/4096 (empty: none).
+    vignette: Vec<u16>,
+}
+
+impl Lens {
+    fn new(cam: &CameraModel, vignetting: f64) -> Lens {
+        let p = &cam.pinhole;
+        let (w, h) = (p.width as usize, p.height as usize);
+        let vignette = if vignetting > 0.0 {
+            let r2_corner = (p.width as f64 / 2.0 / p.fx).powi(2) + (p.height as f64 / 2.0 / p.fy).powi(2);
+            let mut v = Vec::with_capacity(w * h);
+            for j in 0..p.height {
+                for i in 0..p.width {
+                    let x = (i as f64 + 0.5 - p.cx) / p.fx;
+                    let y = (j as f64 + 0.5 - p.cy) / p.fy;
+                    let f = 1.0 - vignetting * ((x * x + y * y) / r2_corner).min(1.5);
+                    v.push((f.max(0.0) * 4096.0).round() as u16);
+                }
+            }
+            v
+        } else {
+            Vec::new()
+        };
+        if cam.distortion.is_zero() {
+            return Lens { render: *p, taps: None, vignette };
+        }
+        // The undistorted directions of every output pixel; the render covers them all with a pixel
+        // to spare for the bilinear footprint.
+        let mut rays = Vec::with_capacity(w * h);
+        let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+        for v in 0..p.height {
+            for u in 0..p.width {
+                let n = cam.ray(&Point2::new(u as f64 + 0.5, v as f64 + 0.5));
+                (x0, x1, y0, y1) = (x0.min(n.x), x1.max(n.x), y0.min(n.y), y1.max(n.y));
+                rays.push(n);
+            }
+        }
+        let cx = (-x0 * p.fx + 1.0).max(p.cx).ceil();
+        let cy = (-y0 * p.fy + 1.0).max(p.cy).ceil();
+        let width = ((x1 * p.fx + cx + 1.0).ceil() as u32).max(p.width);
+        let height = ((y1 * p.fy + cy + 1.0).ceil() as u32).max(p.height);
+        let render = Pinhole { width, height, fx: p.fx, fy: p.fy, cx, cy };
+        let (rw, rh) = (width as usize, height as usize);
+        let taps = rays
+            .iter()
+            .map(|n| {
+                // Bilinear, in pixel-centre coordinates of the render.
+                let (x, y) = ((p.fx * n.x + cx) as f32 - 0.5, (p.fy * n.y + cy) as f32 - 0.5);
+                let (x, y) = (x.clamp(0.0, (rw - 1) as f32), y.clamp(0.0, (rh - 1) as f32));
+                let (i, j) = ((x as usize).min(rw - 2), (y as usize).min(rh - 2));
+                Tap::new(j * rw + i, x - i as f32, y - j as f32)
+            })
+            .collect();
+        Lens { render, taps: Some(taps), vignette }
+    }
 }
 
 /// Where a distorted pixel samples the undistorted render: the top-left of its 2 x 2 neighbourhood
 /// and the bilinear weights in 1/256 pixel.
 #[derive(Clone, Copy, Debug)]
 struct Tap {
-    /// Index of the top-left pixel; `u32::MAX` when the pixel sees outside the render (black).
+    /// Index of the top-left pixel.
     at: u32,
     wx: u16,
     wy: u16,
 }
 
 impl Tap {
-    const OUTSIDE: Tap = Tap { at: u32::MAX, wx: 0, wy: 0 };
-
     fn new(at: usize, tx: f32, ty: f32) -> Tap {
         let q = |t: f32| (t * 256.0).round().clamp(0.0, 256.0) as u16;
         Tap { at: at as u32, wx: q(tx), wy: q(ty) }
@@ -172,9 +337,6 @@ impl Tap {
 
     /// The bilinear sample of an 8-bit image, with 8 fractional bits.
     fn sample_q8(&self, lum: &[u8], width: usize) -> i32 {
-        if self.at == u32::MAX {
-            return 0;
-        }
         let i = self.at as usize;
         let at = |k: usize| i32::from(lum[k]);
         let (wx, wy) = (i32::from(self.wx), i32::from(self.wy));
@@ -282,7 +444,7 @@ impl SensorRenderer {
         let id = twin.world().object("canister").and_then(|c| c.marker_ids.first().copied()).unwrap_or(0);
         let marker = marker_texture(id, 16).map_err(RenderError::Gpu)?;
         let scene = Scene::new(&gpu, twin, marker);
-        Ok(SensorRenderer { gpu, scene, remaps: Vec::new(), lod_error_px: super::scene::LOD_ERROR_PX })
+        Ok(SensorRenderer { gpu, scene, lenses: Vec::new(), lod_error_px: super::scene::LOD_ERROR_PX })
     }
 
     /// The adapter in use, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)`.
@@ -322,58 +484,77 @@ impl SensorRenderer {
         self.render_within(twin, cam, pose, shading, f64::INFINITY)
     }
 
-    /// A greyscale image from `pose` with the camera's distortion, plus exposure noise.
+    /// A greyscale image from `pose` (the camera's optical frame in the world) through the camera's
+    /// lens and photometric model at `exposure`.
     pub fn grey(
         &mut self,
         twin: &Twin,
         cam: &CameraModel,
         pose: &Isometry3<f64>,
-        noise_dn: f64,
+        photometry: &Photometry,
+        exposure: Exposure,
         rng: &mut Pcg64Mcg,
     ) -> Result<GreyImage, RenderError> {
-        let mut images = self.grey_views(twin, &[(cam, *pose)], noise_dn, rng)?;
+        let mut images = self.grey_views(twin, &[(cam, *pose)], photometry, exposure, rng)?;
         Ok(images.remove(0))
     }
 
     /// Greyscale images of several cameras (a stereo pair) rendered in one submission.
     ///
-    /// The GPU renders the undistorted luminance; the distortion (bilinear remap) and the noise are
-    /// applied here, rows of all images in parallel (in order on a sweep's worker threads). Each image draws one seed from `rng`, in order,
-    /// and each of its rows its own noise stream from that seed, so the images do not depend on the
-    /// number of threads.
+    /// The GPU renders the undistorted radiance; the lens (bilinear remap, vignetting) and the
+    /// photometric model (exposure and gain, shot and read noise, quantization) are applied here,
+    /// rows of all images in parallel (in order on a sweep's worker threads). Each image draws one
+    /// seed from `rng`, in order, and each of its rows its own noise stream from that seed, so the
+    /// images do not depend on the number of threads.
     pub fn grey_views(
         &mut self,
         twin: &Twin,
         cams: &[(&CameraModel, Isometry3<f64>)],
-        noise_dn: f64,
+        photometry: &Photometry,
+        exposure: Exposure,
         rng: &mut Pcg64Mcg,
     ) -> Result<Vec<GreyImage>, RenderError> {
-        let views: Vec<View<'_>> = cams
+        let lenses: Vec<usize> = cams.iter().map(|(cam, _)| self.lens(cam, photometry.vignetting)).collect();
+        let rendered: Vec<CameraModel> = cams
             .iter()
-            .map(|(cam, pose)| {
+            .zip(&lenses)
+            .map(|((cam, _), &l)| CameraModel {
+                pinhole: self.lenses[l].1.render,
+                distortion: Distortion::default(),
+                frame: cam.frame.clone(),
+            })
+            .collect();
+        let views: Vec<View<'_>> = rendered
+            .iter()
+            .zip(cams)
+            .map(|(cam, (_, pose))| {
                 view(&self.scene, self.lod_error_px, twin, cam, pose, Shading::Sun, f64::INFINITY)
             })
             .collect();
         let frames = self.gpu.render_views(&views)?;
         drop(views);
-        let remaps: Vec<Option<usize>> = cams
-            .iter()
-            .map(|(cam, _)| if cam.distortion.is_zero() { None } else { Some(self.remap(cam)) })
+        // Fixed point with 8 fractional bits from here on. The mean signal of a pixel is the
+        // render's value times the exposure (relative time x gain) and the vignetting; its noise
+        // (shot and read, in grey levels) depends on the mean: a table over grey levels.
+        let gain_e = photometry.full_well_e.recip() * 255.0 * exposure.gain; // grey levels per electron
+        let sigma_q8: Vec<i32> = (0..=256)
+            .map(|dn| {
+                let var = gain_e * dn as f64 + (gain_e * photometry.read_noise_e).powi(2);
+                (var.sqrt() * 256.0).round() as i32
+            })
             .collect();
-        // Fixed point with 8 fractional bits from here on: the noise table scaled to the noise
-        // level, the bilinear weights in 1/256 pixel.
-        let noise_q8: Vec<i32> =
-            gaussian_table().iter().map(|g| (g * noise_dn as f32 * 256.0).round() as i32).collect();
-        let noisy = noise_dn > 0.0;
+        let noisy = sigma_q8.iter().any(|&s| s > 0);
+        let scale_q12 =
+            ((exposure.relative * exposure.gain) * 4096.0).round().min(i32::MAX as f64 / 256.0) as i64;
+        let gauss = gaussian_table();
         let mut images: Vec<GreyImage> = cams
             .iter()
-            .zip(&frames)
-            .map(|((cam, _), f)| GreyImage {
+            .map(|(cam, _)| GreyImage {
                 stamp: twin.time(),
                 frame: cam.frame.clone(),
-                width: f.width,
-                height: f.height,
-                data: vec![0u8; f.pixels.len()],
+                width: cam.pinhole.width,
+                height: cam.pinhole.height,
+                data: vec![0u8; (cam.pinhole.width * cam.pinhole.height) as usize],
             })
             .collect();
         let seeds: Vec<u64> = cams.iter().map(|_| rand::RngCore::next_u64(rng)).collect();
@@ -382,65 +563,61 @@ impl SensorRenderer {
             let w = image.width as usize;
             rows.extend(image.data.chunks_mut(w).enumerate().map(|(v, row)| (k, v, row)));
         }
+        let lens_table = &self.lenses;
         super::map_items(rows, |(k, v, row)| {
-            let (lum, w) = (&frames[k].pixels, frames[k].width as usize);
-            let taps = remaps[k].map(|r| &self.remaps[r].1[v * w..(v + 1) * w]);
+            let lens = &lens_table[lenses[k]].1;
+            let (lum, rw) = (&frames[k].pixels, frames[k].width as usize);
+            let w = row.len();
+            let taps = lens.taps.as_ref().map(|t| &t[v * w..(v + 1) * w]);
+            let vignette = (!lens.vignette.is_empty()).then(|| &lens.vignette[v * w..(v + 1) * w]);
             let mut stream = Pcg64Mcg::seed_from_u64(framework::seed::mix64(seeds[k] ^ v as u64));
             let mut bits = 0u64;
             for (u, out) in row.iter_mut().enumerate() {
-                let value = match taps {
-                    None => i32::from(lum[v * w + u]) << 8,
-                    Some(t) => t[u].sample_q8(lum, w),
+                let radiance = match taps {
+                    None => i64::from(lum[v * rw + u]) << 8,
+                    Some(t) => i64::from(t[u].sample_q8(lum, rw)),
                 };
+                let lit = match vignette {
+                    None => radiance,
+                    Some(g) => (radiance * i64::from(g[u])) >> 12,
+                };
+                let mean = ((lit * scale_q12) >> 12).min(1 << 20) as i32;
                 let n = if noisy {
                     if u % 4 == 0 {
                         bits = rand::RngCore::next_u64(&mut stream);
                     }
-                    noise_q8[(bits >> (16 * (u % 4))) as usize & (GAUSS_TABLE - 1)]
+                    let g = gauss[(bits >> (16 * (u % 4))) as usize & (GAUSS_TABLE - 1)];
+                    let sigma = sigma_q8[(mean >> 8).clamp(0, 256) as usize];
+                    (g * sigma as f32) as i32
                 } else {
                     0
                 };
-                *out = ((value + n + 128) >> 8).clamp(0, 255) as u8;
+                *out = ((mean + n + 128) >> 8).clamp(0, 255) as u8;
             }
         });
         Ok(images)
     }
 
-    /// The index of the remap table of a distorted camera, computed on first use: the distorted pixel
-    /// (u, v) sees the direction of the undistorted pixel the table holds.
-    /// Cameras that differ only in their frame (the two of a stereo pair) share one table.
-    fn remap(&mut self, cam: &CameraModel) -> usize {
-        let key = (cam.pinhole, cam.distortion);
-        if let Some(k) = self.remaps.iter().position(|(c, _)| *c == key) {
+    /// The index of the lens of a camera, made on first use. Cameras that differ only in their
+    /// frame share one.
+    fn lens(&mut self, cam: &CameraModel, vignetting: f64) -> usize {
+        let key = (cam.pinhole, cam.distortion, vignetting.to_bits());
+        if let Some(k) = self.lenses.iter().position(|(c, _)| *c == key) {
             return k;
         }
-        let p = &cam.pinhole;
-        let (w, h) = (p.width as usize, p.height as usize);
-        let mut table = Vec::with_capacity(w * h);
-        for v in 0..p.height {
-            for u in 0..p.width {
-                let n = cam.ray(&Point2::new(u as f64 + 0.5, v as f64 + 0.5));
-                // Bilinear, in pixel-centre coordinates of the undistorted render.
-                let (x, y) = ((p.fx * n.x + p.cx) as f32 - 0.5, (p.fy * n.y + p.cy) as f32 - 0.5);
-                table.push(if x < 0.0 || y < 0.0 || x > (w - 1) as f32 || y > (h - 1) as f32 {
-                    Tap::OUTSIDE
-                } else {
-                    let (i, j) = ((x as usize).min(w - 2), (y as usize).min(h - 2));
-                    Tap::new(j * w + i, x - i as f32, y - j as f32)
-                });
-            }
-        }
-        self.remaps.push((key, table));
-        self.remaps.len() - 1
+        self.lenses.push((key, Lens::new(cam, vignetting)));
+        self.lenses.len() - 1
     }
 
-    /// A Time-of-Flight frame from `pose`.
+    /// A Time-of-Flight frame of camera `cam` (as built) from `pose`; its point cloud is computed
+    /// with `onboard` (the camera's factory calibration, as a real ToF camera does).
     pub fn tof(
         &mut self,
         twin: &Twin,
         cam: &CameraModel,
         pose: &Isometry3<f64>,
         cfg: &TofConfig,
+        onboard: &CameraModel,
         rng: &mut Pcg64Mcg,
     ) -> Result<TofFrame, RenderError> {
         // Terrain a little beyond the maximum range cannot return, but may still hide nearer things:
@@ -470,7 +647,7 @@ impl SensorRenderer {
             depth.push(zn as f32);
             amplitude.push((amp * 1000.0).min(u16::MAX as f64) as u16);
             let (u, v) = ((i as u32 % f.width) as f64 + 0.5, (i as u32 / f.width) as f64 + 0.5);
-            let p = cam.unproject(&Point2::new(u, v), zn);
+            let p = onboard.unproject(&Point2::new(u, v), zn);
             points.push(Point3::new(p.x as f32, p.y as f32, p.z as f32));
         }
         Ok(TofFrame {
@@ -521,143 +698,3 @@ fn view<'s>(
 
 /// A renderer shared by the camera devices of one twin.
 pub type SharedRenderer = Arc<Mutex<SensorRenderer>>;
-
-/// Dry-Run stereo camera.
-pub struct DryRunStereo {
-    name: String,
-    twin: SharedTwin,
-    renderer: SharedRenderer,
-    model: StereoModel,
-    period: Duration,
-    noise_dn: f64,
-    rng: Pcg64Mcg,
-    last: Option<(GreyImage, GreyImage)>,
-}
-
-impl DryRunStereo {
-    /// A stereo device named `name` (`head_stereo`, `loc_stereo`).
-    pub fn new(
-        name: &str,
-        twin: SharedTwin,
-        renderer: SharedRenderer,
-        cfg: &StereoConfig,
-        seed: u64,
-    ) -> Result<Self, DeviceError> {
-        let model = stereo_model(cfg, &twin.lock())
-            .map_err(|reason| DeviceError::InvalidCommand { device: name.into(), reason })?;
-        Ok(DryRunStereo {
-            name: name.to_string(),
-            twin,
-            renderer,
-            model,
-            period: Duration::from_hz(cfg.rate_hz),
-            noise_dn: cfg.noise_dn,
-            rng: Pcg64Mcg::seed_from_u64(seed),
-            last: None,
-        })
-    }
-}
-
-/// Whether camera `name` takes a new frame now: none during a dropout (an error), else when it has
-/// none yet or its period has passed since the last one.
-fn frame_due(twin: &Twin, name: &str, last: Option<Time>, period: Duration) -> Result<bool, DeviceError> {
-    if twin.dropped_out(name) {
-        return Err(DeviceError::Fault { device: name.into(), reason: "no frames (dropout)".into() });
-    }
-    Ok(last.is_none_or(|t| twin.time() - t >= period))
-}
-
-/// A rendering failure as the fault of camera `name`.
-fn render_fault(name: &str) -> impl Fn(RenderError) -> DeviceError + '_ {
-    move |e| DeviceError::Fault { device: name.into(), reason: e.to_string() }
-}
-
-impl StereoCamera for DryRunStereo {
-    fn device(&self) -> &str {
-        &self.name
-    }
-    fn model(&self) -> &StereoModel {
-        &self.model
-    }
-    fn capture(&mut self) -> Result<(GreyImage, GreyImage), DeviceError> {
-        let twin = self.twin.lock();
-        if frame_due(&twin, &self.name, self.last.as_ref().map(|l| l.0.stamp), self.period)? {
-            let fail = render_fault(&self.name);
-            let pose = |cam: &CameraModel| {
-                twin.link_pose(&cam.frame)
-                    .ok_or_else(|| fail(RenderError::Gpu(format!("no frame {}", cam.frame))))
-            };
-            let cams =
-                [(&self.model.left, pose(&self.model.left)?), (&self.model.right, pose(&self.model.right)?)];
-            let mut images =
-                self.renderer.lock().grey_views(&twin, &cams, self.noise_dn, &mut self.rng).map_err(fail)?;
-            let right = images.pop().expect("two images");
-            let left = images.pop().expect("two images");
-            self.last = Some((left, right));
-        }
-        Ok(self.last.clone().expect("captured above"))
-    }
-}
-
-/// Dry-Run Time-of-Flight camera.
-pub struct DryRunTof {
-    name: String,
-    twin: SharedTwin,
-    renderer: SharedRenderer,
-    model: CameraModel,
-    cfg: TofConfig,
-    period: Duration,
-    rng: Pcg64Mcg,
-    last: Option<TofFrame>,
-}
-
-impl DryRunTof {
-    /// The ToF camera on optical frame `frame`.
-    pub fn new(
-        name: &str,
-        frame: &str,
-        twin: SharedTwin,
-        renderer: SharedRenderer,
-        cfg: &TofConfig,
-        seed: u64,
-    ) -> Self {
-        DryRunTof {
-            name: name.to_string(),
-            twin,
-            renderer,
-            model: tof_model(cfg, frame),
-            cfg: cfg.clone(),
-            period: Duration::from_hz(cfg.rate_hz),
-            rng: Pcg64Mcg::seed_from_u64(seed),
-            last: None,
-        }
-    }
-}
-
-impl TofCamera for DryRunTof {
-    fn device(&self) -> &str {
-        &self.name
-    }
-    fn model(&self) -> &CameraModel {
-        &self.model
-    }
-    fn range_limits(&self) -> (f64, f64) {
-        (self.cfg.min_range_m, self.cfg.max_range_m)
-    }
-    fn capture(&mut self) -> Result<TofFrame, DeviceError> {
-        let twin = self.twin.lock();
-        if frame_due(&twin, &self.name, self.last.as_ref().map(|l| l.depth.stamp), self.period)? {
-            let fail = render_fault(&self.name);
-            let pose = twin
-                .link_pose(&self.model.frame)
-                .ok_or_else(|| fail(RenderError::Gpu(format!("no frame {}", self.model.frame))))?;
-            let frame = self
-                .renderer
-                .lock()
-                .tof(&twin, &self.model, &pose, &self.cfg, &mut self.rng)
-                .map_err(fail)?;
-            self.last = Some(frame);
-        }
-        Ok(self.last.clone().expect("captured above"))
-    }
-}

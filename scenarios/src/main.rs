@@ -263,6 +263,11 @@ fn sweep_main(a: SweepArgs) -> Result<i32> {
     }
     let Some(path) = a.sweep else { bail!("give a sweep file (or `sweep merge DIR... --out DIR`)") };
     let sw = sweep::load(&path)?;
+    if !a.quiet {
+        for note in sw.ineffective_dispersions() {
+            eprintln!("note: {note}");
+        }
+    }
     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("sweep").to_string();
     let out = a.out.unwrap_or_else(|| PathBuf::from("out").join(format!("sweep-{stem}")));
     let interrupt = interrupt_flag();

@@ -130,6 +130,37 @@ pub struct Sweep {
     pub scenario_path: PathBuf,
 }
 
+/// Scenario keys (and their sub-keys) that change nothing at kinematic fidelity: contact friction,
+/// the solver, the motor, suspension, servo and gripper models are parts of the dynamics.
+const DYNAMIC_ONLY: &[&str] =
+    &["world.friction", "twin.physics", "twin.wheels", "twin.suspension", "twin.servos", "twin.gripper"];
+
+impl Sweep {
+    /// The dispersed keys that have no effect at the fidelity the runs use, each with why: a
+    /// campaign that disperses them learns nothing about them, and should say so.
+    pub fn ineffective_dispersions(&self) -> Vec<String> {
+        let fidelity = self
+            .file
+            .sweep
+            .fidelity
+            .or_else(|| scenario::load(&self.scenario_path, &[]).ok().map(|l| l.scenario.run.fidelity));
+        if fidelity != Some(FidelityName::Kinematic) {
+            return Vec::new();
+        }
+        self.file
+            .dispersions
+            .iter()
+            .filter(|d| DYNAMIC_ONLY.iter().any(|k| d.key == *k || d.key.starts_with(&format!("{k}."))))
+            .map(|d| {
+                format!(
+                    "dispersion of '{}' has no effect at kinematic fidelity (it is part of the dynamics)",
+                    d.key
+                )
+            })
+            .collect()
+    }
+}
+
 /// Loads and checks a sweep file and its scenario (with every dispersion key applied once, so a
 /// misspelt key fails here with its location, not in run 37).
 pub fn load(path: &Path) -> Result<Sweep, ConfigError> {
@@ -856,5 +887,17 @@ mod tests {
         let v: f64 = s.plan(2).overrides[0].1.parse().unwrap();
         assert!((0.0..1.0).contains(&v));
         assert!(["\"p\"", "\"q\""].contains(&s.plan(2).overrides[1].1.as_str()));
+    }
+
+    #[test]
+    fn dispersions_of_the_dynamics_are_reported_as_ineffective_at_kinematic_fidelity() {
+        let text = "[sweep]\nscenario = \"x.toml\"\nfidelity = \"kinematic\"\n[[dispersion]]\nkey = \"world.friction\"\nuniform = [0.4, 0.8]\n[[dispersion]]\nkey = \"twin.wheels.friction\"\nuniform = [0.4, 0.8]\n[[dispersion]]\nkey = \"twin.calibration.wheel_radius_fraction\"\nuniform = [0.0, 0.02]\n";
+        let file: SweepFile = toml::from_str(text).unwrap();
+        let mut s = Sweep { file, path: "s.toml".into(), scenario_path: "x.toml".into() };
+        let notes = s.ineffective_dispersions();
+        assert_eq!(notes.len(), 2, "{notes:?}");
+        assert!(notes[0].contains("world.friction") && notes[1].contains("twin.wheels.friction"));
+        s.file.sweep.fidelity = Some(FidelityName::Dynamic);
+        assert!(s.ineffective_dispersions().is_empty());
     }
 }

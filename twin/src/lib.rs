@@ -17,6 +17,7 @@ pub mod belief;
 pub mod config;
 pub mod convert;
 pub mod devices;
+pub mod kinematic;
 pub mod proprio;
 pub mod render;
 pub mod sim;

@@ -246,6 +246,9 @@ pub struct Twin {
     proprio: crate::proprio::Proprioception,
     collisions: u64,
     touching: std::collections::BTreeSet<(usize, usize)>,
+    /// Kinematic fidelity: what stops the rover, and the obstacles it touches now.
+    obstacles: crate::kinematic::Obstacles,
+    blocked_by: Vec<usize>,
 }
 
 /// The asset folder (`assets/` at the workspace root).
@@ -303,6 +306,8 @@ impl Twin {
             proprio: crate::proprio::Proprioception::new(config.imu.rate_hz, config.encoders.rate_hz),
             collisions: 0,
             touching: Default::default(),
+            obstacles: Default::default(),
+            blocked_by: Vec::new(),
             config,
         };
         twin.build_joints()?;
@@ -662,6 +667,7 @@ impl Twin {
                 handle_offset: Isometry3::translation(0.0, 0.0, HANDLE_HEIGHT),
             });
         }
+        self.obstacles = crate::kinematic::Obstacles::new(&self.world, self.config.locomotor.max_step_m);
         let mut k = KinState::at(start);
         k.base = self.settle(k.x, k.y, k.yaw);
         k.prev_base = k.base;
@@ -1090,35 +1096,71 @@ impl Twin {
     }
 
     fn step_kinematic(&mut self, dt: f64) {
-        // Joints follow their setpoints exactly; wheels turn as commanded.
+        // Joints follow their setpoints exactly.
         for sv in &self.servos {
             let j = &mut self.joints[sv.joint];
             j.qd = (sv.setpoint - j.q) / dt;
             j.q = sv.setpoint;
         }
         let rates = self.effective_wheel_rates();
-        for (&w, &cmd) in self.wheels.iter().zip(&rates) {
-            self.joints[w].qd = cmd;
-            self.joints[w].q += cmd * dt;
-        }
         let twist = self.locomotor.body_twist(&rates);
-        let Engine::Kinematic(k) = &mut self.engine else { return };
+        let Engine::Kinematic(k) = &self.engine else { return };
         // Exact unicycle integration over the step.
         let (v, w) = (twist.v, twist.omega);
+        let (mut x, mut y) = (k.x, k.y);
         if w.abs() < 1e-12 {
-            k.x += v * dt * k.yaw.cos();
-            k.y += v * dt * k.yaw.sin();
+            x += v * dt * k.yaw.cos();
+            y += v * dt * k.yaw.sin();
         } else {
-            k.x += v / w * ((k.yaw + w * dt).sin() - k.yaw.sin());
-            k.y -= v / w * ((k.yaw + w * dt).cos() - k.yaw.cos());
+            x += v / w * ((k.yaw + w * dt).sin() - k.yaw.sin());
+            y -= v / w * ((k.yaw + w * dt).cos() - k.yaw.cos());
         }
-        k.yaw = wrap(k.yaw + w * dt);
-        k.twist = twist;
-        let (x, y, yaw) = (k.x, k.y, k.yaw);
+        let yaw = wrap(k.yaw + w * dt);
+        // Rocks and objects stop the rover: the step is not taken, the drives hold their wheels.
+        let (hl, hw) = self.footprint();
+        let hits = self.obstacles.hits(x, y, yaw, hl, hw);
+        let moving = v.abs() > 1e-12 || w.abs() > 1e-12;
+        let blocked = moving && !hits.is_empty() && {
+            // Moving away from what it touches is allowed: blocked only if the step adds overlap.
+            let before = self.obstacles.hits(k.x, k.y, k.yaw, hl, hw);
+            hits.iter().any(|h| !before.contains(h)) || before.is_empty() || {
+                let (dx, dy) = (x - k.x, y - k.y);
+                hits.iter()
+                    .filter_map(|&h| self.obstacles.centre(h))
+                    .any(|c| (c.x - k.x) * dx + (c.y - k.y) * dy > 0.0)
+            }
+        };
+        for &h in &hits {
+            if !self.blocked_by.contains(&h) {
+                self.collisions += 1;
+            }
+        }
+        self.blocked_by = hits;
+        for (&wi, &cmd) in self.wheels.iter().zip(&rates) {
+            let cmd = if blocked { 0.0 } else { cmd };
+            self.joints[wi].qd = cmd;
+            self.joints[wi].q += cmd * dt;
+        }
+        let (x, y, yaw, twist) =
+            if blocked { (k.x, k.y, k.yaw, BodyTwist::default()) } else { (x, y, yaw, twist) };
         let base = self.settle(x, y, yaw);
         let Engine::Kinematic(k) = &mut self.engine else { return };
+        (k.x, k.y, k.yaw, k.twist) = (x, y, yaw, twist);
         k.prev_base = k.base;
         k.base = base;
+    }
+
+    /// Half-length and half-width of the rover's footprint around its wheels, m.
+    fn footprint(&self) -> (f64, f64) {
+        let m = &self.locomotor;
+        let hl = m.wheel_positions.iter().map(|p| p.x.abs()).fold(0.0, f64::max) + m.wheel_radius;
+        let hw = m.wheel_positions.iter().map(|p| p.y.abs()).fold(0.0, f64::max) + 0.1;
+        (hl, hw)
+    }
+
+    /// Names of the obstacles the kinematic rover touches now.
+    pub fn kinematic_contacts(&self) -> Vec<&str> {
+        self.blocked_by.iter().filter_map(|&k| self.obstacles.get(k).map(|o| o.name.as_str())).collect()
     }
 
     fn base_pose_internal(&self) -> Isometry3<f64> {

@@ -435,3 +435,51 @@ fn ground_truth_covers_every_link_the_canister_and_contacts() {
     assert!(gt.contacts.iter().any(|c| c.a.starts_with("canister") || c.b.starts_with("canister")));
     assert_eq!(gt.collisions, 0);
 }
+
+/// A flat world with one cube-like rock of half-size `half` and height `height` at (x, 0).
+fn with_rock(x: f64, half: f64, height: f64) -> World {
+    let mut w = flat(0.8);
+    let mut points = Vec::new();
+    for (a, b) in [(-half, -half), (half, -half), (half, half), (-half, half)] {
+        for z in [0.0, height] {
+            points.push(nalgebra::Point3::new(a, b, z));
+        }
+    }
+    w.rocks.push(worlds::Rock {
+        position: nalgebra::Point3::new(x, 0.0, 0.0),
+        yaw: 0.0,
+        diameter: 2.0 * half,
+        height,
+        points,
+    });
+    w
+}
+
+#[test]
+fn in_kinematic_fidelity_a_rock_stops_the_rover_and_counts_as_a_collision() {
+    let mut t = rover(with_rock(3.0, 0.3, 0.5), 0.0, 0.0, 0.0, Fidelity::Kinematic);
+    let rates = t.locomotor_model().wheel_rates(BodyTwist { v: 0.2, omega: 0.0 }).unwrap();
+    t.set_wheel_rates(&rates);
+    t.run_for(S(20.0));
+    let x = t.base_pose().translation.x;
+    // The footprint's front (the front wheels' outer edge) rests against the rock's face at 2.7 m.
+    let front = t.locomotor_model().wheel_positions.iter().map(|p| p.x).fold(0.0, f64::max)
+        + t.locomotor_model().wheel_radius;
+    assert!((x + front - 2.7).abs() < 0.01, "stopped with its front at {} m", x + front);
+    assert_eq!(t.collisions(), 1, "one touch, one collision");
+    assert_eq!(t.kinematic_contacts(), vec!["rock_0"]);
+    // Blocked, the drives hold their wheels; backing off is free.
+    let (a0, _) = t.wheel_readings();
+    t.run_for(S(1.0));
+    assert_eq!(t.wheel_readings().0, a0);
+    let back = t.locomotor_model().wheel_rates(BodyTwist { v: -0.2, omega: 0.0 }).unwrap();
+    t.set_wheel_rates(&back);
+    t.run_for(S(2.0));
+    assert!(t.base_pose().translation.x < x - 0.3);
+    assert!(t.kinematic_contacts().is_empty());
+    // A rock lower than the rover's step limit does not stop it.
+    let mut t = rover(with_rock(3.0, 0.3, 0.1), 0.0, 0.0, 0.0, Fidelity::Kinematic);
+    t.set_wheel_rates(&rates);
+    t.run_for(S(20.0));
+    assert!(t.base_pose().translation.x > 3.9 && t.collisions() == 0);
+}

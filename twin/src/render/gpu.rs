@@ -273,18 +273,24 @@ pub struct Renderer {
 impl Renderer {
     /// Opens a device without a window. `WGPU_BACKEND=vulkan|gl` overrides the backend choice.
     pub fn new() -> Result<Self, BoxErr> {
-        let mut instance_desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        instance_desc.backends =
-            wgpu::Backends::from_env().unwrap_or(wgpu::Backends::VULKAN | wgpu::Backends::GL);
-        instance_desc.flags = wgpu::InstanceFlags::from_build_config().with_env();
-        let instance = wgpu::Instance::new(instance_desc);
-
-        let adapter = pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
-            power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
-            force_fallback_adapter: false,
-            compatible_surface: None,
-            apply_limit_buckets: false,
-        }))
+        // Vulkan first, GL only when Vulkan has no adapter: probing GL where EGL cannot load a
+        // driver logs errors although Vulkan (lavapipe or a GPU) serves.
+        let request = |backends: wgpu::Backends| {
+            let mut instance_desc = wgpu::InstanceDescriptor::new_without_display_handle();
+            instance_desc.backends = backends;
+            instance_desc.flags = wgpu::InstanceFlags::from_build_config().with_env();
+            let instance = wgpu::Instance::new(instance_desc);
+            pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::from_env().unwrap_or_default(),
+                force_fallback_adapter: false,
+                compatible_surface: None,
+                apply_limit_buckets: false,
+            }))
+        };
+        let adapter = match wgpu::Backends::from_env() {
+            Some(forced) => request(forced),
+            None => request(wgpu::Backends::VULKAN).or_else(|_| request(wgpu::Backends::GL)),
+        }
         .map_err(|e| RenderError::NoAdapter(e.to_string()))?;
         let adapter_info = adapter.get_info();
 

@@ -1,0 +1,125 @@
+//! The gripper and the canister: closing fingers latch the handle, a released canister stays where
+//! it is put; the canister's true pose.
+
+use super::*;
+
+impl Twin {
+    /// World pose of the gripper's tool centre point.
+    pub(super) fn tcp_pose(&self) -> Option<Isometry3<f64>> {
+        let li = self.mech.link("gripper_tcp").ok()?;
+        Some(self.link_pose_index(li))
+    }
+
+    pub(super) fn canister_pose(&self) -> Option<Isometry3<f64>> {
+        let c = self.canister.as_ref()?;
+        match (&self.engine, c.body) {
+            (Engine::Dynamic(ph), Some(b)) => Some(pose_from_rapier(ph.bodies[b].position())),
+            _ => Some(c.pose),
+        }
+    }
+
+    pub(super) fn gripper_closing(&self) -> bool {
+        let Some(ids) = self.groups.get("gripper") else { return false };
+        ids.iter().all(|&s| {
+            let sv = &self.servos[s];
+            sv.goal < self.joints[sv.joint].q - 1e-4 && sv.status.fault.is_none()
+        })
+    }
+
+    pub(super) fn body_of(&self, link: &str) -> Option<RigidBodyHandle> {
+        match self.links.get(self.mech.link(link).ok()?)? {
+            LinkSource::Body(b) => Some(*b),
+            LinkSource::Attached { .. } => None,
+        }
+    }
+
+    pub(super) fn update_latch(&mut self) {
+        // Called every step: the poses are worked out only when a latch can form (the gripper
+        // closes, no latch yet) or a kinematic latch carries the canister.
+        let closing = self.gripper_closing();
+        let kinematic = matches!(self.engine, Engine::Kinematic(_));
+        let work = if kinematic {
+            closing || self.latched_kinematic.is_some()
+        } else {
+            closing && self.latch.is_none()
+        };
+        if !work {
+            return;
+        }
+        let latch_d = self.config.gripper.latch_distance_m;
+        let (Some(tcp), Some(can)) = (self.tcp_pose(), self.canister_pose()) else { return };
+        let Some(handle_off) = self.canister.as_ref().map(|c| c.handle_offset) else { return };
+        let handle = can * handle_off;
+        let near = (tcp.translation.vector - handle.translation.vector).norm() < latch_d;
+        if kinematic {
+            if self.latched_kinematic.is_none() && near && closing {
+                self.latched_kinematic = Some(tcp.inverse() * can);
+            }
+            if let Some(off) = self.latched_kinematic
+                && let Some(c) = self.canister.as_mut()
+            {
+                c.pose = tcp * off;
+            }
+            return;
+        }
+        if self.latch.is_some() || !near || !closing {
+            return;
+        }
+        let Some(cb) = self.canister.as_ref().and_then(|c| c.body) else { return };
+        let fingers = [self.body_of("gripper_finger_left"), self.body_of("gripper_finger_right")];
+        let Some(palm) = self.body_of("gripper_palm") else { return };
+        let Engine::Dynamic(ph) = &mut self.engine else { return };
+        // Both fingers must touch the canister.
+        let touches = |fb: RigidBodyHandle| {
+            ph.bodies[fb].colliders().iter().any(|fc| {
+                ph.bodies[cb].colliders().iter().any(|cc| {
+                    ph.narrow_phase.contact_pair(*fc, *cc).is_some_and(|p| p.has_any_active_contact())
+                })
+            })
+        };
+        if !fingers.iter().all(|f| f.is_some_and(touches)) {
+            return;
+        }
+        let palm_pose = pose_from_rapier(ph.bodies[palm].position());
+        let rel = palm_pose.inverse() * can;
+        let joint = FixedJointBuilder::new().local_frame1(pose_to_rapier(&rel)).local_frame2(Pose::IDENTITY);
+        self.latch = Some(ph.impulse_joints.insert(palm, cb, joint, true));
+        // Fingers hold where they are.
+        if let Some(ids) = self.groups.get("gripper").cloned() {
+            for s in ids {
+                self.hold(s);
+            }
+        }
+    }
+
+    pub(super) fn release_latch(&mut self) {
+        self.latched_kinematic = None;
+        if let (Some(h), Engine::Dynamic(ph)) = (self.latch.take(), &mut self.engine) {
+            ph.impulse_joints.remove(h, true);
+        }
+    }
+
+    /// True while the gripper holds the canister.
+    pub fn holding_canister(&self) -> bool {
+        self.latch.is_some() || self.latched_kinematic.is_some()
+    }
+
+    /// Moves the canister (for tests and scenario set-up) and stops it.
+    pub fn place_canister(&mut self, pose: Isometry3<f64>) {
+        self.release_latch();
+        if let Some(c) = self.canister.as_mut() {
+            c.pose = pose;
+            if let (Engine::Dynamic(ph), Some(b)) = (&mut self.engine, c.body) {
+                let body = &mut ph.bodies[b];
+                body.set_position(pose_to_rapier(&pose), true);
+                body.set_linvel(Vector::ZERO, true);
+                body.set_angvel(Vector::ZERO, true);
+            }
+        }
+    }
+
+    /// World pose of the canister (ground truth).
+    pub fn canister_truth(&self) -> Option<Isometry3<f64>> {
+        self.canister_pose()
+    }
+}

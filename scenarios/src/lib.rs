@@ -11,6 +11,7 @@ pub mod demo;
 pub mod faults;
 pub mod logger;
 pub mod operator;
+pub mod physics_bench;
 pub mod report;
 pub mod runner;
 pub mod scenario;

@@ -244,7 +244,7 @@ enum Item {
         poses: Vec<(String, Isometry3<f64>)>,
         canister: Option<Isometry3<f64>>,
         base: Isometry3<f64>,
-        collisions: u64,
+        collisions: [u64; 2],
     },
     Slots {
         now: Time,
@@ -423,7 +423,7 @@ impl RunLogger {
                 poses,
                 canister: twin.canister_truth(),
                 base: twin.base_pose(),
-                collisions: twin.collisions(),
+                collisions: [twin.collisions(), twin.self_collisions()],
             })?;
         }
         if let Some(p) = period(self.settings.slots_hz)
@@ -725,7 +725,7 @@ impl Writer {
         poses: &[(String, Isometry3<f64>)],
         canister: Option<Isometry3<f64>>,
         b: Isometry3<f64>,
-        collisions: u64,
+        [collisions, self_collisions]: [u64; 2],
     ) -> Result<()> {
         if let Some(rec) = &self.rrd {
             for (name, pose) in poses {
@@ -737,6 +737,7 @@ impl Writer {
             let tilt = crate::score::tilt_deg(&b);
             rec.log("plots/motion/tilt_deg", &rerun::Scalars::single(tilt))?;
             rec.log("plots/motion/collisions", &rerun::Scalars::single(collisions as f64))?;
+            rec.log("plots/motion/self_collisions", &rerun::Scalars::single(self_collisions as f64))?;
             if now >= self.next_track {
                 self.next_track = now + Duration::from_secs(1);
                 let t = b.translation;

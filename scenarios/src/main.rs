@@ -43,16 +43,25 @@ enum Cmd {
     Check(CheckArgs),
     /// Run the framework demo: four modules of a heading loop exchanging data and commands.
     Demo(DemoArgs),
-    /// Benchmarks that need whole runs: `bench logging` (the logger's share of a run's wall time
-    /// and the bytes it writes per simulated minute at the scenario's rates).
+    /// Benchmarks that need whole runs or other programs: `bench logging` (the logger's share of a
+    /// run's wall time and the bytes it writes per simulated minute at the scenario's rates);
+    /// `bench physics [--mujoco]` (the twin's full-dynamics step on the Mars-like yard, and with
+    /// `--mujoco` MuJoCo's on the same rover, terrain and rocks, and their ratio).
     Bench(BenchArgs),
 }
 
 #[derive(clap::Args)]
 struct BenchArgs {
     /// What to measure.
-    #[arg(value_parser = ["logging"])]
+    #[arg(value_parser = ["logging", "physics"])]
     what: String,
+    /// `bench physics`: also step the same scene in MuJoCo (scripts/mujoco_bench.sh; installs
+    /// MuJoCo from PyPI into $HOME/.cache/rover-twin/mujoco-venv on first use).
+    #[arg(long)]
+    mujoco: bool,
+    /// `bench physics`: simulated seconds to time.
+    #[arg(long, default_value_t = 20.0)]
+    seconds: f64,
     /// The scenario to run.
     #[arg(long, default_value_os_t = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("traverse.toml"))]
     scenario: PathBuf,
@@ -303,6 +312,9 @@ fn sweep_main(a: SweepArgs) -> Result<i32> {
 }
 
 fn bench_main(a: &BenchArgs) -> Result<i32> {
+    if a.what == "physics" {
+        return physics_bench_main(a);
+    }
     let loaded = scenario::load(&a.scenario, &[])?;
     let tmp = std::env::temp_dir().join(format!("rover-twin-bench-{}", std::process::id()));
     let interrupt = interrupt_flag();
@@ -467,4 +479,28 @@ fn demo_main(a: &DemoArgs) -> Result<bool> {
     }
     println!("demo {}", if all_ok { "succeeded" } else { "FAILED" });
     Ok(all_ok)
+}
+
+fn physics_bench_main(a: &BenchArgs) -> Result<i32> {
+    if !(a.seconds.is_finite() && a.seconds > 0.0) {
+        bail!("--seconds must be positive, got {}", a.seconds);
+    }
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let b = scenarios::physics_bench::run(a.seconds, a.mujoco, &root)?;
+    println!(
+        "full-dynamics step, Mars-like yard, driving straight, arm and pan-tilt held ({} steps):",
+        b.steps
+    );
+    println!("  twin (rapier3d)  {:8.1} us per step   drove {:.2} m", b.twin_us, b.twin_distance_m);
+    if let Some(m) = &b.mujoco {
+        let us = m["mean_step_us"].as_f64().unwrap_or(f64::NAN);
+        println!(
+            "  MuJoCo {:<9} {:8.1} us per step   drove {:.2} m",
+            m["mujoco_version"].as_str().unwrap_or("?"),
+            us,
+            m["displacement_m"].as_f64().unwrap_or(f64::NAN)
+        );
+        println!("  ratio twin / MuJoCo: {:.2}", b.twin_us / us);
+    }
+    Ok(0)
 }

@@ -512,6 +512,10 @@ fn check_criteria(
     if let Some(lim) = c.max_collisions {
         add("collisions".into(), m.collisions <= lim, m.collisions.to_string(), format!("<= {lim}"));
     }
+    if let Some(lim) = c.max_self_collisions {
+        let v = m.self_collisions;
+        add("self-collisions".into(), v <= lim, v.to_string(), format!("<= {lim}"));
+    }
     if let Some(lim) = c.max_final_position_error_m {
         let v = m.final_position_error_m;
         add(
@@ -733,6 +737,9 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         position_error_rms_m: (scorer.err_n > 0).then(|| (scorer.err_sq_sum / scorer.err_n as f64).sqrt()),
         canister_stowed: canister_stowed(&t),
         collisions: t.collisions(),
+        self_collisions: t.self_collisions(),
+        grasp_position_error_m: t.grasp_truth().map(|g| g.position_error_m),
+        grasp_angle_error_deg: t.grasp_truth().map(|g| g.angle_error_deg),
         max_tilt_deg: scorer.max_tilt,
         final_state: final_state.to_string(),
         isolated_modules: ex

@@ -299,6 +299,9 @@ pub struct Criteria {
     /// Most collisions of rover links with rocks or objects.
     #[serde(default)]
     pub max_collisions: Option<u64>,
+    /// Most self-collisions (the arm, the gripper or a held canister against the rover's body).
+    #[serde(default)]
+    pub max_self_collisions: Option<u64>,
     /// Largest horizontal error of the final pose estimate, m.
     #[serde(default)]
     pub max_final_position_error_m: Option<f64>,

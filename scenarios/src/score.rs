@@ -68,6 +68,12 @@ pub struct Metrics {
     pub canister_stowed: bool,
     /// Collisions of rover links with rocks or objects.
     pub collisions: u64,
+    /// Self-collisions: the arm, the gripper or a held canister against the rover's body.
+    pub self_collisions: u64,
+    /// The latest grasp of the canister: the handle's distance from the tool centre point, m.
+    pub grasp_position_error_m: Option<f64>,
+    /// The latest grasp: the handle's rotation from the nominal grasp, degrees.
+    pub grasp_angle_error_deg: Option<f64>,
     /// Largest tilt of the rover body from the vertical, degrees.
     pub max_tilt_deg: f64,
     /// The system's lifecycle state at the end.

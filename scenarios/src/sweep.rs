@@ -316,6 +316,8 @@ pub const METRICS: &[Metric] = &[
     ("position_error_rms_m", |s| optional(s.metrics.position_error_rms_m)),
     ("canister_stowed", |s| s.metrics.canister_stowed.to_string()),
     ("collisions", |s| s.metrics.collisions.to_string()),
+    ("self_collisions", |s| s.metrics.self_collisions.to_string()),
+    ("grasp_position_error_m", |s| optional(s.metrics.grasp_position_error_m)),
     ("max_tilt_deg", |s| format!("{:.6}", s.metrics.max_tilt_deg)),
     ("final_state", |s| s.metrics.final_state.clone()),
 ];

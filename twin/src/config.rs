@@ -121,6 +121,12 @@ pub struct ServoConfig {
 pub struct GripperConfig {
     /// Latch distance, m.
     pub latch_distance_m: f64,
+    /// The fingers hold the handle only when their closing axis is within this of the handle's
+    /// narrow axis, degrees.
+    pub grasp_tolerance_deg: f64,
+    /// A canister released within this horizontal distance of the stowage slot rests in the
+    /// cradle, m (kinematic fidelity; in full dynamics the cradle's walls hold it).
+    pub cradle_capture_m: f64,
 }
 
 /// Locomotor limits.
@@ -262,6 +268,11 @@ impl TwinConfig {
         pos("servos.damping_time_s", c.servos.damping_time_s)?;
         pos("servos.position_tolerance", c.servos.position_tolerance)?;
         pos("imu.rate_hz", c.imu.rate_hz)?;
+        pos("gripper.latch_distance_m", c.gripper.latch_distance_m)?;
+        pos("gripper.cradle_capture_m", c.gripper.cradle_capture_m)?;
+        if !(c.gripper.grasp_tolerance_deg > 0.0 && c.gripper.grasp_tolerance_deg <= 90.0) {
+            return Err(src.error_at_key("gripper.grasp_tolerance_deg", "must be in (0, 90] degrees"));
+        }
         pos("locomotor.max_speed_m_s", c.locomotor.max_speed_m_s)?;
         pos("locomotor.max_slope_deg", c.locomotor.max_slope_deg)?;
         if c.encoders.counts_per_rev == 0 {

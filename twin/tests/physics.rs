@@ -272,13 +272,21 @@ fn palm_down() -> UnitQuaternion<f64> {
 /// Grasps the canister placed 0.95 m ahead of the rover with the arm (inverse kinematics from the
 /// mechanism model) and lifts it. Returns the twin holding it.
 fn grasp(fidelity: Fidelity) -> Twin {
+    let (t, held) = try_grasp(fidelity, 0.0);
+    assert!(held, "gripper did not latch the handle");
+    t
+}
+
+/// Closes the gripper on the handle of the canister turned by `yaw` (rad) about the vertical, the
+/// gripper aligned with the unturned handle; lifts if it holds. The twin and whether it held.
+fn try_grasp(fidelity: Fidelity, yaw: f64) -> (Twin, bool) {
     let mut t = rover(flat(0.8), 0.0, 0.0, 0.0, fidelity);
     t.run_for(S(1.0));
     let base = t.base_pose();
     let ground = t.world().ground_height(0.95, 0.0);
     t.place_canister(Isometry3::from_parts(
         Translation3::new(0.95, 0.0, ground + 0.002),
-        UnitQuaternion::identity(),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
     ));
     t.run_for(S(0.5));
     let can = t.canister_truth().unwrap();
@@ -300,17 +308,71 @@ fn grasp(fidelity: Fidelity) -> Twin {
         assert!(t.run_until(S(15.0), |tw| tw.move_status(id) == MoveStatus::Done), "{:?}", t.move_status(id));
     }
     let close = t.start_move("gripper", &[0.0, 0.0], 1.0).unwrap();
-    assert!(
-        t.run_until(S(4.0), |tw| tw.move_status(close) == MoveStatus::Done),
-        "{:?}",
-        t.move_status(close)
-    );
-    assert!(t.holding_canister(), "gripper did not latch the handle");
+    t.run_until(S(4.0), |tw| tw.move_status(close).is_over());
+    if !t.holding_canister() {
+        return (t, false);
+    }
+    assert_eq!(t.move_status(close), MoveStatus::Done);
     let up = t.start_move("arm", &above, 0.5).unwrap();
     assert!(t.run_until(S(15.0), |tw| tw.move_status(up) == MoveStatus::Done));
     let lifted = t.canister_truth().unwrap().translation.vector.z - ground;
     assert!(lifted > 0.08, "canister only {lifted} m off the ground");
-    t
+    (t, true)
+}
+
+#[test]
+fn an_aligned_close_holds_the_handle_and_a_misaligned_one_does_not() {
+    for fidelity in [Fidelity::Dynamic, Fidelity::Kinematic] {
+        let (t, held) = try_grasp(fidelity, 0.0);
+        assert!(held, "{fidelity:?}: the aligned grasp holds");
+        let g = t.grasp_truth().expect("a grasp is recorded");
+        assert!(g.position_error_m < 0.02 && g.closing_axis_error_deg < 5.0, "{fidelity:?}: {g:?}");
+        assert_eq!(t.ground_truth().grasp, Some(g));
+        // The handle turned by 30 degrees (twice the tolerance): the fingers close askew, hold nothing.
+        let (t, held) = try_grasp(fidelity, 30f64.to_radians());
+        assert!(!held, "{fidelity:?}: a close 30 degrees off the handle's axis must not hold");
+        assert!(t.grasp_truth().is_none() && t.ground_truth().grasp.is_none());
+    }
+}
+
+#[test]
+fn commanding_the_arm_into_the_mast_is_a_self_collision_that_stops_the_arm() {
+    for fidelity in [Fidelity::Dynamic, Fidelity::Kinematic] {
+        let mut t = rover(flat(0.8), 0.0, 0.0, 0.0, fidelity);
+        t.run_for(S(0.5));
+        assert_eq!(t.self_collisions(), 0, "{fidelity:?}: no self-contact at rest");
+        // Shoulder up and back over the body: the upper arm swings into the mast.
+        let id = t.start_move("arm", &[0.0, -2.0, 0.0, 0.0, 0.0, 0.0], 0.5).unwrap();
+        t.run_for(S(8.0));
+        assert!(t.self_collisions() >= 1, "{fidelity:?}: no self-collision counted");
+        assert!(
+            matches!(t.move_status(id), MoveStatus::Failed(ref r) if r.contains("FAULT")),
+            "{fidelity:?}: {:?}",
+            t.move_status(id)
+        );
+        let q2 = t.joint_states(&["arm_joint_2".to_string()])[0].position;
+        assert!(q2 > -1.9, "{fidelity:?}: the arm went through the mast to {q2} rad");
+        assert!(t.collisions() == 0, "{fidelity:?}: a self-collision is not a collision with the world");
+    }
+}
+
+#[test]
+fn a_released_canister_rests_in_the_cradle_or_falls_to_the_ground_in_kinematic_fidelity() {
+    // Let go in the open: it stands on the ground below the gripper.
+    let mut t = grasp(Fidelity::Kinematic);
+    let open = t.start_move("gripper", &[0.045, 0.045], 1.0).unwrap();
+    t.run_until(S(3.0), |tw| tw.move_status(open).is_over());
+    assert!(!t.holding_canister());
+    let c = t.canister_truth().unwrap().translation.vector;
+    assert!((c.z - t.world().ground_height(c.x, c.y)).abs() < 1e-9, "canister at z {}", c.z);
+    // Set in the cradle, it rides with the rover.
+    let slot = t.link_pose("stow_slot").unwrap();
+    t.place_canister(slot * Isometry3::translation(0.01, -0.01, 0.02));
+    let rates = t.locomotor_model().wheel_rates(BodyTwist { v: 0.25, omega: 0.1 }).unwrap();
+    t.set_wheel_rates(&rates);
+    t.run_for(S(8.0));
+    let rel = t.link_pose("stow_slot").unwrap().inverse() * t.canister_truth().unwrap();
+    assert!((rel.translation.vector - Vector3::new(0.01, -0.01, 0.0)).norm() < 1e-6, "{rel}");
 }
 
 #[test]

@@ -4,7 +4,39 @@
 
 use super::*;
 
+/// The terrain as the physics collides with it: the world's heightfield resampled to
+/// `physics.terrain_cell_m` (or the world's own cells when finer are not asked for).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CollisionGrid {
+    /// Samples along x.
+    pub nx: usize,
+    /// Samples along y.
+    pub ny: usize,
+    /// Spacing along x and y, m.
+    pub cell: [f64; 2],
+    /// World position of sample (0, 0), m.
+    pub origin: [f64; 2],
+    /// Heights, m, row-major: row j is y = origin.y + j * cell.y, column i is x = origin.x + i * cell.x.
+    pub heights: Vec<f64>,
+}
+
 impl Twin {
+    /// The terrain grid the physics collides with.
+    pub fn collision_grid(&self) -> CollisionGrid {
+        let hf = &self.world.terrain;
+        let [sx, sy] = hf.size();
+        let cell = self.config.physics.terrain_cell_m.max(hf.cell);
+        let (nx, ny) = ((sx / cell).round() as usize + 1, (sy / cell).round() as usize + 1);
+        let (cx, cy) = (sx / (nx - 1) as f64, sy / (ny - 1) as f64);
+        let mut heights = Vec::with_capacity(nx * ny);
+        for j in 0..ny {
+            for i in 0..nx {
+                heights.push(hf.height(hf.origin.x + i as f64 * cx, hf.origin.y + j as f64 * cy));
+            }
+        }
+        CollisionGrid { nx, ny, cell: [cx, cy], origin: [hf.origin.x, hf.origin.y], heights }
+    }
+
     pub(super) fn build_joints(&mut self) -> Result<(), TwinError> {
         for (k, j) in self.mech.joints().iter().enumerate() {
             if j.kind == JointKind::Fixed {
@@ -59,7 +91,9 @@ impl Twin {
     }
 
     pub(super) fn tag(&mut self, name: String, robot: bool, wheel: bool) -> u128 {
-        self.tags.push(ColliderTag { name, robot, wheel });
+        let arm = robot && is_arm_link(&name);
+        let canister = name.starts_with("canister_");
+        self.tags.push(ColliderTag { name, robot, wheel, arm, canister });
         (self.tags.len() - 1) as u128
     }
 
@@ -98,14 +132,10 @@ impl Twin {
         // local y is world z, and flip rows so that row i is world y = +half - i * cell.
         // The collision grid may be coarser than the world's (physics.terrain_cell_m): contacts
         // cost per triangle under each wheel.
-        let hf = &self.world.terrain;
-        let [sx, sy] = hf.size();
-        let cell = c.physics.terrain_cell_m.max(hf.cell);
-        let (nx, ny) = ((sx / cell).round() as usize + 1, (sy / cell).round() as usize + 1);
-        let (cx, cy) = (sx / (nx - 1) as f64, sy / (ny - 1) as f64);
-        let heights = Array2::from_fn(ny, nx, |i, j| {
-            hf.height(hf.origin.x + j as f64 * cx, hf.origin.y + (ny - 1 - i) as f64 * cy) as f32
-        });
+        let g = self.collision_grid();
+        let (nx, ny) = (g.nx, g.ny);
+        let [sx, sy] = [g.cell[0] * (nx - 1) as f64, g.cell[1] * (ny - 1) as f64];
+        let heights = Array2::from_fn(ny, nx, |i, j| g.heights[(ny - 1 - i) * nx + j] as f32);
         let ground_tag = self.tag("terrain".into(), false, false);
         let ground = ColliderBuilder::heightfield_with_flags(
             heights,
@@ -116,7 +146,7 @@ impl Twin {
         .friction(self.world.regolith.friction as f32)
         .friction_combine_rule(CoefficientCombineRule::Min)
         .restitution(self.world.regolith.restitution as f32)
-        .collision_groups(InteractionGroups::new(ENV, ROBOT | CANISTER, InteractionTestMode::And))
+        .collision_groups(InteractionGroups::new(ENV, ROBOT | ARM | CANISTER, InteractionTestMode::And))
         .user_data(ground_tag);
         ph.colliders.insert(ground);
 
@@ -132,7 +162,11 @@ impl Twin {
                 b.position(pose_to_rapier(&pose))
                     .friction(self.world.regolith.friction as f32)
                     .friction_combine_rule(CoefficientCombineRule::Min)
-                    .collision_groups(InteractionGroups::new(ENV, ROBOT | CANISTER, InteractionTestMode::And))
+                    .collision_groups(InteractionGroups::new(
+                        ENV,
+                        ROBOT | ARM | CANISTER,
+                        InteractionTestMode::And,
+                    ))
                     .user_data(tag),
             );
         }
@@ -147,14 +181,18 @@ impl Twin {
             ph.colliders.insert(
                 ColliderBuilder::cuboid(half.x as f32, half.y as f32, half.z as f32)
                     .position(pose_to_rapier(&pose))
-                    .collision_groups(InteractionGroups::new(ENV, ROBOT | CANISTER, InteractionTestMode::And))
+                    .collision_groups(InteractionGroups::new(
+                        ENV,
+                        ROBOT | ARM | CANISTER,
+                        InteractionTestMode::And,
+                    ))
                     .user_data(tag),
             );
         }
 
         // The rover, from its URDF.
         let base_pose = self.start_base_pose(start);
-        let robot_groups = InteractionGroups::new(ROBOT, ENV | CANISTER, InteractionTestMode::And);
+        let robot_groups = InteractionGroups::new(ROBOT, ENV | CANISTER | ARM, InteractionTestMode::And);
         let opts = UrdfLoaderOptions {
             create_colliders_from_collision_shapes: true,
             create_colliders_from_visual_shapes: false,
@@ -179,7 +217,10 @@ impl Twin {
         let handles =
             urdf_robot.insert_using_impulse_joints(&mut ph.bodies, &mut ph.colliders, &mut ph.impulse_joints);
 
-        // Tag robot colliders with their link names.
+        // Tag robot colliders with their link names; the arm side collides with the body side
+        // (self-collision), each with the world and the canister.
+        let arm_groups = InteractionGroups::new(ARM, ENV | CANISTER | ROBOT, InteractionTestMode::And);
+        let body_groups = InteractionGroups::new(ROBOT, ENV | CANISTER | ARM, InteractionTestMode::And);
         let mut body_of_link: BTreeMap<String, RigidBodyHandle> = BTreeMap::new();
         for (name, lh) in link_names.iter().zip(&handles.links) {
             body_of_link.insert(name.clone(), lh.body);
@@ -188,6 +229,7 @@ impl Twin {
                 let tag = self.tag(name.clone(), true, wheel);
                 if let Some(co) = ph.colliders.get_mut(ch.handle) {
                     co.user_data = tag;
+                    co.set_collision_groups(if is_arm_link(name) { arm_groups } else { body_groups });
                 }
             }
         }
@@ -302,7 +344,7 @@ impl Twin {
             let body = ph.bodies.insert(
                 RigidBodyBuilder::dynamic().pose(pose_to_rapier(&pose)).can_sleep(false).ccd_enabled(true),
             );
-            let groups = InteractionGroups::new(CANISTER, ROBOT | ENV, InteractionTestMode::And);
+            let groups = InteractionGroups::new(CANISTER, ROBOT | ARM | ENV, InteractionTestMode::And);
             let parts: [(&str, [f64; 3], [f64; 3]); 4] = [
                 ("canister_box", [0.05, 0.05, 0.075], [0.0, 0.0, 0.075]),
                 ("canister_post_front", [0.0075, 0.0075, 0.02], [0.035, 0.0, 0.17]),
@@ -334,7 +376,8 @@ impl Twin {
         Ok(())
     }
 
-    pub(super) fn build_kinematic(&mut self, start: StartPose) {
+    pub(super) fn build_kinematic(&mut self, urdf: &Path, start: StartPose) -> Result<(), TwinError> {
+        self.self_shapes = Some(super::selfcollision::SelfShapes::load(urdf, &self.mech)?);
         let zero = vec![0.0; self.mech.dof_count()];
         let poses = self.mech.link_poses(&zero).unwrap_or_default();
         self.links = (0..self.mech.links().len())
@@ -352,6 +395,7 @@ impl Twin {
         k.base = self.settle(k.x, k.y, k.yaw);
         k.prev_base = k.base;
         self.engine = Engine::Kinematic(k);
+        Ok(())
     }
 
     /// Base pose of a kinematic rover at (x, y, yaw), resting on the ground under its wheels.

@@ -72,11 +72,21 @@ impl Twin {
     }
 
     pub(super) fn step_kinematic(&mut self, dt: f64) {
-        // Joints follow their setpoints exactly.
+        // Joints follow their setpoints exactly, unless that puts the arm into the rover's body.
+        let before: Vec<f64> = self.servos.iter().map(|sv| self.joints[sv.joint].q).collect();
+        let mut moved = false;
         for sv in &self.servos {
             let j = &mut self.joints[sv.joint];
+            if sv.status.fault.is_some() {
+                j.qd = 0.0; // a faulted servo holds nothing and goes nowhere
+                continue;
+            }
+            moved |= j.q != sv.setpoint;
             j.qd = (sv.setpoint - j.q) / dt;
             j.q = sv.setpoint;
+        }
+        if moved {
+            self.check_self_collision(&before);
         }
         let rates = self.effective_wheel_rates();
         let twist = self.locomotor.body_twist(&rates);
@@ -124,6 +134,26 @@ impl Twin {
         (k.x, k.y, k.yaw, k.twist) = (x, y, yaw, twist);
         k.prev_base = k.base;
         k.base = base;
+    }
+
+    /// Kinematic fidelity: if the joints' new positions put the arm side into the body side, the
+    /// servos go back to `before` (they stop at the contact), the arm faults naming the parts, and
+    /// the self-collision counts once per touch.
+    fn check_self_collision(&mut self, before: &[f64]) {
+        let Some(shapes) = &self.self_shapes else { return };
+        let poses = self.mech.link_poses(&self.dof_values()).unwrap_or_default();
+        let hit = shapes.first_hit(&poses, &self.mech);
+        let now: std::collections::BTreeSet<(String, String)> = hit.iter().cloned().collect();
+        self.self_collisions += now.difference(&self.self_touching).count() as u64;
+        self.self_touching = now;
+        let Some((a, b)) = hit else { return };
+        for (sv, &q) in self.servos.iter().zip(before) {
+            let j = &mut self.joints[sv.joint];
+            j.q = q;
+            j.qd = 0.0;
+        }
+        let group = if a.starts_with("gripper_finger") { "gripper" } else { "arm" };
+        let _ = self.fault_group(group, &format!("self-collision: {a} against {b}"));
     }
 
     /// Half-length and half-width of the rover's footprint around its wheels, m.
@@ -203,19 +233,49 @@ impl Twin {
     pub(super) fn count_collisions(&mut self) {
         let Engine::Dynamic(ph) = &self.engine else { return };
         let mut now = std::collections::BTreeSet::new();
+        let mut self_now = std::collections::BTreeSet::new();
+        let mut canister_on_body = Vec::new();
         for (_, a, b) in active_pairs(ph) {
             let (ta, tb) = (a.user_data as usize, b.user_data as usize);
             let (Some(x), Some(y)) = (self.tags.get(ta), self.tags.get(tb)) else { continue };
             // A collision: a robot part other than a wheel touching a rock or an object (wheels may
-            // touch anything: driving over small rocks is allowed; nothing counts the terrain).
-            let robot_hit =
-                |r: &ColliderTag, o: &ColliderTag| r.robot && !r.wheel && !o.robot && o.name != "terrain";
+            // touch anything: driving over small rocks is allowed; nothing counts the terrain, and
+            // the canister is handled, not hit).
+            let robot_hit = |r: &ColliderTag, o: &ColliderTag| {
+                r.robot && !r.wheel && !o.robot && !o.canister && o.name != "terrain"
+            };
             if robot_hit(x, y) || robot_hit(y, x) {
                 now.insert((ta.min(tb), ta.max(tb)));
+            }
+            // A self-collision: the arm side against the body side.
+            let body = |t: &ColliderTag| t.robot && !t.arm;
+            for (p, q) in [(x, y), (y, x)] {
+                if p.arm && body(q) {
+                    self_now.insert((p.name.clone(), q.name.clone()));
+                }
+                if p.canister && body(q) {
+                    canister_on_body.push(q.name.clone());
+                }
+            }
+        }
+        // A held canister against the body, except where it belongs: in the stowage cradle.
+        if !canister_on_body.is_empty() && self.holding_canister() && !self.canister_in_cradle() {
+            for b in canister_on_body {
+                self_now.insert(("canister".to_string(), b));
             }
         }
         self.collisions += now.difference(&self.touching).count() as u64;
         self.touching = now;
+        self.self_collisions += self_now.difference(&self.self_touching).count() as u64;
+        self.self_touching = self_now;
+    }
+
+    /// True when the canister stands in the stowage cradle (within its walls' reach of the slot).
+    pub(super) fn canister_in_cradle(&self) -> bool {
+        let (Some(can), Ok(slot)) = (self.canister_pose(), self.mech.link("stow_slot")) else { return false };
+        let rel = self.link_pose_index(slot).inverse() * can;
+        let v = rel.translation.vector;
+        v.xy().norm() < self.config.gripper.cradle_capture_m && (-0.05..0.3).contains(&v.z)
     }
 }
 

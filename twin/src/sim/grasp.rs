@@ -1,5 +1,9 @@
-//! The gripper and the canister: closing fingers latch the handle, a released canister stays where
-//! it is put; the canister's true pose.
+//! The gripper and the canister. Closing fingers hold the handle only when it lies between them
+//! (within `gripper.latch_distance_m` of the tool centre point) with their closing axis within
+//! `gripper.grasp_tolerance_deg` of the handle's narrow axis; a misaligned close holds nothing.
+//! How the handle sat is ground truth ([`crate::truth::GraspTruth`]). A released canister falls
+//! where it is (full dynamics), or in kinematic fidelity rests in the stowage cradle when released
+//! there and on the ground elsewhere.
 
 use super::*;
 
@@ -35,25 +39,35 @@ impl Twin {
 
     pub(super) fn update_latch(&mut self) {
         // Called every step: the poses are worked out only when a latch can form (the gripper
-        // closes, no latch yet) or a kinematic latch carries the canister.
+        // closes, no latch yet) or a kinematic latch or the kinematic cradle carries the canister.
         let closing = self.gripper_closing();
         let kinematic = matches!(self.engine, Engine::Kinematic(_));
         let work = if kinematic {
-            closing || self.latched_kinematic.is_some()
+            closing || self.latched_kinematic.is_some() || self.stowed_kinematic.is_some()
         } else {
             closing && self.latch.is_none()
         };
         if !work {
             return;
         }
+        if kinematic && let Some(off) = self.stowed_kinematic {
+            let base = self.base_pose_internal();
+            if let Some(c) = self.canister.as_mut() {
+                c.pose = base * off;
+            }
+        }
         let latch_d = self.config.gripper.latch_distance_m;
         let (Some(tcp), Some(can)) = (self.tcp_pose(), self.canister_pose()) else { return };
         let Some(handle_off) = self.canister.as_ref().map(|c| c.handle_offset) else { return };
         let handle = can * handle_off;
         let near = (tcp.translation.vector - handle.translation.vector).norm() < latch_d;
+        let grasp = crate::truth::GraspTruth::of(&tcp, &handle);
+        let aligned = grasp.closing_axis_error_deg <= self.config.gripper.grasp_tolerance_deg;
         if kinematic {
-            if self.latched_kinematic.is_none() && near && closing {
+            if self.latched_kinematic.is_none() && near && aligned && closing {
                 self.latched_kinematic = Some(tcp.inverse() * can);
+                self.stowed_kinematic = None;
+                self.grasp = Some(grasp);
             }
             if let Some(off) = self.latched_kinematic
                 && let Some(c) = self.canister.as_mut()
@@ -62,7 +76,7 @@ impl Twin {
             }
             return;
         }
-        if self.latch.is_some() || !near || !closing {
+        if self.latch.is_some() || !near || !closing || !aligned {
             return;
         }
         let Some(cb) = self.canister.as_ref().and_then(|c| c.body) else { return };
@@ -84,6 +98,7 @@ impl Twin {
         let rel = palm_pose.inverse() * can;
         let joint = FixedJointBuilder::new().local_frame1(pose_to_rapier(&rel)).local_frame2(Pose::IDENTITY);
         self.latch = Some(ph.impulse_joints.insert(palm, cb, joint, true));
+        self.grasp = Some(grasp);
         // Fingers hold where they are.
         if let Some(ids) = self.groups.get("gripper").cloned() {
             for s in ids {
@@ -93,10 +108,45 @@ impl Twin {
     }
 
     pub(super) fn release_latch(&mut self) {
-        self.latched_kinematic = None;
+        let was_kinematic = self.latched_kinematic.take().is_some();
         if let (Some(h), Engine::Dynamic(ph)) = (self.latch.take(), &mut self.engine) {
             ph.impulse_joints.remove(h, true);
         }
+        if was_kinematic && !self.rest_in_cradle() {
+            // Let go in the open: it falls upright onto the ground below.
+            if let Some(c) = self.canister.as_mut() {
+                let p = c.pose.translation.vector;
+                let yaw = c.pose.rotation.euler_angles().2;
+                c.pose = Isometry3::from_parts(
+                    Translation3::new(p.x, p.y, self.world.ground_height(p.x, p.y)),
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+                );
+            }
+        }
+    }
+
+    /// Kinematic fidelity: a canister within the cradle's reach rests in it, upright on the slot,
+    /// and rides with the rover from then on. True if it does.
+    fn rest_in_cradle(&mut self) -> bool {
+        if !matches!(self.engine, Engine::Kinematic(_)) || !self.canister_in_cradle() {
+            return false;
+        }
+        let (Ok(li), Some(can)) = (self.mech.link("stow_slot"), self.canister_pose()) else { return false };
+        let slot = self.link_pose_index(li);
+        let rel = slot.inverse() * can;
+        let yaw = rel.rotation.euler_angles().2;
+        let v = rel.translation.vector;
+        let rest = slot
+            * Isometry3::from_parts(
+                Translation3::new(v.x, v.y, 0.0),
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+            );
+        let base = self.base_pose_internal();
+        self.stowed_kinematic = Some(base.inverse() * rest);
+        if let Some(c) = self.canister.as_mut() {
+            c.pose = rest;
+        }
+        true
     }
 
     /// True while the gripper holds the canister.
@@ -107,6 +157,7 @@ impl Twin {
     /// Moves the canister (for tests and scenario set-up) and stops it.
     pub fn place_canister(&mut self, pose: Isometry3<f64>) {
         self.release_latch();
+        self.stowed_kinematic = None;
         if let Some(c) = self.canister.as_mut() {
             c.pose = pose;
             if let (Engine::Dynamic(ph), Some(b)) = (&mut self.engine, c.body) {
@@ -116,6 +167,7 @@ impl Twin {
                 body.set_angvel(Vector::ZERO, true);
             }
         }
+        self.rest_in_cradle();
     }
 
     /// World pose of the canister (ground truth).

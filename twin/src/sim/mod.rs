@@ -38,8 +38,10 @@ use worlds::spec::ObjectKind;
 mod build;
 mod engines;
 mod grasp;
+mod selfcollision;
 mod servos;
 
+pub use build::CollisionGrid;
 use build::locomotor_model;
 use engines::active_pairs;
 use servos::servo_gains;
@@ -92,9 +94,17 @@ pub const WHEELS: &[&str] =
     &["wheel_front_left_joint", "wheel_front_right_joint", "wheel_rear_left_joint", "wheel_rear_right_joint"];
 const ROCKERS: &[&str] = &["rocker_left_joint", "rocker_right_joint"];
 
+/// The rover's body side: chassis, mast, pan-tilt, rockers, wheels.
 const ROBOT: Group = Group::GROUP_1;
 const CANISTER: Group = Group::GROUP_2;
 const ENV: Group = Group::GROUP_3;
+/// The arm side: arm links and gripper (they collide with the body side, the world and the canister).
+const ARM: Group = Group::GROUP_4;
+
+/// True for the links on the arm's side of a self-collision.
+pub(crate) fn is_arm_link(name: &str) -> bool {
+    name.starts_with("arm_link_") || name.starts_with("gripper_")
+}
 
 /// Height of `base_link` above the wheel centres, m (from the URDF: rocker -0.10, wheel -0.12).
 const BASE_ABOVE_WHEEL_CENTRE: f64 = 0.22;
@@ -105,6 +115,10 @@ struct ColliderTag {
     name: String,
     robot: bool,
     wheel: bool,
+    /// An arm or gripper link.
+    arm: bool,
+    /// A part of the canister.
+    canister: bool,
 }
 
 struct Physics {
@@ -263,6 +277,15 @@ pub struct Twin {
     proprio: crate::proprio::Proprioception,
     collisions: u64,
     touching: std::collections::BTreeSet<(usize, usize)>,
+    /// Contacts of the arm side (or a held canister) with the rover's body since the start.
+    self_collisions: u64,
+    self_touching: std::collections::BTreeSet<(String, String)>,
+    /// The latest grasp: how the handle sat in the gripper when it latched.
+    grasp: Option<crate::truth::GraspTruth>,
+    /// Kinematic fidelity: a released canister resting in the stowage cradle, its pose there.
+    stowed_kinematic: Option<Isometry3<f64>>,
+    /// Kinematic fidelity: the robot's collision shapes for self-collision tests.
+    self_shapes: Option<selfcollision::SelfShapes>,
     /// Kinematic fidelity: what stops the rover, and the obstacles it touches now.
     obstacles: crate::kinematic::Obstacles,
     blocked_by: Vec<usize>,
@@ -323,6 +346,11 @@ impl Twin {
             proprio: crate::proprio::Proprioception::new(config.imu.rate_hz, config.encoders.rate_hz),
             collisions: 0,
             touching: Default::default(),
+            self_collisions: 0,
+            self_touching: Default::default(),
+            grasp: None,
+            stowed_kinematic: None,
+            self_shapes: None,
             obstacles: Default::default(),
             blocked_by: Vec::new(),
             config,
@@ -330,7 +358,7 @@ impl Twin {
         twin.build_joints()?;
         match fidelity {
             Fidelity::Dynamic => twin.build_dynamic(urdf, start)?,
-            Fidelity::Kinematic => twin.build_kinematic(start),
+            Fidelity::Kinematic => twin.build_kinematic(urdf, start)?,
         }
         Ok(twin)
     }
@@ -518,6 +546,22 @@ impl Twin {
         self.collisions
     }
 
+    /// Number of new contacts of the arm side (links, gripper, a held canister outside the cradle)
+    /// with the rover's body (chassis, mast, pan-tilt, rockers, wheels) since the start.
+    pub fn self_collisions(&self) -> u64 {
+        self.self_collisions
+    }
+
+    /// The arm-side and body-side parts in contact now.
+    pub fn self_contacts(&self) -> Vec<(String, String)> {
+        self.self_touching.iter().cloned().collect()
+    }
+
+    /// How the handle sat in the gripper at the latest grasp (ground truth).
+    pub fn grasp_truth(&self) -> Option<crate::truth::GraspTruth> {
+        self.grasp
+    }
+
     /// World poses of every link of the mechanism model, in its link order, computed in one pass.
     fn all_link_poses(&self) -> Vec<Isometry3<f64>> {
         match &self.engine {
@@ -588,6 +632,8 @@ impl Twin {
             contacts,
             canister_held: self.holding_canister(),
             collisions: self.collisions,
+            self_collisions: self.self_collisions,
+            grasp: if self.holding_canister() { self.grasp } else { None },
             wheel_command: self.wheel_cmd.clone(),
         }
     }

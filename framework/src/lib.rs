@@ -15,6 +15,7 @@
 //! | Overall FSM (Startup ... Safe) | [`lifecycle`] |
 //! | Shared resources, reservation tokens | [`resources`] |
 //! | Estimates with uncertainty | [`estimate`] |
+//! | Object database: marker tables (seed 000, 8.4) | [`objects`] |
 //! | Debug / framework console | [`console`] |
 //!
 //! Time is integer nanoseconds from the executor's clock; modules never read the OS clock. Runs
@@ -36,6 +37,7 @@ pub mod lifecycle;
 pub mod mechanism;
 pub mod message;
 pub mod module;
+pub mod objects;
 pub mod resources;
 pub mod seed;
 pub mod stats;

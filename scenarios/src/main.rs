@@ -48,6 +48,19 @@ enum Cmd {
     /// `bench physics [--mujoco]` (the twin's full-dynamics step on the Mars-like yard, and with
     /// `--mujoco` MuJoCo's on the same rover, terrain and rocks, and their ratio).
     Bench(BenchArgs),
+    /// Renders what the rover's cameras see at the canister mission's start as PNG files (head
+    /// camera, localization camera, ToF depth): the README's pictures.
+    Snapshot(SnapshotArgs),
+}
+
+#[derive(clap::Args)]
+struct SnapshotArgs {
+    /// Output folder.
+    #[arg(long, default_value = "docs/images")]
+    out: PathBuf,
+    /// World file.
+    #[arg(long, default_value_os_t = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../worlds/mars_yard.toml"))]
+    world: PathBuf,
 }
 
 #[derive(clap::Args)]
@@ -196,6 +209,12 @@ fn main() {
         Cmd::Sweep(a) => sweep_main(a),
         Cmd::Check(a) => Ok(check_main(&a)),
         Cmd::Bench(a) => bench_main(&a),
+        Cmd::Snapshot(a) => scenarios::snapshot::run(&a.world, &a.out).map(|files| {
+            for f in files {
+                println!("wrote {}", f.display());
+            }
+            0
+        }),
     };
     let code = r.unwrap_or_else(|e| {
         eprintln!("error: {e:#}");

@@ -87,6 +87,12 @@ fn module_config(name: &str, s: &Scenario, scenario_path: &Path, extra: toml::Ta
     Ok(ConfigSource::inline(origin, toml::to_string(&doc)?))
 }
 
+/// Radius kept free of rocks around the rover's start, m (its footprint's half-diagonal, 0.7 m,
+/// plus room to turn on the spot).
+pub const START_CLEARANCE_M: f64 = 2.0;
+/// Radius kept free of rocks around the canister, m (room for the rover to stand beside it).
+pub const CANISTER_CLEARANCE_M: f64 = 1.5;
+
 /// The twin of a scenario.
 pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     let s = &loaded.scenario;
@@ -97,6 +103,12 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     }?;
     if let Some(f) = s.world.friction {
         world.regolith.friction = f;
+    }
+    // Rocks keep out of wherever this scenario (or a sweep's dispersion) puts the rover and the
+    // canister: room for the rover's footprint, and for it to stand beside the canister.
+    world.keep_clear(s.rover.x, s.rover.y, START_CLEARANCE_M);
+    if let Some(c) = &s.canister {
+        world.keep_clear(c.x, c.y, CANISTER_CLEARANCE_M);
     }
     if let Some(c) = &s.canister {
         let z = world.ground_height(c.x, c.y);

@@ -22,6 +22,7 @@ pub mod proprio;
 pub mod render;
 pub mod sim;
 pub mod truth;
+pub mod visibility;
 
 pub use config::TwinConfig;
 pub use sim::{Fidelity, StartPose, Twin, TwinError, assets_dir, rover_urdf};

@@ -190,7 +190,7 @@ fn a_point_seen_by_the_stereo_pair_has_disparity_f_b_over_z() {
 #[test]
 fn the_canister_marker_is_decodable_at_one_metre() {
     let t = twin(
-        "[[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\nmarker_ids = [7]\n",
+        "[[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\nmarker_ids = [20, 7, 21, 22, 23]\n",
     );
     let mut r = SensorRenderer::new(&t).unwrap();
     let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
@@ -498,4 +498,49 @@ fn image_noise_follows_the_shot_and_read_noise_model() {
         .filter(|(n, m)| **n > 10 && **m < 250)
         .fold((0.0, 0.0), |(a, b), (n, m)| (a + f64::from(*n), b + f64::from(*m)));
     assert!((s3 / s1 - 3.0).abs() < 0.05, "exposure x gain 3 gives {}", s3 / s1);
+}
+
+/// Decodes the AprilTag 36h11 markers of a 640 x 480 image.
+fn decode(img: &framework::camera::GreyImage) -> Vec<u32> {
+    use kornia_apriltag::family::TagFamilyKind;
+    let size = kornia_image::ImageSize { width: img.width as usize, height: img.height as usize };
+    let config = kornia_apriltag::DecodeTagsConfig::new(vec![TagFamilyKind::Tag36H11]).unwrap();
+    let mut decoder = kornia_apriltag::AprilTagDecoder::new(config, size).unwrap();
+    let image = kornia_image::Image::<u8, 1>::new(size, img.data.clone()).unwrap();
+    let mut ids: Vec<u32> = decoder.decode(&image).unwrap().iter().map(|d| d.id as u32).collect();
+    ids.sort();
+    ids
+}
+
+#[test]
+fn every_marker_of_the_object_database_is_drawn_where_the_database_puts_it() {
+    let db = framework::objects::ObjectDatabase::load(twin::assets_dir().join("objects.toml")).unwrap();
+    // The marker table's front face, from 3 m: its four markers, with the database's ids.
+    let t = twin("[[objects]]\nname = \"table\"\nkind = \"marker_table\"\nposition_m = [0.0, 0.0]\n");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
+    let pose = look(Vector3::new(3.5, 0.0, 0.4), -Vector3::x(), -Vector3::z());
+    let mut rng = Pcg64Mcg::seed_from_u64(2);
+    let img = r.grey(&t, &cam, &pose, &noisy(), Exposure::NOMINAL, &mut rng).unwrap();
+    let table: Vec<u32> = db.object("marker_table").unwrap().markers.iter().map(|m| m.id).collect();
+    assert_eq!(decode(&img), table);
+    // The canister's faces (seen one at a time from 0.6 m) and its handle marker (from above).
+    let t = twin("[[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\n");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let base = t.canister_truth().unwrap();
+    for m in &db.object("canister").unwrap().markers {
+        let slot = base * m.pose();
+        let n = slot.rotation * Vector3::z();
+        let dist = if m.slot == "handle" { 0.25 } else { 0.6 };
+        let up = slot.rotation * Vector3::y();
+        let pose = look(slot.translation.vector + n * dist, -n, -up);
+        let img = r.grey(&t, &cam, &pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+        assert!(
+            decode(&img).contains(&m.id),
+            "slot {} (id {}) not decoded: {:?}",
+            m.slot,
+            m.id,
+            decode(&img)
+        );
+    }
 }

@@ -110,6 +110,15 @@ impl World {
     pub fn object(&self, name: &str) -> Option<&PlacedObject> {
         self.objects.iter().find(|o| o.name == name)
     }
+
+    /// Removes the rocks that reach into the circle of `radius` around (x, y): where a scenario
+    /// puts the rover or an object, wherever that is (the world file's keep-out zones know only the
+    /// positions the file names). The other rocks stay as they were. The number removed.
+    pub fn keep_clear(&mut self, x: f64, y: f64, radius: f64) -> usize {
+        let before = self.rocks.len();
+        self.rocks.retain(|r| (r.position.x - x).hypot(r.position.y - y) >= radius + r.diameter / 2.0);
+        before - self.rocks.len()
+    }
 }
 
 fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), ConfigError> {

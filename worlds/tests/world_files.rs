@@ -118,3 +118,17 @@ fn heightmap_images_set_the_heights() {
     assert!((w.ground_height(5.0, 0.0) - (1.0 + 2.0 * 254.0 / 255.0)).abs() < 1e-3);
     assert!((w.ground_height(0.0, 3.0) - (1.0 + 127.0 / 255.0 * 2.0)).abs() < 1e-3);
 }
+
+#[test]
+fn keep_clear_removes_exactly_the_rocks_that_reach_into_the_circle() {
+    let mut w = World::load(worlds::worlds_dir().join("mars_yard.toml")).unwrap();
+    // Right on a rock that the world file's keep-out zones know nothing of.
+    let r = w.rocks.iter().max_by(|a, b| a.diameter.total_cmp(&b.diameter)).unwrap().clone();
+    let (x, y, radius) = (r.position.x + 0.2, r.position.y - 0.1, 1.5);
+    let reaches = |k: &worlds::Rock| (k.position.x - x).hypot(k.position.y - y) < radius + k.diameter / 2.0;
+    let expected: Vec<_> = w.rocks.iter().filter(|k| !reaches(k)).cloned().collect();
+    let removed = w.keep_clear(x, y, radius);
+    assert!(removed >= 1, "the rock under the point is removed");
+    assert_eq!(w.rocks, expected, "every other rock stays as it was");
+    assert!(w.rocks.iter().all(|k| !reaches(k)));
+}

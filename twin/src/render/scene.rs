@@ -102,7 +102,8 @@ struct Part {
 #[derive(Clone, Copy)]
 enum TextureId {
     White,
-    Marker,
+    /// The marker texture of this index in [`Scene::markers`].
+    Marker(usize),
 }
 
 #[derive(Clone, Debug)]
@@ -132,7 +133,8 @@ pub struct Scene {
     parts: Vec<Part>,
     white: wgpu::BindGroup,
     regolith: wgpu::BindGroup,
-    marker: wgpu::BindGroup,
+    /// One texture per marker id drawn.
+    markers: Vec<wgpu::BindGroup>,
     rock_tint: [f32; 4],
 }
 
@@ -325,19 +327,69 @@ fn canister_parts(out: &mut Vec<(MeshData, [f32; 4], Placement, TextureId)>) {
     body.add_box(&id, Vector3::new(-0.035, 0.0, 0.17), Vector3::new(0.0075, 0.0075, 0.02));
     body.add_box(&id, Vector3::new(0.0, 0.0, 0.1975), Vector3::new(0.0425, 0.01, 0.0075));
     out.push((body, [0.85, 0.45, 0.15, 1.0], Placement::Canister, TextureId::White));
-    // The fiducial marker on the +y face, just proud of it (canister_marker frame of the URDF).
-    let face = Isometry3::from_parts(
-        nalgebra::Translation3::new(0.0, 0.0505, 0.075),
-        UnitQuaternion::from_axis_angle(&Vector3::x_axis(), -std::f64::consts::FRAC_PI_2),
-    );
-    let mut marker = MeshData::default();
-    marker.add_quad(&face, 0.045, 0.045);
-    out.push((marker, [1.0, 1.0, 1.0, 1.0], Placement::Canister, TextureId::Marker));
+}
+
+/// The kind of a world object as the object database names it.
+fn kind_name(k: ObjectKind) -> &'static str {
+    match k {
+        ObjectKind::Canister => "canister",
+        ObjectKind::Lander => "lander",
+        ObjectKind::MarkerTable => "marker_table",
+    }
+}
+
+/// The printed markers of the world's objects (their tables from the object database, their ids
+/// from the world file or the database), as quads with the index of their id in `ids`.
+fn marker_parts(
+    twin: &Twin,
+    db: &framework::objects::ObjectDatabase,
+    ids: &mut Vec<u32>,
+) -> Result<Vec<(MeshData, Placement, TextureId)>, String> {
+    let print = super::sensors::marker_print_ratio()?;
+    let mut out = Vec::new();
+    for o in &twin.world().objects {
+        let Some(entry) = db.object(kind_name(o.kind)) else { continue };
+        let own: Vec<u32> = if o.marker_ids.is_empty() {
+            entry.markers.iter().map(|m| m.id).collect()
+        } else {
+            o.marker_ids.clone()
+        };
+        if own.len() != entry.markers.len() {
+            return Err(format!(
+                "world object '{}' gives {} marker ids; the {} table of the object database has {} slots",
+                o.name,
+                own.len(),
+                entry.kind,
+                entry.markers.len()
+            ));
+        }
+        let placed = Isometry3::from_parts(
+            nalgebra::Translation3::new(o.position.x, o.position.y, o.position.z),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), o.yaw),
+        );
+        for (slot, id) in entry.markers.iter().zip(own) {
+            let k = ids.iter().position(|i| *i == id).unwrap_or_else(|| {
+                ids.push(id);
+                ids.len() - 1
+            });
+            let half = slot.size_m * print / 2.0;
+            let mut q = MeshData::default();
+            if o.kind == ObjectKind::Canister {
+                q.add_quad(&slot.pose(), half, half);
+                out.push((q, Placement::Canister, TextureId::Marker(k)));
+            } else {
+                q.add_quad(&(placed * slot.pose()), half, half);
+                out.push((q, Placement::Fixed, TextureId::Marker(k)));
+            }
+        }
+    }
+    Ok(out)
 }
 
 impl Scene {
-    /// Builds and uploads the scene of a twin's world and robot.
-    pub fn new(gpu: &Renderer, twin: &Twin, marker_rgba: (u32, u32, Vec<u8>)) -> Self {
+    /// Builds and uploads the scene of a twin's world and robot, with the marker tables of the
+    /// object database `db`.
+    pub fn new(gpu: &Renderer, twin: &Twin, db: &framework::objects::ObjectDatabase) -> Result<Self, String> {
         let mut pending = Vec::new();
         let mut add = |m: MeshData, tint: [f32; 4], place: Placement, texture: TextureId| {
             if !m.indices.is_empty() {
@@ -424,6 +476,10 @@ impl Scene {
                 add(m, tint, place, tex);
             }
         }
+        let mut ids = Vec::new();
+        for (m, place, tex) in marker_parts(twin, db, &mut ids)? {
+            add(m, [1.0, 1.0, 1.0, 1.0], place, tex);
+        }
         // The objects, the robot and the canister share one pair of buffers too.
         let slices: Vec<(&[Vertex], &[u32])> =
             pending.iter().map(|(m, ..)| (&m.vertices[..], &m.indices[..])).collect();
@@ -436,15 +492,19 @@ impl Scene {
         let white = gpu.create_texture(1, 1, &[255, 255, 255, 255]);
         let regolith =
             gpu.create_texture(TERRAIN_TEX, TERRAIN_TEX, &regolith_texture(albedo, twin.world().seed));
-        let marker = gpu.create_texture(marker_rgba.0, marker_rgba.1, &marker_rgba.2);
-        Scene {
+        let mut markers = Vec::with_capacity(ids.len());
+        for id in ids {
+            let (w, h, rgba) = super::sensors::marker_texture(id, 16)?;
+            markers.push(gpu.create_texture(w, h, &rgba));
+        }
+        Ok(Scene {
             chunks,
             parts,
             white,
             regolith,
-            marker,
+            markers,
             rock_tint: [rock_albedo, rock_albedo, rock_albedo, 1.0],
-        }
+        })
     }
 
     /// The draws of the scene at the twin's current poses, seen by `cam` from `pose` (optical frame in
@@ -542,7 +602,7 @@ impl Scene {
                 mesh: &p.mesh,
                 texture: match p.texture {
                     TextureId::White => &self.white,
-                    TextureId::Marker => &self.marker,
+                    TextureId::Marker(k) => &self.markers[k],
                 },
                 object: ObjectUniform { model: m.into(), tint: p.tint },
             });

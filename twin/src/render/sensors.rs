@@ -399,7 +399,15 @@ fn projection(k: &Pinhole) -> Matrix4<f32> {
     )
 }
 
-/// The fiducial marker of the canister (AprilTag 36h11), as an RGBA texture: `cell` pixels per
+/// How much wider a printed tag36h11 marker is than its black square (the one-module white quiet
+/// zone on each side: 10 / 8).
+pub fn marker_print_ratio() -> Result<f64, String> {
+    let fam = kornia_apriltag::family::TagFamily::tag36_h11().map_err(|e| e.to_string())?;
+    let white_width = fam.width_at_border + if fam.reversed_border { 0 } else { 2 };
+    Ok(fam.total_width as f64 / (white_width - 2) as f64)
+}
+
+/// A fiducial marker (AprilTag 36h11), as an RGBA texture: `cell` pixels per
 /// module, the white quiet zone included.
 pub fn marker_texture(id: u32, cell: u32) -> Result<(u32, u32, Vec<u8>), String> {
     let fam = kornia_apriltag::family::TagFamily::tag36_h11().map_err(|e| e.to_string())?;
@@ -441,9 +449,10 @@ impl SensorRenderer {
     pub fn new(twin: &Twin) -> Result<Self, RenderError> {
         let gpu = Renderer::new()?;
         tracing::info!(adapter = %gpu.adapter_info.name, backend = ?gpu.adapter_info.backend, "sensor renderer");
-        let id = twin.world().object("canister").and_then(|c| c.marker_ids.first().copied()).unwrap_or(0);
-        let marker = marker_texture(id, 16).map_err(RenderError::Gpu)?;
-        let scene = Scene::new(&gpu, twin, marker);
+        let db_path = crate::assets_dir().join("objects.toml");
+        let db = framework::objects::ObjectDatabase::load(&db_path)
+            .map_err(|e| RenderError::Gpu(e.to_string()))?;
+        let scene = Scene::new(&gpu, twin, &db).map_err(RenderError::Gpu)?;
         Ok(SensorRenderer { gpu, scene, lenses: Vec::new(), lod_error_px: super::scene::LOD_ERROR_PX })
     }
 

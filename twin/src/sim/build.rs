@@ -376,8 +376,7 @@ impl Twin {
         Ok(())
     }
 
-    pub(super) fn build_kinematic(&mut self, urdf: &Path, start: StartPose) -> Result<(), TwinError> {
-        self.self_shapes = Some(super::selfcollision::SelfShapes::load(urdf, &self.mech)?);
+    pub(super) fn build_kinematic(&mut self, start: StartPose) -> Result<(), TwinError> {
         let zero = vec![0.0; self.mech.dof_count()];
         let poses = self.mech.link_poses(&zero).unwrap_or_default();
         self.links = (0..self.mech.links().len())

@@ -284,8 +284,10 @@ pub struct Twin {
     grasp: Option<crate::truth::GraspTruth>,
     /// Kinematic fidelity: a released canister resting in the stowage cradle, its pose there.
     stowed_kinematic: Option<Isometry3<f64>>,
-    /// Kinematic fidelity: the robot's collision shapes for self-collision tests.
+    /// The robot's collision shapes (self-collision tests in kinematic fidelity, lines of sight).
     self_shapes: Option<selfcollision::SelfShapes>,
+    /// Rocks and objects as shapes, for lines of sight.
+    occluders: crate::visibility::Occluders,
     /// Kinematic fidelity: what stops the rover, and the obstacles it touches now.
     obstacles: crate::kinematic::Obstacles,
     blocked_by: Vec<usize>,
@@ -351,14 +353,17 @@ impl Twin {
             grasp: None,
             stowed_kinematic: None,
             self_shapes: None,
+            occluders: Default::default(),
             obstacles: Default::default(),
             blocked_by: Vec::new(),
             config,
         };
         twin.build_joints()?;
+        twin.self_shapes = Some(selfcollision::SelfShapes::load(urdf, &twin.mech)?);
+        twin.occluders = crate::visibility::Occluders::new(&twin.world);
         match fidelity {
             Fidelity::Dynamic => twin.build_dynamic(urdf, start)?,
-            Fidelity::Kinematic => twin.build_kinematic(urdf, start)?,
+            Fidelity::Kinematic => twin.build_kinematic(start)?,
         }
         Ok(twin)
     }
@@ -555,6 +560,20 @@ impl Twin {
     /// The arm-side and body-side parts in contact now.
     pub fn self_contacts(&self) -> Vec<(String, String)> {
         self.self_touching.iter().cloned().collect()
+    }
+
+    /// True when nothing blocks the segment from `a` to `b` (world frame): not the terrain, a rock,
+    /// an object or the rover (its links where they are now); the canister does not count (it is
+    /// what one looks at). Ground truth, for the scripted operator and the scorer.
+    pub fn line_of_sight(&self, a: &Point3<f64>, b: &Point3<f64>) -> bool {
+        const MARGIN: f64 = 0.01;
+        if crate::visibility::terrain_blocks(&self.world, a, b, MARGIN) || self.occluders.block(a, b, MARGIN)
+        {
+            return false;
+        }
+        let Some(shapes) = &self.self_shapes else { return true };
+        let poses = self.all_link_poses();
+        !crate::visibility::blocked_by(shapes.posed(&poses), a, b, MARGIN)
     }
 
     /// How the handle sat in the gripper at the latest grasp (ground truth).

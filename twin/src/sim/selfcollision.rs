@@ -53,6 +53,14 @@ impl SelfShapes {
         Ok(SelfShapes { arm, body })
     }
 
+    /// Every shape, posed in the world for the links at `poses` (mechanism link order).
+    pub(super) fn posed<'s>(
+        &'s self,
+        poses: &'s [Isometry3<f64>],
+    ) -> impl Iterator<Item = (Pose, &'s SharedShape)> + 's {
+        self.arm.iter().chain(&self.body).map(|s| (pose_to_rapier(&poses[s.link]) * s.local, &s.shape))
+    }
+
     /// The first (arm part, body part) pair that intersects with the links at `poses` (world
     /// frame, mechanism link order); parts jointed to each other are not tested.
     pub(super) fn first_hit(

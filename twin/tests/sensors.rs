@@ -57,6 +57,7 @@ fn tof_image_of_a_flat_plane_equals_the_analytic_depth() {
     let mut cfg = tof_cfg();
     // Geometry only: no noise, and no dropping of weak returns from dark regolith far away.
     cfg.noise_fraction = 0.0;
+    cfg.sun_noise_fraction = 0.0;
     cfg.min_amplitude = 0.0;
     let cam = tof_model(&cfg, "virtual");
     let mut rng = Pcg64Mcg::seed_from_u64(1);
@@ -88,7 +89,10 @@ fn tof_range_limits_noise_and_grazing_returns_behave_as_configured() {
         r.tof(&t, &cam, &down_at(cfg.min_range_m * 0.8), &cfg, &cam, &mut rng).unwrap().depth.valid(),
         0
     );
-    // Noise grows with range: about 1% of the depth.
+    // Noise grows with range: about 1% of the depth (in the dark: no sunlight's noise).
+    let sunny = cfg.clone();
+    let mut cfg = cfg;
+    cfg.sun_noise_fraction = 0.0;
     let f = r.tof(&t, &cam, &down_at(4.0), &cfg, &cam, &mut rng).unwrap();
     let n = f.depth.valid() as f64;
     assert!(n > 20000.0, "{n} valid returns at 4 m");
@@ -96,6 +100,17 @@ fn tof_range_limits_noise_and_grazing_returns_behave_as_configured() {
         / n)
         .sqrt();
     assert!((sd - 0.04).abs() < 0.004, "noise sd {sd} m at 4 m");
+    // Sunlight on the ground adds its noise: the sun term is below 1 (regolith, oblique sun), so
+    // the noise grows by less than sun_noise_fraction of the depth.
+    let f = r.tof(&t, &cam, &down_at(4.0), &sunny, &cam, &mut rng).unwrap();
+    let sd_sun =
+        (f.depth.data.iter().filter(|d| d.is_finite()).map(|d| (*d as f64 - 4.0).powi(2)).sum::<f64>()
+            / f.depth.valid() as f64)
+            .sqrt();
+    assert!(
+        sd_sun > sd * 1.02 && sd_sun < 4.0 * (cfg.noise_fraction + sunny.sun_noise_fraction),
+        "sunlit noise sd {sd_sun} m"
+    );
     // Looking at the ground from 1 m high, 10 degrees below the horizon: far pixels graze.
     let dir = Vector3::new(1.0, 0.0, -(10f64.to_radians()).tan()).normalize();
     let pose = look(Vector3::new(-3.0, 0.0, 1.0), dir, dir.cross(&Vector3::y()).normalize());
@@ -362,6 +377,9 @@ fn pose_of(t: &Twin, cam: &CameraTruth) -> Isometry3<f64> {
 #[test]
 fn a_stereo_pair_in_one_submission_equals_two_single_renders() {
     let (t, mut r, _, pair) = mars_yard_rover();
+    // Without shadows: a single render centres its shadow map on its own camera, a pair on its
+    // first camera, so their shadow texels (not their geometry) would differ.
+    r.set_shadows(twin::render::sensors::ShadowSettings { extent_m: 0.0, ..Default::default() });
     let (m_left, m_right) = (&pair.left.model, &pair.right.model);
     let poses = [pose_of(&t, &pair.left), pose_of(&t, &pair.right)];
     let mut rng = Pcg64Mcg::seed_from_u64(9);
@@ -393,6 +411,7 @@ fn terrain_levels_of_detail_stay_within_their_screen_space_error() {
     let pose = pose_of(&t, &pair.left);
     let mut tof = cfg.tof.clone();
     tof.noise_fraction = 0.0;
+    tof.sun_noise_fraction = 0.0;
     let tof_cam = tof_model(&tof, &tof.frames[0]);
     let tof_pose = t.link_pose(&tof_cam.frame).unwrap();
     let mut shots = Vec::new();
@@ -521,20 +540,27 @@ fn every_marker_of_the_object_database_is_drawn_where_the_database_puts_it() {
     let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
     let pose = look(Vector3::new(3.5, 0.0, 0.4), -Vector3::x(), -Vector3::z());
     let mut rng = Pcg64Mcg::seed_from_u64(2);
-    let img = r.grey(&t, &cam, &pose, &noisy(), Exposure::NOMINAL, &mut rng).unwrap();
+    // Its front faces away from the sun: in the sky's light alone, exposed for it (as auto-exposure
+    // would).
+    let bright = Exposure { relative: 3.0, gain: 1.0 };
+    let img = r.grey(&t, &cam, &pose, &noisy(), bright, &mut rng).unwrap();
     let table: Vec<u32> = db.object("marker_table").unwrap().markers.iter().map(|m| m.id).collect();
     assert_eq!(decode(&img), table);
-    // The canister's faces (seen one at a time from 0.6 m) and its handle marker (from above).
+    // The canister's faces (seen one at a time from 0.6 m, a little from above, so that the ground
+    // is behind them) and its handle marker (from above), exposed for the shaded side.
     let t = twin("[[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\n");
     let mut r = SensorRenderer::new(&t).unwrap();
     let base = t.canister_truth().unwrap();
     for m in &db.object("canister").unwrap().markers {
         let slot = base * m.pose();
         let n = slot.rotation * Vector3::z();
-        let dist = if m.slot == "handle" { 0.25 } else { 0.6 };
         let up = slot.rotation * Vector3::y();
-        let pose = look(slot.translation.vector + n * dist, -n, -up);
-        let img = r.grey(&t, &cam, &pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+        let centre = slot.translation.vector;
+        let eye = if m.slot == "handle" { centre + n * 0.25 } else { centre + n * 0.55 + Vector3::z() * 0.3 };
+        let z = (centre - eye).normalize();
+        let y = -(up - z * up.dot(&z)).normalize();
+        let pose = look(eye, z, y);
+        let img = r.grey(&t, &cam, &pose, &Photometry::IDEAL, bright, &mut rng).unwrap();
         assert!(
             decode(&img).contains(&m.id),
             "slot {} (id {}) not decoded: {:?}",
@@ -543,4 +569,141 @@ fn every_marker_of_the_object_database_is_drawn_where_the_database_puts_it() {
             decode(&img)
         );
     }
+}
+
+/// A cube-ish rock of half-size `half` and height `height` at (x, y).
+fn rock_at(x: f64, y: f64, half: f64, height: f64) -> worlds::Rock {
+    let points = [(-half, -half), (half, -half), (half, half), (-half, half)]
+        .iter()
+        .flat_map(|(a, b)| [Point3::new(*a, *b, 0.0), Point3::new(0.8 * a, 0.8 * b, height)])
+        .collect();
+    worlds::Rock { position: Point3::new(x, y, 0.0), yaw: 0.3, diameter: 2.0 * half, height, points }
+}
+
+#[test]
+fn a_box_casts_its_shadow_where_the_sun_projects_its_edge() {
+    // A 2 x 2 x 1.5 m box (the lander mock-up) at the origin, the sun at azimuth 135, elevation 45
+    // degrees. Along the ground line y = -0.8 the shadow of its top edge x = 1, z = 1.5 ends at
+    // x = 1 + 1.5 cos(45) / tan(45) ... = 1 + 1.5 * 0.5 / sin(45) = 2.0607 m.
+    let t = twin("[[objects]]\nname = \"box\"\nkind = \"lander\"\nposition_m = [0.0, 0.0]\n");
+    let l = Vector3::new(-0.5, 0.5, std::f64::consts::FRAC_1_SQRT_2);
+    let edge_x = 1.0 + 1.5 * (-l.x) / l.z;
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
+    let pose = look(Vector3::new(edge_x, -0.8, 3.0), -Vector3::z(), -Vector3::y());
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    let shadowed = r.grey(&t, &cam, &pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+    r.set_shadows(twin::render::sensors::ShadowSettings { extent_m: 0.0, ..Default::default() });
+    let lit = r.grey(&t, &cam, &pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+    // The light left by the shadow along the image row of y = -0.8 (averaged over 21 rows: the
+    // edge runs along the image's columns), texture divided out by the unshadowed image.
+    let (w, v0) = (640usize, 240usize);
+    let ratio: Vec<f64> = (0..w)
+        .map(|u| {
+            let (mut s, mut l) = (0.0, 0.0);
+            for v in v0 - 10..=v0 + 10 {
+                s += f64::from(shadowed.data[v * w + u]);
+                l += f64::from(lit.data[v * w + u]);
+            }
+            s / l.max(1.0)
+        })
+        .collect();
+    // Deep in the shadow the sky's light alone is left: 0.3 of 0.3 + 0.7 cos(45).
+    let deep = 0.3 / (0.3 + 0.7 * std::f64::consts::FRAC_1_SQRT_2);
+    // (Left of column ~124 the box's own side hides the ground.)
+    assert!(
+        (ratio[200] - deep).abs() < 0.05 && (ratio[540] - 1.0).abs() < 0.02,
+        "{} {}",
+        ratio[200],
+        ratio[540]
+    );
+    let mid = 0.5 * (deep + 1.0);
+    let k = (200..540).find(|&u| ratio[u] >= mid).unwrap();
+    let found = k as f64 - 1.0 + (mid - ratio[k - 1]) / (ratio[k] - ratio[k - 1]) + 0.5;
+    let expected = cam.project(&(pose.inverse() * Point3::new(edge_x, -0.8, 0.0))).unwrap().x;
+    eprintln!("shadow edge at u = {found:.2} px, geometry says {expected:.2} px");
+    assert!(
+        (found - expected).abs() < 2.0,
+        "shadow edge at u = {found:.2} px, geometry says {expected:.2} px"
+    );
+}
+
+#[test]
+fn the_ground_texture_does_not_repeat_in_view() {
+    // Flat ground seen straight down from 6 m, 10 m across: the old 4 m texture tile would repeat
+    // every 256 pixels. Normalized autocorrelation along the rows, at every shift from 32 pixels.
+    let t = twin("");
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(640, 480, 80f64.to_radians(), "virtual");
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    let img = r.grey(&t, &cam, &down_at(6.0), &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+    let (w, h) = (640usize, 480usize);
+    let px: Vec<f64> = img.data.iter().map(|p| f64::from(*p)).collect();
+    let mean = px.iter().sum::<f64>() / px.len() as f64;
+    let c: Vec<f64> = px.iter().map(|p| p - mean).collect();
+    let corr = |shift: usize| {
+        let (mut num, mut da, mut db) = (0.0, 0.0, 0.0);
+        for v in (0..h).step_by(2) {
+            for u in 0..w - shift {
+                let (a, b) = (c[v * w + u], c[v * w + u + shift]);
+                num += a * b;
+                da += a * a;
+                db += b * b;
+            }
+        }
+        num / (da * db).sqrt()
+    };
+    let worst = (32..=400).step_by(4).map(|s| (s, corr(s))).max_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
+    eprintln!("largest autocorrelation {:.3} at a shift of {} px", worst.1, worst.0);
+    assert!(worst.1 < 0.3, "autocorrelation {:.2} at a shift of {} px", worst.1, worst.0);
+}
+
+#[test]
+fn rocks_show_as_much_texture_as_the_ground() {
+    let mut w = world("");
+    w.rocks.push(rock_at(0.0, 0.0, 0.4, 0.5));
+    let t = Twin::with_defaults(w, StartPose { x: 15.0, y: 15.0, yaw: 0.0 }, Fidelity::Kinematic).unwrap();
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let cam = CameraModel::from_hfov(640, 480, 60f64.to_radians(), "virtual");
+    // From 2.5 m, a little above the rock, looking at it.
+    let eye = Vector3::new(-2.2, -0.8, 1.2);
+    let z = (Vector3::new(0.0, 0.0, 0.25) - eye).normalize();
+    let y = -(Vector3::z() - z * z.z).normalize();
+    let pose = look(eye, z, y);
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    let img = r.grey(&t, &cam, &pose, &Photometry::IDEAL, Exposure::NOMINAL, &mut rng).unwrap();
+    // The rock's pixels: inside the projection of its (shrunk) hull; the ground's: the image's
+    // lower rows outside the rock's box.
+    let inv = pose.inverse();
+    let corners: Vec<_> = t.world().rocks[0]
+        .points
+        .iter()
+        .map(|p| cam.project(&(inv * Point3::new(0.7 * p.x, 0.7 * p.y, 0.1 + 0.6 * p.z))).unwrap())
+        .collect();
+    let (u0, u1) = corners.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.x), b.max(p.x)));
+    let (v0, v1) = corners.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.y), b.max(p.y)));
+    let grad = |u: usize, v: usize| {
+        let at = |u: usize, v: usize| f64::from(img.data[v * 640 + u]);
+        (at(u + 1, v) - at(u - 1, v)).abs() + (at(u, v + 1) - at(u, v - 1)).abs()
+    };
+    let (mut rock, mut nr) = (0.0, 0.0);
+    for v in (v0 as usize + 2)..(v1 as usize - 2) {
+        for u in (u0 as usize + 2)..(u1 as usize - 2) {
+            rock += grad(u, v);
+            nr += 1.0;
+        }
+    }
+    let (mut ground, mut ng) = (0.0, 0.0);
+    for v in 420..478 {
+        for u in 1..639 {
+            if (u as f64) < u0 - 5.0 || (u as f64) > u1 + 5.0 {
+                ground += grad(u, v);
+                ng += 1.0;
+            }
+        }
+    }
+    let (rock, ground) = (rock / nr, ground / ng);
+    assert!(nr > 2000.0, "the rock covers {nr} pixels");
+    eprintln!("mean gradient on the rock {rock:.2}, on the ground {ground:.2}");
+    assert!(rock > 0.5 * ground, "mean gradient on the rock {rock:.2}, on the ground {ground:.2}");
 }

@@ -114,8 +114,11 @@ impl DryRunDeviceMap {
         if let Some(r) = r.as_ref() {
             return Ok(r.clone());
         }
-        let made = SensorRenderer::new(&self.twin.lock())
+        let mut made = SensorRenderer::new(&self.twin.lock())
             .map_err(|e| DeviceError::Fault { device: device.into(), reason: e.to_string() })?;
+        if let Ok(cfg) = &self.sensors {
+            made.set_shadows(cfg.shadows);
+        }
         let shared = Arc::new(Mutex::new(made));
         *r = Some(shared.clone());
         Ok(shared)

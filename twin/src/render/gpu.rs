@@ -38,6 +38,7 @@ const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
 const GREY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Stride between per-object uniforms; 256 = the default `min_uniform_buffer_offset_alignment`.
 const OBJECT_STRIDE: u64 = 256;
 const MAX_OBJECTS: u64 = 4096;
@@ -49,17 +50,27 @@ struct Globals {
     view_proj: mat4x4<f32>,
     cam_pos: vec4<f32>,
     cam_fwd: vec4<f32>,     // unit optical axis (world frame)
-    light_dir: vec4<f32>,   // xyz: unit vector towards the light, w: ambient term
+    light_dir: vec4<f32>,   // xyz: unit vector towards the sun, w: sky ambient on a level surface
+    light_view_proj: mat4x4<f32>,  // world -> shadow map (x, y in [-1, 1], z in [0, 1])
+    shadow: vec4<f32>,      // x: 1 when the shadow map holds this frame's casters, y: depth bias
 }
 struct Object {
     model: mat4x4<f32>,
-    tint: vec4<f32>,
+    tint: vec4<f32>,        // rgb multiplies the albedo; a: the kind of object (see KIND_*)
 }
 
 @group(0) @binding(0) var<uniform> globals: Globals;
 @group(1) @binding(0) var albedo_tex: texture_2d<f32>;
 @group(1) @binding(1) var albedo_smp: sampler;
 @group(2) @binding(0) var<uniform> object: Object;
+@group(3) @binding(0) var shadow_map: texture_depth_2d;
+@group(3) @binding(1) var shadow_smp: sampler_comparison;
+
+// Object kinds (tint.a): below 0 the sky (emissive), 1 a plain textured object, 2 the terrain (its
+// texture at two incommensurate scales, so it never repeats in view), 3 a rock (the terrain texture
+// projected on its faces at a small scale).
+fn is_terrain(kind: f32) -> bool { return kind > 1.5 && kind < 2.5; }
+fn is_rock(kind: f32) -> bool { return kind > 2.5; }
 
 struct VsIn {
     @location(0) position: vec3<f32>,
@@ -72,6 +83,29 @@ struct VsOut {
     @location(1) uv: vec2<f32>,
     @location(2) axis_dist: f32,
     @location(3) world: vec3<f32>,
+}
+
+// The sky's luminance in direction d: bright and hazy at the horizon, darker overhead, brighter
+// towards the sun.
+fn sky(d: vec3<f32>) -> f32 {
+    let up = max(d.z, 0.0);
+    let base = mix(0.8, 0.5, sqrt(up));
+    return base + 0.4 * pow(max(dot(d, globals.light_dir.xyz), 0.0), 16.0);
+}
+
+// Where a world point falls in the shadow map (x, y texture coordinates, z depth).
+fn shadow_coords(world: vec3<f32>) -> vec3<f32> {
+    let s = globals.light_view_proj * vec4<f32>(world, 1.0);
+    return vec3<f32>(s.x * 0.5 + 0.5, 0.5 - s.y * 0.5, s.z);
+}
+
+// The share of the sun a point at shadow-map coordinates p sees (2 x 2 comparison filter); 1
+// outside the map or without one.
+fn sunlit(p: vec3<f32>) -> f32 {
+    if (globals.shadow.x < 0.5 || p.x <= 0.0 || p.y <= 0.0 || p.x >= 1.0 || p.y >= 1.0 || p.z >= 1.0) {
+        return 1.0;
+    }
+    return textureSampleCompareLevel(shadow_map, shadow_smp, p.xy, p.z - globals.shadow.y);
 }
 
 @vertex
@@ -91,14 +125,15 @@ struct FsOut {
     @location(1) range_m: u32,
 }
 
-// Sun-lit passive cameras need neither the range nor the world position, and light the surface per
-// vertex (Gouraud): one varying besides the texture coordinates and no per-fragment normalization,
-// which a software rasterizer pays for at every pixel. Terrain vertices carry the full-resolution
-// surface normal at their sample; between them, at coarser levels of detail, shading interpolates.
+// Sun-lit passive cameras light the surface per vertex (Gouraud): a software rasterizer pays for
+// every per-fragment operation. Per fragment: the texture(s) and the shadow map. Terrain vertices
+// carry the full-resolution surface normal at their sample.
 struct GreyOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) uv: vec2<f32>,
-    @location(1) light: f32,
+    @location(1) light: vec2<f32>,      // x: sky (ambient) light, y: direct sun before shadowing
+    @location(2) shadow_pos: vec3<f32>,
+    @location(3) uv2: vec2<f32>,
 }
 
 @vertex
@@ -106,32 +141,108 @@ fn vs_grey(v: VsIn) -> GreyOut {
     let world = object.model * vec4<f32>(v.position, 1.0);
     var out: GreyOut;
     out.clip = globals.view_proj * world;
+    out.uv = v.uv;
+    out.uv2 = v.uv;
+    let kind = object.tint.a;
+    if (kind < 0.0) {
+        out.light = vec2<f32>(sky(normalize(world.xyz - globals.cam_pos.xyz)), 0.0);
+        out.shadow_pos = vec3<f32>(-1.0, -1.0, 0.0);
+        return out;
+    }
     let n = normalize((object.model * vec4<f32>(v.normal, 0.0)).xyz);
     let ambient = globals.light_dir.w;
-    out.light = ambient + (1.0 - ambient) * max(dot(n, globals.light_dir.xyz), 0.0);
-    out.uv = v.uv;
+    // The sky a surface sees: all of it facing up, half of it on a vertical face.
+    out.light = vec2<f32>(ambient * (0.5 + 0.5 * n.z), (1.0 - ambient) * max(dot(n, globals.light_dir.xyz), 0.0));
+    out.shadow_pos = shadow_coords(world.xyz);
+    if (is_rock(kind)) {
+        out.uv = rock_uv(world.xyz);
+    } else if (is_terrain(kind)) {
+        out.uv = terrain_uv(world.xy);
+        out.uv2 = terrain_uv2(world.xy);
+    }
     return out;
 }
 
 @fragment
 fn fs_grey(f: GreyOut) -> @location(0) vec4<f32> {
-    let base = textureSample(albedo_tex, albedo_smp, f.uv) * object.tint;
+    var base = textureSample(albedo_tex, albedo_smp, f.uv);
+    if (is_terrain(object.tint.a)) {
+        base = base * textureSample(albedo_tex, albedo_smp, f.uv2);
+    }
     // Luminance (Rec. 601 weights).
-    return vec4<f32>(dot(base.rgb, vec3<f32>(0.299, 0.587, 0.114)) * f.light, 0.0, 0.0, 1.0);
+    let albedo = dot(base.rgb * object.tint.rgb, vec3<f32>(0.299, 0.587, 0.114));
+    var direct = f.light.y;
+    if (direct > 0.0) {
+        direct = direct * sunlit(f.shadow_pos);
+    }
+    return vec4<f32>(albedo * (f.light.x + direct), 0.0, 0.0, 1.0);
+}
+
+// The terrain's texture coordinates: the 4 m tile, warped by a smooth field of incommensurate
+// waves (up to ~0.4 tile, stretching the texture by at most ~30%) so that no two places of the
+// ground look alike; and its second scale (1.618 times the first, turned by 37 degrees).
+fn terrain_uv(p: vec2<f32>) -> vec2<f32> {
+    let wx = 0.25 * sin(0.31 * p.x + 0.17 * p.y + 1.3) + 0.15 * sin(0.13 * p.y - 0.41 * p.x + 0.4);
+    let wy = 0.25 * sin(0.27 * p.y - 0.19 * p.x + 2.1) + 0.15 * sin(0.11 * p.x + 0.37 * p.y + 5.0);
+    return p / 4.0 + vec2<f32>(wx, wy);
+}
+fn terrain_uv2(world: vec2<f32>) -> vec2<f32> {
+    let p = world / 6.472;
+    return vec2<f32>(0.8 * p.x - 0.6 * p.y + 0.37, 0.6 * p.x + 0.8 * p.y + 0.71);
+}
+fn rock_uv(world: vec3<f32>) -> vec2<f32> {
+    return vec2<f32>(world.x + 0.6 * world.z, world.y - 0.8 * world.z) * 2.0;
 }
 
 @fragment
 fn fs_tof(f: VsOut) -> FsOut {
-    let base = textureSample(albedo_tex, albedo_smp, f.uv) * object.tint;
-    let albedo = dot(base.rgb, vec3<f32>(0.299, 0.587, 0.114));
+    let kind = object.tint.a;
+    var uv = f.uv;
+    if (is_rock(kind)) {
+        uv = rock_uv(f.world);
+    } else if (is_terrain(kind)) {
+        uv = terrain_uv(f.world.xy);
+    }
+    var base = textureSample(albedo_tex, albedo_smp, uv);
+    if (is_terrain(kind)) {
+        base = base * textureSample(albedo_tex, albedo_smp, terrain_uv2(f.world.xy));
+    }
+    let albedo = dot(base.rgb * object.tint.rgb, vec3<f32>(0.299, 0.587, 0.114));
     let to_cam = globals.cam_pos.xyz - f.world;
     let d2 = max(dot(to_cam, to_cam), 1e-4);
-    let cos_i = max(dot(normalize(f.normal), to_cam * inverseSqrt(d2)), 0.0);
+    let n = normalize(f.normal);
+    let cos_i = max(dot(n, to_cam * inverseSqrt(d2)), 0.0);
+    // Sunlight on the pixel (adds shot noise to a ToF measurement), relative to a white surface
+    // facing the sun.
+    let sun = albedo * max(dot(n, globals.light_dir.xyz), 0.0) * sunlit(shadow_coords(f.world));
     var out: FsOut;
     // Amplitude relative to a white target facing the camera at 1 m, over 4 (8-bit headroom).
-    out.color = vec4<f32>(clamp(albedo * cos_i / d2 / 4.0, 0.0, 1.0), cos_i, 0.0, 1.0);
+    out.color = vec4<f32>(clamp(albedo * cos_i / d2 / 4.0, 0.0, 1.0), cos_i, clamp(sun, 0.0, 1.0), 1.0);
     out.range_m = bitcast<u32>(f.axis_dist);
     return out;
+}
+"#;
+
+/// The depth-only program that draws shadow casters into the shadow map, seen from the sun.
+const SHADOW_SHADER: &str = r#"
+struct Globals {
+    view_proj: mat4x4<f32>,
+    cam_pos: vec4<f32>,
+    cam_fwd: vec4<f32>,
+    light_dir: vec4<f32>,
+    light_view_proj: mat4x4<f32>,
+    shadow: vec4<f32>,
+}
+struct Object {
+    model: mat4x4<f32>,
+    tint: vec4<f32>,
+}
+@group(0) @binding(0) var<uniform> globals: Globals;
+@group(1) @binding(0) var<uniform> object: Object;
+
+@vertex
+fn vs_shadow(@location(0) position: vec3<f32>) -> @builtin(position) vec4<f32> {
+    return globals.light_view_proj * object.model * vec4<f32>(position, 1.0);
 }
 "#;
 
@@ -169,8 +280,32 @@ pub struct Globals {
     pub cam_pos: [f32; 4],
     /// Unit optical axis (w unused).
     pub cam_fwd: [f32; 4],
-    /// Direction towards the light in xyz, ambient term in w.
+    /// Direction towards the sun in xyz, sky ambient (on a level surface) in w.
     pub light_dir: [f32; 4],
+    /// World to shadow map: x, y in [-1, 1], depth in [0, 1].
+    pub light_view_proj: [[f32; 4]; 4],
+    /// x: 1 when the frame has a shadow pass, y: depth bias of the shadow test.
+    pub shadow: [f32; 4],
+}
+
+/// Object kinds, carried in the tint's alpha (see the shader).
+pub mod kind {
+    /// The sky dome: emissive, its luminance by direction.
+    pub const SKY: f32 = -1.0;
+    /// A plain textured object.
+    pub const PLAIN: f32 = 1.0;
+    /// The terrain: its texture at two incommensurate scales.
+    pub const TERRAIN: f32 = 2.0;
+    /// A rock: the terrain texture projected on its faces at a small scale.
+    pub const ROCK: f32 = 3.0;
+}
+
+/// The sun's view of a batch: the shadow casters drawn into the shadow map.
+pub struct ShadowPass<'a> {
+    /// Uniforms of the pass (`light_view_proj` is what counts).
+    pub globals: Globals,
+    /// The casters.
+    pub draws: Vec<Draw<'a>>,
 }
 
 /// Per-draw uniforms (group 2, dynamic offset).
@@ -260,6 +395,11 @@ pub struct Renderer {
     pub adapter_info: wgpu::AdapterInfo,
     grey_pipeline: wgpu::RenderPipeline,
     tof_pipeline: wgpu::RenderPipeline,
+    shadow_pipeline: wgpu::RenderPipeline,
+    shadow_bgl: wgpu::BindGroupLayout,
+    shadow_sampler: wgpu::Sampler,
+    /// The shadow map (side, view, group-3 bind group).
+    shadow: (u32, wgpu::TextureView, wgpu::BindGroup),
     globals_buf: wgpu::Buffer,
     globals_bg: wgpu::BindGroup,
     objects_buf: wgpu::Buffer,
@@ -342,9 +482,35 @@ impl Renderer {
             entries: &[uniform_entry(size_of::<ObjectUniform>(), true)],
         });
 
+        let shadow_bgl = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("shadow map"),
+            entries: &[
+                wgpu::BindGroupLayoutEntry {
+                    binding: 0,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Texture {
+                        sample_type: wgpu::TextureSampleType::Depth,
+                        view_dimension: wgpu::TextureViewDimension::D2,
+                        multisampled: false,
+                    },
+                    count: None,
+                },
+                wgpu::BindGroupLayoutEntry {
+                    binding: 1,
+                    visibility: wgpu::ShaderStages::FRAGMENT,
+                    ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+                    count: None,
+                },
+            ],
+        });
         let layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("scene"),
-            bind_group_layouts: &[Some(&globals_bgl), Some(&texture_bgl), Some(&object_bgl)],
+            bind_group_layouts: &[
+                Some(&globals_bgl),
+                Some(&texture_bgl),
+                Some(&object_bgl),
+                Some(&shadow_bgl),
+            ],
             immediate_size: 0,
         });
 
@@ -395,12 +561,51 @@ impl Renderer {
         // Same blend/write_mask on both targets: no INDEPENDENT_BLEND needed on GL.
         let tof_pipeline = make_pipeline("vs_main", "fs_tof", &[target(COLOR_FORMAT), target(RANGE_FORMAT)]);
 
+        // The shadow casters seen from the sun: depth only, both faces (thin parts), biased by
+        // slope against self-shadowing.
+        let shadow_shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("shadow.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(Cow::Borrowed(SHADOW_SHADER)),
+        });
+        let shadow_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("shadow"),
+            bind_group_layouts: &[Some(&globals_bgl), Some(&object_bgl)],
+            immediate_size: 0,
+        });
+        let shadow_pipeline = device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+            label: Some("shadow"),
+            layout: Some(&shadow_layout),
+            vertex: wgpu::VertexState {
+                module: &shadow_shader,
+                entry_point: Some("vs_shadow"),
+                compilation_options: wgpu::PipelineCompilationOptions::default(),
+                buffers: &[Some(wgpu::VertexBufferLayout {
+                    array_stride: size_of::<Vertex>() as u64,
+                    step_mode: wgpu::VertexStepMode::Vertex,
+                    attributes: &VERTEX_ATTRS[..1],
+                })],
+            },
+            primitive: wgpu::PrimitiveState { cull_mode: None, ..Default::default() },
+            depth_stencil: Some(wgpu::DepthStencilState {
+                format: SHADOW_FORMAT,
+                depth_write_enabled: Some(true),
+                depth_compare: Some(wgpu::CompareFunction::Less),
+                stencil: wgpu::StencilState::default(),
+                bias: wgpu::DepthBiasState { constant: 2, slope_scale: 2.0, clamp: 0.0 },
+            }),
+            multisample: wgpu::MultisampleState::default(),
+            fragment: None,
+            multiview_mask: None,
+            cache: None,
+        });
+
         if let Some(err) = pollster::block_on(scope.pop()) {
             return Err(RenderError::Gpu(format!("pipeline creation failed: {err}")));
         }
 
+        // One slot per view and one for the shadow pass.
         let (globals_buf, globals_bg) =
-            dynamic_uniform(&device, &globals_bgl, "globals", MAX_VIEWS as u64, size_of::<Globals>());
+            dynamic_uniform(&device, &globals_bgl, "globals", MAX_VIEWS as u64 + 1, size_of::<Globals>());
         let (objects_buf, objects_bg) =
             dynamic_uniform(&device, &object_bgl, "objects", MAX_OBJECTS, size_of::<ObjectUniform>());
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
@@ -413,6 +618,16 @@ impl Renderer {
             ..Default::default()
         });
 
+        let shadow_sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("shadow"),
+            address_mode_u: wgpu::AddressMode::ClampToEdge,
+            address_mode_v: wgpu::AddressMode::ClampToEdge,
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            compare: Some(wgpu::CompareFunction::LessEqual),
+            ..Default::default()
+        });
+        let shadow = make_shadow_map(&device, &shadow_bgl, &shadow_sampler, DEFAULT_SHADOW_MAP_PX);
         let targets = Default::default();
         Ok(Self {
             device,
@@ -420,6 +635,10 @@ impl Renderer {
             adapter_info,
             grey_pipeline,
             tof_pipeline,
+            shadow_pipeline,
+            shadow_bgl,
+            shadow_sampler,
+            shadow,
             globals_buf,
             globals_bg,
             objects_buf,
@@ -428,6 +647,14 @@ impl Renderer {
             sampler,
             targets,
         })
+    }
+
+    /// Sets the side of the (square) shadow map, pixels.
+    pub fn set_shadow_map_px(&mut self, px: u32) {
+        let px = px.clamp(16, 8192);
+        if px != self.shadow.0 {
+            self.shadow = make_shadow_map(&self.device, &self.shadow_bgl, &self.shadow_sampler, px);
+        }
     }
 
     /// Uploads an RGBA8 image (terrain albedo, marker) and returns its group-1 bind group.
@@ -533,11 +760,19 @@ impl Renderer {
     /// Renders several views in one submission and reads them all back: luminance for
     /// [`Shading::Sun`], colour and range for [`Shading::Tof`] (a stereo pair: the rasterizer shades
     /// one view while the next one's geometry is processed, and there is one wait instead of two).
-    pub fn render_views(&mut self, views: &[View<'_>]) -> Result<Vec<Frame>, BoxErr> {
+    ///
+    /// With a `shadow` pass, its casters are first drawn into the shadow map from the sun; the
+    /// views' fragments then test against it (their globals say whether to).
+    pub fn render_views(
+        &mut self,
+        views: &[View<'_>],
+        shadow: Option<&ShadowPass<'_>>,
+    ) -> Result<Vec<Frame>, BoxErr> {
         if views.len() > MAX_VIEWS {
             return Err(RenderError::Gpu(format!("too many views: {} > {MAX_VIEWS}", views.len())));
         }
-        let total: usize = views.iter().map(|v| v.draws.len()).sum();
+        let total: usize =
+            views.iter().map(|v| v.draws.len()).sum::<usize>() + shadow.map(|s| s.draws.len()).unwrap_or(0);
         if total as u64 > MAX_OBJECTS {
             return Err(RenderError::Gpu(format!("too many draws: {total} > {MAX_OBJECTS}")));
         }
@@ -555,15 +790,20 @@ impl Renderer {
         }
         // One upload for all per-view and per-draw uniforms (a write each costs a staging
         // allocation); a draw with the same transform and tint as the one before shares its slot.
-        let mut globals = vec![0u8; views.len() * OBJECT_STRIDE as usize];
+        let passes: Vec<(&Globals, &[Draw<'_>])> = views
+            .iter()
+            .map(|v| (&v.globals, &v.draws[..]))
+            .chain(shadow.map(|s| (&s.globals, &s.draws[..])))
+            .collect();
+        let mut globals = vec![0u8; passes.len() * OBJECT_STRIDE as usize];
         let mut objects: Vec<u8> = Vec::with_capacity(total * OBJECT_STRIDE as usize);
-        let mut slots: Vec<Vec<u32>> = Vec::with_capacity(views.len());
-        for (k, v) in views.iter().enumerate() {
-            let bytes = bytemuck::bytes_of(&v.globals);
+        let mut slots: Vec<Vec<u32>> = Vec::with_capacity(passes.len());
+        for (k, (g, draws)) in passes.iter().enumerate() {
+            let bytes = bytemuck::bytes_of(*g);
             globals[k * OBJECT_STRIDE as usize..][..bytes.len()].copy_from_slice(bytes);
-            let mut view_slots = Vec::with_capacity(v.draws.len());
+            let mut view_slots = Vec::with_capacity(draws.len());
             let mut last: Option<&ObjectUniform> = None;
-            for d in &v.draws {
+            for d in draws.iter() {
                 if last.is_none_or(|l| bytemuck::bytes_of(l) != bytemuck::bytes_of(&d.object)) {
                     let at = objects.len();
                     objects.resize(at + OBJECT_STRIDE as usize, 0);
@@ -582,6 +822,40 @@ impl Renderer {
 
         let mut encoder =
             self.device.create_command_encoder(&wgpu::CommandEncoderDescriptor { label: Some("frame") });
+        if let Some(sp) = shadow {
+            let k = views.len();
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("shadow"),
+                color_attachments: &[],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: &self.shadow.1,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(1.0),
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&self.shadow_pipeline);
+            pass.set_bind_group(0, &self.globals_bg, &[(k as u64 * OBJECT_STRIDE) as u32]);
+            let (mut slot, mut buffers) = (None, None);
+            for (d, &offset) in sp.draws.iter().zip(&slots[k]) {
+                if slot != Some(offset) {
+                    pass.set_bind_group(1, &self.objects_bg, &[offset]);
+                    slot = Some(offset);
+                }
+                if buffers != Some((&d.mesh.vertices, &d.mesh.indices)) {
+                    pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
+                    pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+                    buffers = Some((&d.mesh.vertices, &d.mesh.indices));
+                }
+                let first = d.mesh.first_index;
+                pass.draw_indexed(first..first + d.mesh.index_count, 0, 0..1);
+            }
+        }
         for (k, (v, key)) in views.iter().zip(&keys).enumerate() {
             let t = &self.targets[key];
             {
@@ -618,6 +892,7 @@ impl Renderer {
                 });
                 pass.set_pipeline(if key.2 { &self.tof_pipeline } else { &self.grey_pipeline });
                 pass.set_bind_group(0, &self.globals_bg, &[(k as u64 * OBJECT_STRIDE) as u32]);
+                pass.set_bind_group(3, &self.shadow.2, &[]);
                 // Bind only what changes from one draw to the next.
                 let (mut texture, mut slot, mut buffers) = (None, None, None);
                 for (d, &offset) in v.draws.iter().zip(&slots[k]) {
@@ -726,6 +1001,38 @@ fn copy_frame(t: &Targets) -> Result<Frame, BoxErr> {
         }
     }
     Ok(Frame { width: t.width, height: t.height, pixels, range_m })
+}
+
+/// Side of the shadow map until [`Renderer::set_shadow_map_px`] says otherwise, pixels.
+pub const DEFAULT_SHADOW_MAP_PX: u32 = 1024;
+
+/// A square depth texture of `px` pixels for the shadow pass, and its group-3 bind group.
+fn make_shadow_map(
+    device: &wgpu::Device,
+    layout: &wgpu::BindGroupLayout,
+    sampler: &wgpu::Sampler,
+    px: u32,
+) -> (u32, wgpu::TextureView, wgpu::BindGroup) {
+    let texture = device.create_texture(&wgpu::TextureDescriptor {
+        label: Some("shadow map"),
+        size: wgpu::Extent3d { width: px, height: px, depth_or_array_layers: 1 },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format: SHADOW_FORMAT,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        view_formats: &[],
+    });
+    let view = texture.create_view(&wgpu::TextureViewDescriptor::default());
+    let group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("shadow map"),
+        layout,
+        entries: &[
+            wgpu::BindGroupEntry { binding: 0, resource: wgpu::BindingResource::TextureView(&view) },
+            wgpu::BindGroupEntry { binding: 1, resource: wgpu::BindingResource::Sampler(sampler) },
+        ],
+    });
+    (px, view, group)
 }
 
 /// A uniform buffer of `slots` entries `OBJECT_STRIDE` apart and its bind group, which binds one

@@ -2,6 +2,7 @@
 //! heightfield, rock hulls, objects, the robot's URDF visuals, the canister), placed each frame at
 //! the twin's ground-truth poses.
 
+use super::gpu::kind;
 use super::gpu::{Draw, Mesh, ObjectUniform, Renderer, Vertex};
 use crate::sim::Twin;
 use nalgebra::{Isometry3, Matrix4, Point3, UnitQuaternion, Vector3};
@@ -136,6 +137,32 @@ pub struct Scene {
     /// One texture per marker id drawn.
     markers: Vec<wgpu::BindGroup>,
     rock_tint: [f32; 4],
+    terrain_tint: [f32; 4],
+    /// A unit sphere seen from inside: the sky dome, drawn around each camera.
+    sky: Mesh,
+}
+
+/// Radius of the sky dome around a camera, m (inside the far plane).
+const SKY_RADIUS_M: f64 = 450.0;
+
+/// A unit sphere whose triangles face its centre, from a little below the horizon to the zenith.
+fn sky_dome() -> MeshData {
+    let mut m = MeshData::default();
+    let (rings, segments) = (12, 32);
+    let at = |ring: usize, seg: usize| {
+        let el = (-10.0 + 100.0 * ring as f64 / rings as f64).to_radians().min(std::f64::consts::FRAC_PI_2);
+        let az = seg as f64 / segments as f64 * std::f64::consts::TAU;
+        Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin())
+    };
+    for r in 0..rings {
+        for k in 0..segments {
+            let (a, b, c, d) = (at(r, k), at(r, k + 1), at(r + 1, k + 1), at(r + 1, k));
+            // Counter-clockwise seen from the centre.
+            m.push_tri([a, c, b], [[0.5, 0.5]; 3]);
+            m.push_tri([a, d, c], [[0.5, 0.5]; 3]);
+        }
+    }
+    m
 }
 
 /// Cells per side of a terrain chunk (divisible by the coarsest LOD step).
@@ -323,10 +350,13 @@ fn canister_parts(out: &mut Vec<(MeshData, [f32; 4], Placement, TextureId)>) {
     let id = Isometry3::identity();
     let mut body = MeshData::default();
     body.add_box(&id, Vector3::new(0.0, 0.0, 0.075), Vector3::new(0.05, 0.05, 0.075));
-    body.add_box(&id, Vector3::new(0.035, 0.0, 0.17), Vector3::new(0.0075, 0.0075, 0.02));
-    body.add_box(&id, Vector3::new(-0.035, 0.0, 0.17), Vector3::new(0.0075, 0.0075, 0.02));
-    body.add_box(&id, Vector3::new(0.0, 0.0, 0.1975), Vector3::new(0.0425, 0.01, 0.0075));
-    out.push((body, [0.85, 0.45, 0.15, 1.0], Placement::Canister, TextureId::White));
+    out.push((body, [0.85, 0.45, 0.15, kind::PLAIN], Placement::Canister, TextureId::White));
+    // The aluminium handle and its posts.
+    let mut handle = MeshData::default();
+    handle.add_box(&id, Vector3::new(0.035, 0.0, 0.17), Vector3::new(0.0075, 0.0075, 0.02));
+    handle.add_box(&id, Vector3::new(-0.035, 0.0, 0.17), Vector3::new(0.0075, 0.0075, 0.02));
+    handle.add_box(&id, Vector3::new(0.0, 0.0, 0.1975), Vector3::new(0.0425, 0.01, 0.0075));
+    out.push((handle, [0.78, 0.79, 0.8, kind::PLAIN], Placement::Canister, TextureId::White));
 }
 
 /// The kind of a world object as the object database names it.
@@ -490,8 +520,14 @@ impl Scene {
             .map(|(mesh, (_, tint, place, texture))| Part { mesh, tint, texture, place })
             .collect();
         let white = gpu.create_texture(1, 1, &[255, 255, 255, 255]);
-        let regolith =
-            gpu.create_texture(TERRAIN_TEX, TERRAIN_TEX, &regolith_texture(albedo, twin.world().seed));
+        let texture = regolith_texture(albedo, twin.world().seed);
+        // The texture's mean albedo: the terrain multiplies two samples of it and divides by it.
+        let mean = texture.chunks_exact(4).map(|p| f64::from(p[0])).sum::<f64>()
+            / (texture.len() / 4) as f64
+            / 255.0;
+        let regolith = gpu.create_texture(TERRAIN_TEX, TERRAIN_TEX, &texture);
+        let dome = sky_dome();
+        let sky = gpu.create_meshes(&[(&dome.vertices[..], &dome.indices[..])]).remove(0);
         let mut markers = Vec::with_capacity(ids.len());
         for id in ids {
             let (w, h, rgba) = super::sensors::marker_texture(id, 16)?;
@@ -503,7 +539,15 @@ impl Scene {
             white,
             regolith,
             markers,
-            rock_tint: [rock_albedo, rock_albedo, rock_albedo, 1.0],
+            rock_tint: {
+                let a = (f64::from(rock_albedo) / mean) as f32;
+                [a, a, a, kind::ROCK]
+            },
+            terrain_tint: {
+                let a = (1.0 / mean) as f32;
+                [a, a, a, kind::TERRAIN]
+            },
+            sky,
         })
     }
 
@@ -571,11 +615,48 @@ impl Scene {
             draws.push(Draw {
                 mesh: &c.lods[*lod],
                 texture: &self.regolith,
-                object: ObjectUniform { model: identity, tint: [1.0, 1.0, 1.0, 1.0] },
+                object: ObjectUniform { model: identity, tint: self.terrain_tint },
             });
         }
         for (_, c, _) in &visible {
             if let Some(rocks) = &c.rocks {
+                draws.push(Draw {
+                    mesh: rocks,
+                    texture: &self.regolith,
+                    object: ObjectUniform { model: identity, tint: self.rock_tint },
+                });
+            }
+        }
+        draws
+    }
+
+    /// The sky dome around a camera at `at` (world frame).
+    pub fn sky_draw(&self, at: &Vector3<f64>) -> Draw<'_> {
+        let m = Matrix4::new_translation(at) * Matrix4::new_scaling(SKY_RADIUS_M);
+        Draw {
+            mesh: &self.sky,
+            texture: &self.white,
+            object: ObjectUniform { model: m.cast::<f32>().into(), tint: [1.0, 1.0, 1.0, kind::SKY] },
+        }
+    }
+
+    /// What casts shadows into the square of half-side `half` around `centre` (world frame, seen
+    /// from the sun): the robot, the objects, the canister and the rocks near it. The terrain casts
+    /// none (gentle slopes under a high sun do not shadow themselves; leaving it out keeps the
+    /// shadow map almost empty, which a software rasterizer fills fast).
+    pub fn shadow_draws(&self, twin: &Twin, centre: &Vector3<f64>, half: f64) -> Vec<Draw<'_>> {
+        let identity: [[f32; 4]; 4] = Matrix4::<f32>::identity().into();
+        let mut draws = Vec::new();
+        self.push_parts(twin, &mut draws);
+        // Rocks beyond the square may still shadow into it.
+        let reach = half + 3.0;
+        for c in &self.chunks {
+            let Some(rocks) = &c.rocks else { continue };
+            let near = c.max.x >= centre.x - reach
+                && c.min.x <= centre.x + reach
+                && c.max.y >= centre.y - reach
+                && c.min.y <= centre.y + reach;
+            if near {
                 draws.push(Draw {
                     mesh: rocks,
                     texture: &self.white,

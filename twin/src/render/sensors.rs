@@ -8,7 +8,7 @@
 //! sees, then remapped: the image has no black border. The Dry-Run devices that schedule frames
 //! (rates, latency, jitter) live in [`crate::devices::cameras`].
 
-use super::gpu::{Frame, Globals, RenderError, Renderer, Shading, View};
+use super::gpu::{Frame, Globals, RenderError, Renderer, Shading, ShadowPass, View};
 use super::scene::Scene;
 use crate::sim::Twin;
 use framework::camera::{CameraModel, DepthImage, Distortion, GreyImage, Pinhole, TofFrame};
@@ -140,6 +140,9 @@ pub struct TofConfig {
     pub max_incidence_deg: f64,
     /// Returns weaker than this (relative to white at 1 m head-on) are missing.
     pub min_amplitude: f64,
+    /// Extra depth noise, 1-sigma as a fraction of the depth, on a white surface facing the sun
+    /// (sunlight's shot noise in the demodulated signal), proportional to the sunlight on a pixel.
+    pub sun_noise_fraction: f64,
     /// Frame rate, Hz.
     pub rate_hz: f64,
     /// Capture to availability, s.
@@ -148,10 +151,30 @@ pub struct TofConfig {
     pub jitter_s: f64,
 }
 
+/// How the sun's shadows are rendered.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShadowSettings {
+    /// Side of the shadow map, pixels.
+    pub map_px: u32,
+    /// Side of the square of ground the shadow map covers, m, centred a little ahead of the camera
+    /// (beyond it nothing is shadowed); 0 turns shadows off.
+    pub extent_m: f64,
+}
+
+impl Default for ShadowSettings {
+    fn default() -> Self {
+        ShadowSettings { map_px: super::gpu::DEFAULT_SHADOW_MAP_PX, extent_m: 12.0 }
+    }
+}
+
 /// All rendered sensors.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SensorConfig {
+    /// Shadows of the passive cameras' images.
+    #[serde(default)]
+    pub shadows: ShadowSettings,
     /// Stereo head camera on the pan-tilt unit (tracking, navigation).
     pub head_stereo: StereoConfig,
     /// Localization stereo camera fixed on the body (visual odometry).
@@ -226,6 +249,13 @@ impl SensorConfig {
             return Err(src.error_at_key("tof", "needs at least one frame and a positive rate"));
         }
         timing("tof", t.latency_s, t.jitter_s)?;
+        if !(t.sun_noise_fraction.is_finite() && t.sun_noise_fraction >= 0.0) {
+            return Err(src.error_at_key("tof.sun_noise_fraction", "must be >= 0"));
+        }
+        let sh = &c.shadows;
+        if !(sh.extent_m.is_finite() && sh.extent_m >= 0.0 && (16..=8192).contains(&sh.map_px)) {
+            return Err(src.error_at_key("shadows", "needs map_px in [16, 8192] and extent_m >= 0 (0: off)"));
+        }
         Ok(c)
     }
 }
@@ -251,6 +281,7 @@ pub struct SensorRenderer {
     /// Per camera (intrinsics, distortion, vignetting): how its image is made from a render.
     lenses: Vec<(LensKey, Lens)>,
     lod_error_px: f64,
+    shadows: ShadowSettings,
 }
 
 type LensKey = (Pinhole, Distortion, u64);
@@ -453,12 +484,24 @@ impl SensorRenderer {
         let db = framework::objects::ObjectDatabase::load(&db_path)
             .map_err(|e| RenderError::Gpu(e.to_string()))?;
         let scene = Scene::new(&gpu, twin, &db).map_err(RenderError::Gpu)?;
-        Ok(SensorRenderer { gpu, scene, lenses: Vec::new(), lod_error_px: super::scene::LOD_ERROR_PX })
+        Ok(SensorRenderer {
+            gpu,
+            scene,
+            lenses: Vec::new(),
+            lod_error_px: super::scene::LOD_ERROR_PX,
+            shadows: ShadowSettings::default(),
+        })
     }
 
     /// The adapter in use, e.g. `llvmpipe (LLVM 15.0.6, 256 bits) (Vulkan)`.
     pub fn adapter(&self) -> String {
         format!("{} ({:?})", self.gpu.adapter_info.name, self.gpu.adapter_info.backend)
+    }
+
+    /// Sets how shadows are rendered (`extent_m` 0 turns them off).
+    pub fn set_shadows(&mut self, s: ShadowSettings) {
+        self.gpu.set_shadow_map_px(s.map_px);
+        self.shadows = s;
     }
 
     /// Sets the terrain's screen-space error bound in pixels ([`super::scene::LOD_ERROR_PX`] by
@@ -477,8 +520,9 @@ impl SensorRenderer {
         shading: Shading,
         max_range: f64,
     ) -> Result<Frame, RenderError> {
-        let view = view(&self.scene, self.lod_error_px, twin, cam, pose, shading, max_range);
-        let mut frames = self.gpu.render_views(&[view])?;
+        let light = LightFrame::new(twin, pose, 0.0);
+        let view = view(&self.scene, self.lod_error_px, twin, cam, pose, shading, max_range, &light);
+        let mut frames = self.gpu.render_views(&[view], None)?;
         Ok(frames.remove(0))
     }
 
@@ -533,14 +577,20 @@ impl SensorRenderer {
                 frame: cam.frame.clone(),
             })
             .collect();
+        // One shadow map for all the views, around the first camera's view.
+        let light = LightFrame::new(twin, &cams[0].1, self.shadows.extent_m);
         let views: Vec<View<'_>> = rendered
             .iter()
             .zip(cams)
             .map(|(cam, (_, pose))| {
-                view(&self.scene, self.lod_error_px, twin, cam, pose, Shading::Sun, f64::INFINITY)
+                view(&self.scene, self.lod_error_px, twin, cam, pose, Shading::Sun, f64::INFINITY, &light)
             })
             .collect();
-        let frames = self.gpu.render_views(&views)?;
+        let shadow = (light.half > 0.0).then(|| ShadowPass {
+            globals: Globals { light_view_proj: light.view_proj.into(), ..views[0].globals },
+            draws: self.scene.shadow_draws(twin, &light.centre, light.half),
+        });
+        let frames = self.gpu.render_views(&views, shadow.as_ref())?;
         drop(views);
         // Fixed point with 8 fractional bits from here on. The mean signal of a pixel is the
         // render's value times the exposure (relative time x gain) and the vignetting; its noise
@@ -652,7 +702,8 @@ impl SensorRenderer {
                 continue;
             }
             let noise: f64 = <StandardNormal as Distribution<f64>>::sample(&StandardNormal, rng);
-            let zn = z * (1.0 + cfg.noise_fraction * noise);
+            let sun = px[2] as f64 / 255.0;
+            let zn = z * (1.0 + (cfg.noise_fraction + cfg.sun_noise_fraction * sun) * noise);
             depth.push(zn as f32);
             amplitude.push((amp * 1000.0).min(u16::MAX as f64) as u16);
             let (u, v) = ((i as u32 % f.width) as f64 + 0.5, (i as u32 / f.width) as f64 + 0.5);
@@ -673,7 +724,52 @@ impl SensorRenderer {
     }
 }
 
-/// The view of `cam` at `pose` (optical frame in the world), terrain beyond `max_range` left out.
+/// The direction towards the sun, world frame, from the world file.
+fn sun(twin: &Twin) -> Vector3<f64> {
+    let sun = &twin.world().sun;
+    let (az, el) = (sun.azimuth_deg.to_radians(), sun.elevation_deg.to_radians());
+    Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin())
+}
+
+/// Sky light on a level surface, relative to full sunlight plus sky.
+const SKY_AMBIENT: f32 = 0.3;
+
+/// The sun's orthographic view over a square of ground a little ahead of a camera: where the
+/// shadow map's texels are.
+struct LightFrame {
+    view_proj: Matrix4<f32>,
+    centre: Vector3<f64>,
+    /// Half the square's side, m (0: no shadows).
+    half: f64,
+}
+
+impl LightFrame {
+    /// The frame for a camera at `pose` covering a square of side `extent` (0: none).
+    fn new(twin: &Twin, pose: &Isometry3<f64>, extent: f64) -> Self {
+        let l = sun(twin);
+        let half = extent / 2.0;
+        // Centred ahead of the camera, where its view of the ground is largest.
+        let centre = pose.translation.vector + pose.rotation * Vector3::z() * (0.35 * extent);
+        let reach = 100.0;
+        let eye = Point3::from(centre + l * reach);
+        let up = if l.z.abs() > 0.99 { Vector3::x() } else { Vector3::z() };
+        let view = Isometry3::look_at_rh(&eye, &Point3::from(centre), &up).to_homogeneous();
+        // Orthographic, depth from the eye to twice the reach mapped to [0, 1].
+        let (h, far) = (half.max(1e-3), 2.0 * reach);
+        #[rustfmt::skip]
+        let proj = Matrix4::new(
+            1.0 / h, 0.0, 0.0, 0.0,
+            0.0, 1.0 / h, 0.0, 0.0,
+            0.0, 0.0, -1.0 / far, 0.0,
+            0.0, 0.0, 0.0, 1.0,
+        );
+        LightFrame { view_proj: (proj * view).cast(), centre, half }
+    }
+}
+
+/// The view of `cam` at `pose` (optical frame in the world), terrain beyond `max_range` left out,
+/// shadows from `light` (when it has a square), the sky around it (passive cameras).
+#[allow(clippy::too_many_arguments)]
 fn view<'s>(
     scene: &'s Scene,
     lod_error_px: f64,
@@ -682,27 +778,27 @@ fn view<'s>(
     pose: &Isometry3<f64>,
     shading: Shading,
     max_range: f64,
+    light: &LightFrame,
 ) -> View<'s> {
     let view: Matrix4<f32> = pose.inverse().to_homogeneous().cast();
     let vp = projection(&cam.pinhole) * view;
     let fwd = pose.rotation * Vector3::z();
-    let sun = &twin.world().sun;
-    let (az, el) = (sun.azimuth_deg.to_radians(), sun.elevation_deg.to_radians());
-    let light = Vector3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin());
+    let l = sun(twin);
     let p = pose.translation.vector;
     let globals = Globals {
         view_proj: vp.into(),
         cam_pos: [p.x as f32, p.y as f32, p.z as f32, 1.0],
         cam_fwd: [fwd.x as f32, fwd.y as f32, fwd.z as f32, 0.0],
-        light_dir: [light.x as f32, light.y as f32, light.z as f32, 0.3],
+        light_dir: [l.x as f32, l.y as f32, l.z as f32, SKY_AMBIENT],
+        light_view_proj: light.view_proj.into(),
+        shadow: [if light.half > 0.0 { 1.0 } else { 0.0 }, 1e-5, 0.0, 0.0],
     };
-    View {
-        width: cam.pinhole.width,
-        height: cam.pinhole.height,
-        shading,
-        globals,
-        draws: scene.draws(twin, cam, pose, max_range, lod_error_px),
+    let mut draws = scene.draws(twin, cam, pose, max_range, lod_error_px);
+    if shading == Shading::Sun {
+        // Last: everything nearer hides it from the shading.
+        draws.push(scene.sky_draw(&p));
     }
+    View { width: cam.pinhole.width, height: cam.pinhole.height, shading, globals, draws }
 }
 
 /// A renderer shared by the camera devices of one twin.

@@ -1,7 +1,7 @@
 //! The object database (seed 000, 8.4): which kind of object carries which fiducial marker table,
 //! and where each marker sits on it. The twin reads it to draw the markers; the marker-tracking
-//! module reads the same file to turn the markers it sees into object poses. The shipped file is
-//! `assets/objects.toml`.
+//! module (TrackingMarker, to come with the vision issue) is to read the same file to turn the
+//! markers it sees into object poses. The shipped file is `assets/objects.toml`.
 //!
 //! A marker's frame: origin at the tag's centre, x to the right of the printed tag and y up as it
 //! is printed, z out of the surface towards whoever looks at it. `size_m` is the edge of the tag's

@@ -179,7 +179,11 @@ impl Odometry {
             }
             None => (0.0, 0.0, 0.0),
         };
-        let still = enc.as_ref().is_some_and(|e| e.rates.iter().all(|w| w.abs() < p.still_wheel_rate));
+        // Without a fresh reading the wheels are as they were (until the encoders count as silent).
+        let still = match &enc {
+            Some(e) => e.rates.iter().all(|w| w.abs() < p.still_wheel_rate),
+            None => !enc_silent && s.still_since.is_some(),
+        };
         if !still {
             s.still_since = None;
         } else if s.still_since.is_none() {

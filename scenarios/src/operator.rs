@@ -98,7 +98,17 @@ impl Operator {
                 outward.dot(&(eye - p)) > 0.0
             })
             .collect();
-        let visible = facing.iter().filter(|p| t.line_of_sight(&eye, p)).count();
+        // In view: inside the image (projected within the field of view the lens covers) and not
+        // hidden by anything.
+        let in_image = |p: &Point3<f64>| {
+            let c = cam.inverse() * p;
+            let (hfov, vfov) = self.truth.model.fov();
+            c.z > 0.0
+                && (c.x / c.z).atan().abs() < 0.5 * hfov
+                && (c.y / c.z).atan().abs() < 0.5 * vfov
+                && self.truth.model.project(&c).is_some_and(|uv| self.truth.model.contains(&uv))
+        };
+        let visible = facing.iter().filter(|p| in_image(p) && t.line_of_sight(&eye, p)).count();
         if (visible as f64) < MIN_VISIBLE * facing.len() as f64 {
             return Err(format!(
                 "the canister is hidden: {visible} of the {} points facing the camera are in view",

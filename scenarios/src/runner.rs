@@ -146,7 +146,7 @@ fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: boo
     let mut b = SystemBuilder::new();
     // Every message and acknowledgement is traced for the logger.
     b.trace_messages(log_messages);
-    let map = DryRunDeviceMap::new(twin.clone(), b.resources().clone(), seed);
+    let map = DryRunDeviceMap::with_sensors(twin.clone(), b.resources().clone(), seed, sensor_config(loaded));
     let model = map.locomotor()?.model().clone();
     let mut odo_extra = toml::Table::new();
     let mut params = toml::Table::new();
@@ -182,6 +182,22 @@ fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: boo
     }
     b.endpoint("ground").endpoint("events");
     Ok(b)
+}
+
+/// The rendered sensors' configuration: `assets/rover/sensors.toml` with the scenario's `[sensors]`
+/// table over it (an error is reported when a camera is asked for, naming both files).
+fn sensor_config(loaded: &Loaded) -> std::result::Result<twin::render::SensorConfig, String> {
+    let path = twin::render::SensorConfig::default_path();
+    let s = &loaded.scenario;
+    if s.sensors.is_empty() {
+        return twin::render::SensorConfig::load(&path).map_err(|e| e.to_string());
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| format!("reading {}: {e}", path.display()))?;
+    let mut doc: toml::Table = toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    crate::scenario::merge(&mut doc, s.sensors.clone());
+    let origin = format!("{} with [sensors] of {}", path.display(), loaded.path.display());
+    let merged = toml::to_string(&doc).map_err(|e| e.to_string())?;
+    twin::render::SensorConfig::from_str(&merged, &origin).map_err(|e| e.to_string())
 }
 
 /// What the operator knows of the start pose of `base_link` (`truth`): [x, y, z, yaw_deg], each off

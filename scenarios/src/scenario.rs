@@ -37,6 +37,9 @@ pub struct Scenario {
     /// Overrides of the twin's configuration (`assets/rover/twin.toml` keys).
     #[serde(default)]
     pub twin: toml::Table,
+    /// Overrides of the rendered sensors' configuration (`assets/rover/sensors.toml` keys).
+    #[serde(default)]
+    pub sensors: toml::Table,
     /// Overrides of module configurations: `[modules.<name>.params]`, `[modules.<name>.framework]`.
     #[serde(default)]
     pub modules: BTreeMap<String, toml::Table>,

@@ -18,7 +18,9 @@ const HEAD: [f64; 2] = [0.0, 0.45];
 
 /// Renders the three images into `out`; the files written.
 pub fn run(world: &Path, out: &Path) -> Result<Vec<PathBuf>> {
-    let w = worlds::World::load(world)?;
+    let mut w = worlds::World::load(world)?;
+    // As the canister mission's runner does: no rock where the rover stands.
+    w.keep_clear(START.x, START.y, crate::runner::START_CLEARANCE_M);
     let mut t = Twin::with_defaults(w, START, Fidelity::Kinematic)?;
     let id = t.start_move("ptu", &HEAD, 1.0).map_err(|e| anyhow!(e))?;
     t.run_until(Duration::from_secs(5), |t| t.move_status(id).is_over());

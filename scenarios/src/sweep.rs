@@ -131,9 +131,20 @@ pub struct Sweep {
 }
 
 /// Scenario keys (and their sub-keys) that change nothing at kinematic fidelity: contact friction,
-/// the solver, the motor, suspension, servo and gripper models are parts of the dynamics.
-const DYNAMIC_ONLY: &[&str] =
-    &["world.friction", "twin.physics", "twin.wheels", "twin.suspension", "twin.servos", "twin.gripper"];
+/// the solver's settings, the wheel drives, the suspension and the servo gains are parts of the
+/// dynamics (the step, gravity, servo tolerances and the gripper's rules apply in both).
+const DYNAMIC_ONLY: &[&str] = &[
+    "world.friction",
+    "twin.physics.solver_iterations",
+    "twin.physics.pgs_iterations",
+    "twin.physics.friction_model",
+    "twin.physics.friction_in_bias_pass",
+    "twin.physics.terrain_cell_m",
+    "twin.wheels",
+    "twin.suspension",
+    "twin.servos.full_effort_error",
+    "twin.servos.damping_time_s",
+];
 
 impl Sweep {
     /// The dispersed keys that have no effect at the fidelity the runs use, each with why: a
@@ -893,7 +904,7 @@ mod tests {
 
     #[test]
     fn dispersions_of_the_dynamics_are_reported_as_ineffective_at_kinematic_fidelity() {
-        let text = "[sweep]\nscenario = \"x.toml\"\nfidelity = \"kinematic\"\n[[dispersion]]\nkey = \"world.friction\"\nuniform = [0.4, 0.8]\n[[dispersion]]\nkey = \"twin.wheels.friction\"\nuniform = [0.4, 0.8]\n[[dispersion]]\nkey = \"twin.calibration.wheel_radius_fraction\"\nuniform = [0.0, 0.02]\n";
+        let text = "[sweep]\nscenario = \"x.toml\"\nfidelity = \"kinematic\"\n[[dispersion]]\nkey = \"world.friction\"\nuniform = [0.4, 0.8]\n[[dispersion]]\nkey = \"twin.wheels.friction\"\nuniform = [0.4, 0.8]\n[[dispersion]]\nkey = \"twin.calibration.wheel_radius_fraction\"\nuniform = [0.0, 0.02]\n[[dispersion]]\nkey = \"twin.gripper.cradle_capture_m\"\nuniform = [0.04, 0.08]\n[[dispersion]]\nkey = \"twin.servos.stall_time_s\"\nuniform = [1.0, 2.0]\n";
         let file: SweepFile = toml::from_str(text).unwrap();
         let mut s = Sweep { file, path: "s.toml".into(), scenario_path: "x.toml".into() };
         let notes = s.ineffective_dispersions();

@@ -113,6 +113,10 @@ pub struct ServoConfig {
     pub stall_time_s: f64,
     /// Recovery time, s.
     pub recover_time_s: f64,
+    /// Rate at which the joints' positions and rates are measured, Hz.
+    pub state_rate_hz: f64,
+    /// Measurement to availability of joint states, s.
+    pub state_latency_s: f64,
 }
 
 /// Gripper.
@@ -267,6 +271,7 @@ impl TwinConfig {
         pos("servos.full_effort_error", c.servos.full_effort_error)?;
         pos("servos.damping_time_s", c.servos.damping_time_s)?;
         pos("servos.position_tolerance", c.servos.position_tolerance)?;
+        pos("servos.state_rate_hz", c.servos.state_rate_hz)?;
         pos("imu.rate_hz", c.imu.rate_hz)?;
         pos("gripper.latch_distance_m", c.gripper.latch_distance_m)?;
         pos("gripper.cradle_capture_m", c.gripper.cradle_capture_m)?;
@@ -291,6 +296,7 @@ impl TwinConfig {
             ("imu.jitter_s", c.imu.jitter_s),
             ("encoders.latency_s", c.encoders.latency_s),
             ("encoders.jitter_s", c.encoders.jitter_s),
+            ("servos.state_latency_s", c.servos.state_latency_s),
         ] {
             non_negative(k, v)?;
         }

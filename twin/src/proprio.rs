@@ -95,6 +95,8 @@ pub struct Proprioception {
     pub imu: SampleBuffer<ImuTruth>,
     /// Wheel angles (accumulated, rad, [`crate::sim::WHEELS`] order) at each encoder sample.
     pub wheels: SampleBuffer<Vec<f64>>,
+    /// Every movable joint's position and rate (the twin's joint order) at each joint-state sample.
+    pub joints: SampleBuffer<Vec<[f64; 2]>>,
     sum: (Vector3<f64>, Vector3<f64>, f64),
 }
 
@@ -102,11 +104,12 @@ pub struct Proprioception {
 const KEEP: Duration = Duration::from_secs(4);
 
 impl Proprioception {
-    /// Sampling at the IMU's and the encoders' rates.
-    pub fn new(imu_hz: f64, encoder_hz: f64) -> Self {
+    /// Sampling at the IMU's, the encoders' and the joint states' rates.
+    pub fn new(imu_hz: f64, encoder_hz: f64, joint_hz: f64) -> Self {
         Proprioception {
             imu: SampleBuffer::new(imu_hz, KEEP),
             wheels: SampleBuffer::new(encoder_hz, KEEP),
+            joints: SampleBuffer::new(joint_hz, Duration::from_secs(1)),
             sum: (Vector3::zeros(), Vector3::zeros(), 0.0),
         }
     }
@@ -117,9 +120,9 @@ impl Proprioception {
         &mut self,
         now: Time,
         dt: f64,
-        specific_force: Vector3<f64>,
-        angular_rate: Vector3<f64>,
+        (specific_force, angular_rate): (Vector3<f64>, Vector3<f64>),
         wheel_angles: impl FnOnce() -> Vec<f64>,
+        joint_states: impl FnOnce() -> Vec<[f64; 2]>,
         lost: impl Fn(&str) -> bool,
     ) {
         self.sum.0 += specific_force * dt;
@@ -132,6 +135,9 @@ impl Proprioception {
         }
         if self.wheels.due(now) {
             self.wheels.push(now, lost(crate::devices::ENCODERS), wheel_angles());
+        }
+        if self.joints.due(now) {
+            self.joints.push(now, false, joint_states());
         }
     }
 }

@@ -235,3 +235,32 @@ fn auto_exposure_brings_a_dark_scene_to_its_target() {
     // Off: always nominal.
     assert_eq!(Exposure::NOMINAL.next(&ExposureControl { auto: false, ..c }, 10.0), Exposure::NOMINAL);
 }
+
+#[test]
+fn joint_states_arrive_after_their_latency() {
+    let t = kinematic();
+    let map = DryRunDeviceMap::new(t.clone(), Resources::new(), 7);
+    let arm = map.joint_group("arm").unwrap();
+    let c = t.lock().config().servos.clone();
+    t.lock().start_move("arm", &[1.0, 0.0, 0.0, 0.0, 0.0, 0.0], 1.0).unwrap();
+    let name = vec!["arm_joint_1".to_string()];
+    let mut truth: Vec<(Time, f64)> = Vec::new();
+    for _ in 0..100 {
+        t.lock().step();
+        let now = t.lock().time();
+        truth.push((now, t.lock().joint_states(&name)[0].position));
+        let measured = arm.states()[0].position;
+        // The newest measurement taken at a sample time no later than now - latency.
+        let period = Duration::from_hz(c.state_rate_hz);
+        let ready = now - Duration::from_secs_f64(c.state_latency_s);
+        let expected = truth
+            .iter()
+            .rev()
+            .find(|(t, _)| *t <= ready && (t.as_nanos() % period.as_nanos()) == 0)
+            .map(|(_, q)| *q);
+        if let Some(q) = expected {
+            assert!((measured - q).abs() < 1e-12, "at {now:?}: measured {measured}, truth {q} at the sample");
+            assert!(measured < truth.last().unwrap().1, "the measurement lags the moving joint");
+        }
+    }
+}

@@ -326,7 +326,10 @@ fn an_aligned_close_holds_the_handle_and_a_misaligned_one_does_not() {
         let (t, held) = try_grasp(fidelity, 0.0);
         assert!(held, "{fidelity:?}: the aligned grasp holds");
         let g = t.grasp_truth().expect("a grasp is recorded");
-        assert!(g.position_error_m < 0.02 && g.closing_axis_error_deg < 5.0, "{fidelity:?}: {g:?}");
+        assert!(
+            g.position_error_m < 0.02 && g.closing_axis_error_deg < 5.0 && g.angle_error_deg < 5.0,
+            "{fidelity:?}: {g:?}"
+        );
         assert_eq!(t.ground_truth().grasp, Some(g));
         // The handle turned by 30 degrees (twice the tolerance): the fingers close askew, hold nothing.
         let (t, held) = try_grasp(fidelity, 30f64.to_radians());

@@ -30,7 +30,7 @@ impl JointGroup for DryRunJointGroup {
         self.limits.clone()
     }
     fn states(&self) -> Vec<JointState> {
-        self.twin.lock().joint_states(&self.joints)
+        self.twin.lock().measured_joint_states(&self.joints)
     }
     fn move_to(
         &mut self,

@@ -207,7 +207,9 @@ impl DeviceMap for DryRunDeviceMap {
                 Arc::new(Mutex::new(proprio::ImuUnit::new(cfg, self.seed)))
             })
             .clone();
-        Ok(Box::new(proprio::DryRunImu { twin: self.twin.clone(), unit, seed: self.seed, next_seq: 0 }))
+        // A new reader gets the samples taken from now on.
+        let next_seq = self.twin.lock().proprioception().imu.latest().map(|s| s.seq + 1).unwrap_or(0);
+        Ok(Box::new(proprio::DryRunImu { twin: self.twin.clone(), unit, seed: self.seed, next_seq }))
     }
     fn joint_group(&self, name: &str) -> Result<Box<dyn JointGroup>, DeviceError> {
         let t = self.twin.lock();

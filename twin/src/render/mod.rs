@@ -1,5 +1,6 @@
-//! Rendered sensors: a headless wgpu renderer of the twin's world and the Dry-Run camera devices
-//! built on it (stereo cameras and Time-of-Flight cameras).
+//! Rendered sensors: a headless wgpu renderer of the twin's world ([`gpu`], [`scene`]) and the
+//! camera models built on it ([`sensors`]: lens, photometry, ToF). The Dry-Run camera devices that
+//! schedule frames are in [`crate::devices::cameras`].
 
 pub mod gpu;
 pub mod scene;

@@ -648,8 +648,10 @@ impl Scene {
         let identity: [[f32; 4]; 4] = Matrix4::<f32>::identity().into();
         let mut draws = Vec::new();
         self.push_parts(twin, &mut draws);
-        // Rocks beyond the square may still shadow into it.
-        let reach = half + 3.0;
+        // The square, perpendicular to the sun, covers 1 / sin(elevation) more ground along the
+        // sun's azimuth; rocks beyond it may still shadow into it.
+        let el = twin.world().sun.elevation_deg.to_radians().sin().max(0.1);
+        let reach = half / el + 3.0;
         for c in &self.chunks {
             let Some(rocks) = &c.rocks else { continue };
             let near = c.max.x >= centre.x - reach

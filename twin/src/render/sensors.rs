@@ -141,7 +141,8 @@ pub struct TofConfig {
     /// Returns weaker than this (relative to white at 1 m head-on) are missing.
     pub min_amplitude: f64,
     /// Extra depth noise, 1-sigma as a fraction of the depth, on a white surface facing the sun
-    /// (sunlight's shot noise in the demodulated signal), proportional to the sunlight on a pixel.
+    /// (sunlight's shot noise in the demodulated signal), proportional to the sunlight on a pixel
+    /// (albedo x cosine to the sun; shadows are not taken into account for the ToF cameras).
     pub sun_noise_fraction: f64,
     /// Frame rate, Hz.
     pub rate_hz: f64,
@@ -192,8 +193,12 @@ impl SensorConfig {
     pub fn load(path: impl AsRef<Path>) -> Result<Self, ConfigError> {
         let path = path.as_ref();
         let text = read_file(path)?;
-        let origin = path.display().to_string();
-        let src = Source::new(&origin, &text);
+        Self::from_str(&text, &path.display().to_string())
+    }
+
+    /// Parses and validates TOML text (`origin` names it in errors).
+    pub fn from_str(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        let src = Source::new(origin, text);
         let c: SensorConfig = src.parse()?;
         let timing = |k: &str, latency: f64, jitter: f64| {
             if latency.is_finite() && latency >= 0.0 && jitter.is_finite() && jitter >= 0.0 {

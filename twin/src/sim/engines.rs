@@ -142,18 +142,43 @@ impl Twin {
     fn check_self_collision(&mut self, before: &[f64]) {
         let Some(shapes) = &self.self_shapes else { return };
         let poses = self.mech.link_poses(&self.dof_values()).unwrap_or_default();
-        let hit = shapes.first_hit(&poses, &self.mech);
+        let mut hit = shapes.first_hit(&poses, &self.mech);
+        // A held canister against the body, except in the stowage cradle.
+        if hit.is_none()
+            && let (Some(off), Ok(tcp), Ok(slot)) =
+                (self.latched_kinematic, self.mech.link("gripper_tcp"), self.mech.link("stow_slot"))
+        {
+            let can = poses[tcp] * off;
+            let rel = (poses[slot].inverse() * can).translation.vector;
+            let cradled =
+                rel.xy().norm() < self.config.gripper.cradle_capture_m && (-0.05..0.3).contains(&rel.z);
+            if !cradled {
+                let body = rapier3d::parry::shape::SharedShape::cuboid(0.05, 0.05, 0.075);
+                let at = pose_to_rapier(&(can * Isometry3::translation(0.0, 0.0, 0.075)));
+                hit = shapes.body_hit(&poses, &at, &body).map(|b| ("canister".to_string(), b));
+            }
+        }
         let now: std::collections::BTreeSet<(String, String)> = hit.iter().cloned().collect();
         self.self_collisions += now.difference(&self.self_touching).count() as u64;
         self.self_touching = now;
         let Some((a, b)) = hit else { return };
-        for (sv, &q) in self.servos.iter().zip(before) {
+        let mut moved: Vec<&'static str> = Vec::new();
+        for (s, (sv, &q)) in self.servos.iter().zip(before).enumerate() {
             let j = &mut self.joints[sv.joint];
+            if j.q != q
+                && let Some((g, _)) =
+                    JOINT_GROUPS.iter().find(|(g, _)| self.groups.get(*g).is_some_and(|ids| ids.contains(&s)))
+                && !moved.contains(g)
+            {
+                moved.push(g);
+            }
             j.q = q;
             j.qd = 0.0;
         }
-        let group = if a.starts_with("gripper_finger") { "gripper" } else { "arm" };
-        let _ = self.fault_group(group, &format!("self-collision: {a} against {b}"));
+        // The groups whose motion made the contact stop there, in FAULT.
+        for group in moved {
+            let _ = self.fault_group(group, &format!("self-collision: {a} against {b}"));
+        }
     }
 
     /// Half-length and half-width of the rover's footprint around its wheels, m.

@@ -345,7 +345,11 @@ impl Twin {
             prev_base_vel: Vector3::zeros(),
             specific_force: Vector3::new(0.0, 0.0, config.physics.gravity_m_s2),
             angular_rate: Vector3::zeros(),
-            proprio: crate::proprio::Proprioception::new(config.imu.rate_hz, config.encoders.rate_hz),
+            proprio: crate::proprio::Proprioception::new(
+                config.imu.rate_hz,
+                config.encoders.rate_hz,
+                config.servos.state_rate_hz,
+            ),
             collisions: 0,
             touching: Default::default(),
             self_collisions: 0,
@@ -513,9 +517,9 @@ impl Twin {
         self.proprio.step(
             now,
             dt,
-            self.specific_force,
-            self.angular_rate,
+            (self.specific_force, self.angular_rate),
             || wheels.iter().map(|&w| joints[w].q).collect(),
+            || joints.iter().map(|j| [j.q, j.qd]).collect(),
             |device| dropouts.get(device).is_some_and(|&until| now < until),
         );
         self.update_moves(dt);

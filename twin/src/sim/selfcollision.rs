@@ -53,6 +53,23 @@ impl SelfShapes {
         Ok(SelfShapes { arm, body })
     }
 
+    /// The first body-side part that `shape` at `pose` (root frame, for the links at `poses`)
+    /// intersects.
+    pub(super) fn body_hit(
+        &self,
+        poses: &[Isometry3<f64>],
+        pose: &Pose,
+        shape: &SharedShape,
+    ) -> Option<String> {
+        self.body
+            .iter()
+            .find(|b| {
+                let pb = pose_to_rapier(&poses[b.link]) * b.local;
+                intersection_test(pose, shape.as_ref(), &pb, b.shape.as_ref()).is_ok_and(|i| i.intersecting)
+            })
+            .map(|b| b.name.clone())
+    }
+
     /// Every shape, posed in the world for the links at `poses` (mechanism link order).
     pub(super) fn posed<'s>(
         &'s self,

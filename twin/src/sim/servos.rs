@@ -142,16 +142,34 @@ impl Twin {
 
     /// Measured state of named joints.
     pub fn joint_states(&self, names: &[String]) -> Vec<JointState> {
+        self.joint_states_from(names, |k| (self.joints[k].q, self.joints[k].qd))
+    }
+
+    /// States of named joints as their encoders report them: the newest measurement that has
+    /// arrived (`servos.state_latency_s` after it was taken); the motor status is the controller's
+    /// own, current. Before any measurement has arrived, the oldest one.
+    pub fn measured_joint_states(&self, names: &[String]) -> Vec<JointState> {
+        let buf = &self.proprio.joints;
+        let ready = self.time - framework::time::Duration::from_secs_f64(self.config.servos.state_latency_s);
+        let sample = buf.since(0).take_while(|s| s.stamp <= ready).last().or_else(|| buf.since(0).next());
+        match sample {
+            Some(s) => self.joint_states_from(names, |k| (s.value[k][0], s.value[k][1])),
+            None => self.joint_states(names),
+        }
+    }
+
+    fn joint_states_from(&self, names: &[String], value: impl Fn(usize) -> (f64, f64)) -> Vec<JointState> {
         names
             .iter()
             .filter_map(|n| {
                 let k = self.mech.joints().iter().position(|j| &j.name == n)?;
-                let sj = &self.joints[*self.joint_of_mech.get(&k)?];
-                let idx = self.joint_of_mech[&k];
-                let status = self.servos.iter().find(|s| s.joint == idx).map(|s| s.status.clone()).unwrap_or(
-                    MotorStatus { moving: sj.qd.abs() > 1e-3, servoing: true, ..Default::default() },
-                );
-                Some(JointState { name: n.clone(), position: sj.q, velocity: sj.qd, effort: 0.0, status })
+                let idx = *self.joint_of_mech.get(&k)?;
+                let (q, qd) = value(idx);
+                let status =
+                    self.servos.iter().find(|s| s.joint == idx).map(|s| s.status.clone()).unwrap_or(
+                        MotorStatus { moving: qd.abs() > 1e-3, servoing: true, ..Default::default() },
+                    );
+                Some(JointState { name: n.clone(), position: q, velocity: qd, effort: 0.0, status })
             })
             .collect()
     }

@@ -67,9 +67,9 @@ struct Object {
 @group(3) @binding(1) var shadow_smp: sampler_comparison;
 
 // Object kinds (tint.a): below 0 the sky (emissive), 1 a plain textured object, 2 the terrain (its
-// texture at two incommensurate scales, so it never repeats in view), 3 a rock (the terrain texture
-// projected on its faces at a small scale).
-fn is_terrain(kind: f32) -> bool { return kind > 1.5 && kind < 2.5; }
+// texture warped, so it never repeats in view), 3 a rock (the
+// terrain texture projected on its faces at a small scale). Passive cameras draw each kind with its
+// own program (the renderer picks it by the kind); the ToF program branches on it.
 fn is_rock(kind: f32) -> bool { return kind > 2.5; }
 
 struct VsIn {
@@ -100,12 +100,11 @@ fn shadow_coords(world: vec3<f32>) -> vec3<f32> {
 }
 
 // The share of the sun a point at shadow-map coordinates p sees (2 x 2 comparison filter); 1
-// outside the map or without one.
+// outside the map or without one (the sampler clamps to the edge, which the pass leaves empty).
 fn sunlit(p: vec3<f32>) -> f32 {
-    if (globals.shadow.x < 0.5 || p.x <= 0.0 || p.y <= 0.0 || p.x >= 1.0 || p.y >= 1.0 || p.z >= 1.0) {
-        return 1.0;
-    }
-    return textureSampleCompareLevel(shadow_map, shadow_smp, p.xy, p.z - globals.shadow.y);
+    let s = textureSampleCompareLevel(shadow_map, shadow_smp, p.xy, p.z - globals.shadow.y);
+    let outside = p.x <= 0.0 || p.y <= 0.0 || p.x >= 1.0 || p.y >= 1.0 || p.z >= 1.0 || globals.shadow.x < 0.5;
+    return select(s, 1.0, outside);
 }
 
 @vertex
@@ -126,69 +125,88 @@ struct FsOut {
 }
 
 // Sun-lit passive cameras light the surface per vertex (Gouraud): a software rasterizer pays for
-// every per-fragment operation. Per fragment: the texture(s) and the shadow map. Terrain vertices
-// carry the full-resolution surface normal at their sample.
+// every varying and every branch at every pixel, so each kind of surface has its own program,
+// without branches: plain objects, the terrain, rocks, the sky. Per fragment: the texture(s) and
+// the shadow map. Terrain vertices carry the full-resolution surface normal at their sample.
 struct GreyOut {
     @builtin(position) clip: vec4<f32>,
     @location(0) uv: vec2<f32>,
     @location(1) light: vec2<f32>,      // x: sky (ambient) light, y: direct sun before shadowing
     @location(2) shadow_pos: vec3<f32>,
-    @location(3) uv2: vec2<f32>,
 }
 
-@vertex
-fn vs_grey(v: VsIn) -> GreyOut {
+fn lit_vertex(v: VsIn, uv: vec2<f32>) -> GreyOut {
     let world = object.model * vec4<f32>(v.position, 1.0);
     var out: GreyOut;
     out.clip = globals.view_proj * world;
-    out.uv = v.uv;
-    out.uv2 = v.uv;
-    let kind = object.tint.a;
-    if (kind < 0.0) {
-        out.light = vec2<f32>(sky(normalize(world.xyz - globals.cam_pos.xyz)), 0.0);
-        out.shadow_pos = vec3<f32>(-1.0, -1.0, 0.0);
-        return out;
-    }
+    out.uv = uv;
     let n = normalize((object.model * vec4<f32>(v.normal, 0.0)).xyz);
     let ambient = globals.light_dir.w;
     // The sky a surface sees: all of it facing up, half of it on a vertical face.
     out.light = vec2<f32>(ambient * (0.5 + 0.5 * n.z), (1.0 - ambient) * max(dot(n, globals.light_dir.xyz), 0.0));
     out.shadow_pos = shadow_coords(world.xyz);
-    if (is_rock(kind)) {
-        out.uv = rock_uv(world.xyz);
-    } else if (is_terrain(kind)) {
-        out.uv = terrain_uv(world.xy);
-        out.uv2 = terrain_uv2(world.xy);
-    }
     return out;
+}
+
+@vertex
+fn vs_grey(v: VsIn) -> GreyOut {
+    return lit_vertex(v, v.uv);
+}
+
+@vertex
+fn vs_terrain(v: VsIn) -> GreyOut {
+    let p = (object.model * vec4<f32>(v.position, 1.0)).xy;
+    return lit_vertex(v, terrain_uv(p));
+}
+
+@vertex
+fn vs_rock(v: VsIn) -> GreyOut {
+    return lit_vertex(v, rock_uv((object.model * vec4<f32>(v.position, 1.0)).xyz));
+}
+
+fn luminance(rgb: vec3<f32>) -> f32 {
+    // Rec. 601 weights.
+    return dot(rgb * object.tint.rgb, vec3<f32>(0.299, 0.587, 0.114));
 }
 
 @fragment
 fn fs_grey(f: GreyOut) -> @location(0) vec4<f32> {
-    var base = textureSample(albedo_tex, albedo_smp, f.uv);
-    if (is_terrain(object.tint.a)) {
-        base = base * textureSample(albedo_tex, albedo_smp, f.uv2);
-    }
-    // Luminance (Rec. 601 weights).
-    let albedo = dot(base.rgb * object.tint.rgb, vec3<f32>(0.299, 0.587, 0.114));
-    var direct = f.light.y;
-    if (direct > 0.0) {
-        direct = direct * sunlit(f.shadow_pos);
-    }
-    return vec4<f32>(albedo * (f.light.x + direct), 0.0, 0.0, 1.0);
+    let albedo = luminance(textureSample(albedo_tex, albedo_smp, f.uv).rgb);
+    return vec4<f32>(albedo * (f.light.x + f.light.y * sunlit(f.shadow_pos)), 0.0, 0.0, 1.0);
+}
+
+@fragment
+fn fs_terrain(f: GreyOut) -> @location(0) vec4<f32> {
+    let t = textureSample(albedo_tex, albedo_smp, f.uv).rgb;
+    return vec4<f32>(luminance(t) * (f.light.x + f.light.y * sunlit(f.shadow_pos)), 0.0, 0.0, 1.0);
+}
+
+struct SkyOut {
+    @builtin(position) clip: vec4<f32>,
+    @location(0) light: f32,
+}
+
+@vertex
+fn vs_sky(v: VsIn) -> SkyOut {
+    let world = object.model * vec4<f32>(v.position, 1.0);
+    var out: SkyOut;
+    out.clip = globals.view_proj * world;
+    out.light = sky(normalize(world.xyz - globals.cam_pos.xyz));
+    return out;
+}
+
+@fragment
+fn fs_sky(f: SkyOut) -> @location(0) vec4<f32> {
+    return vec4<f32>(f.light, 0.0, 0.0, 1.0);
 }
 
 // The terrain's texture coordinates: the 4 m tile, warped by a smooth field of incommensurate
 // waves (up to ~0.4 tile, stretching the texture by at most ~30%) so that no two places of the
-// ground look alike; and its second scale (1.618 times the first, turned by 37 degrees).
+// ground look alike (computed per vertex: the field is smooth).
 fn terrain_uv(p: vec2<f32>) -> vec2<f32> {
     let wx = 0.25 * sin(0.31 * p.x + 0.17 * p.y + 1.3) + 0.15 * sin(0.13 * p.y - 0.41 * p.x + 0.4);
     let wy = 0.25 * sin(0.27 * p.y - 0.19 * p.x + 2.1) + 0.15 * sin(0.11 * p.x + 0.37 * p.y + 5.0);
     return p / 4.0 + vec2<f32>(wx, wy);
-}
-fn terrain_uv2(world: vec2<f32>) -> vec2<f32> {
-    let p = world / 6.472;
-    return vec2<f32>(0.8 * p.x - 0.6 * p.y + 0.37, 0.6 * p.x + 0.8 * p.y + 0.71);
 }
 fn rock_uv(world: vec3<f32>) -> vec2<f32> {
     return vec2<f32>(world.x + 0.6 * world.z, world.y - 0.8 * world.z) * 2.0;
@@ -196,25 +214,18 @@ fn rock_uv(world: vec3<f32>) -> vec2<f32> {
 
 @fragment
 fn fs_tof(f: VsOut) -> FsOut {
-    let kind = object.tint.a;
-    var uv = f.uv;
-    if (is_rock(kind)) {
-        uv = rock_uv(f.world);
-    } else if (is_terrain(kind)) {
-        uv = terrain_uv(f.world.xy);
-    }
-    var base = textureSample(albedo_tex, albedo_smp, uv);
-    if (is_terrain(kind)) {
-        base = base * textureSample(albedo_tex, albedo_smp, terrain_uv2(f.world.xy));
-    }
-    let albedo = dot(base.rgb * object.tint.rgb, vec3<f32>(0.299, 0.587, 0.114));
+    // One texture sample whatever the kind (a branch costs at every pixel); a rock's coordinates
+    // are projected, the terrain's are its tile's (no warp: the ToF images are small and coarse).
+    let uv = select(f.uv, rock_uv(f.world), is_rock(object.tint.a));
+    let base = textureSample(albedo_tex, albedo_smp, uv).rgb * object.tint.rgb;
+    let albedo = dot(base, vec3<f32>(0.299, 0.587, 0.114));
     let to_cam = globals.cam_pos.xyz - f.world;
     let d2 = max(dot(to_cam, to_cam), 1e-4);
     let n = normalize(f.normal);
     let cos_i = max(dot(n, to_cam * inverseSqrt(d2)), 0.0);
     // Sunlight on the pixel (adds shot noise to a ToF measurement), relative to a white surface
-    // facing the sun.
-    let sun = albedo * max(dot(n, globals.light_dir.xyz), 0.0) * sunlit(shadow_coords(f.world));
+    // facing the sun; shadows are not considered.
+    let sun = albedo * max(dot(n, globals.light_dir.xyz), 0.0);
     var out: FsOut;
     // Amplitude relative to a white target facing the camera at 1 m, over 4 (8-bit headroom).
     out.color = vec4<f32>(clamp(albedo * cos_i / d2 / 4.0, 0.0, 1.0), cos_i, clamp(sun, 0.0, 1.0), 1.0);
@@ -284,7 +295,7 @@ pub struct Globals {
     pub light_dir: [f32; 4],
     /// World to shadow map: x, y in [-1, 1], depth in [0, 1].
     pub light_view_proj: [[f32; 4]; 4],
-    /// x: 1 when the frame has a shadow pass, y: depth bias of the shadow test.
+    /// x: 1 when the frame has a shadow pass, y: depth bias of the shadow test (z, w unused).
     pub shadow: [f32; 4],
 }
 
@@ -294,7 +305,7 @@ pub mod kind {
     pub const SKY: f32 = -1.0;
     /// A plain textured object.
     pub const PLAIN: f32 = 1.0;
-    /// The terrain: its texture at two incommensurate scales.
+    /// The terrain: its texture warped by a smooth field (never repeats in view).
     pub const TERRAIN: f32 = 2.0;
     /// A rock: the terrain texture projected on its faces at a small scale.
     pub const ROCK: f32 = 3.0;
@@ -393,7 +404,8 @@ pub struct Renderer {
     queue: wgpu::Queue,
     /// Adapter that was picked (log it: name, backend, driver).
     pub adapter_info: wgpu::AdapterInfo,
-    grey_pipeline: wgpu::RenderPipeline,
+    /// Passive cameras: one program per kind of surface (plain, terrain, rock, sky).
+    grey_pipelines: [wgpu::RenderPipeline; 4],
     tof_pipeline: wgpu::RenderPipeline,
     shadow_pipeline: wgpu::RenderPipeline,
     shadow_bgl: wgpu::BindGroupLayout,
@@ -557,7 +569,13 @@ impl Renderer {
         };
         let target =
             |format| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL });
-        let grey_pipeline = make_pipeline("vs_grey", "fs_grey", &[target(GREY_FORMAT)]);
+        let grey = [target(GREY_FORMAT)];
+        let grey_pipelines = [
+            make_pipeline("vs_grey", "fs_grey", &grey),
+            make_pipeline("vs_terrain", "fs_terrain", &grey),
+            make_pipeline("vs_rock", "fs_grey", &grey),
+            make_pipeline("vs_sky", "fs_sky", &grey),
+        ];
         // Same blend/write_mask on both targets: no INDEPENDENT_BLEND needed on GL.
         let tof_pipeline = make_pipeline("vs_main", "fs_tof", &[target(COLOR_FORMAT), target(RANGE_FORMAT)]);
 
@@ -633,7 +651,7 @@ impl Renderer {
             device,
             queue,
             adapter_info,
-            grey_pipeline,
+            grey_pipelines,
             tof_pipeline,
             shadow_pipeline,
             shadow_bgl,
@@ -890,12 +908,27 @@ impl Renderer {
                     occlusion_query_set: None,
                     multiview_mask: None,
                 });
-                pass.set_pipeline(if key.2 { &self.tof_pipeline } else { &self.grey_pipeline });
+                // ToF: one program; passive cameras: the program of each draw's kind of surface.
+                let program = |tint: &[f32; 4]| match tint[3] {
+                    a if a < 0.0 => 3,
+                    a if a > 2.5 => 2,
+                    a if a > 1.5 => 1,
+                    _ => 0,
+                };
+                let mut current = None;
+                if key.2 {
+                    pass.set_pipeline(&self.tof_pipeline);
+                }
                 pass.set_bind_group(0, &self.globals_bg, &[(k as u64 * OBJECT_STRIDE) as u32]);
                 pass.set_bind_group(3, &self.shadow.2, &[]);
                 // Bind only what changes from one draw to the next.
                 let (mut texture, mut slot, mut buffers) = (None, None, None);
                 for (d, &offset) in v.draws.iter().zip(&slots[k]) {
+                    let p = program(&d.object.tint);
+                    if !key.2 && current != Some(p) {
+                        pass.set_pipeline(&self.grey_pipelines[p]);
+                        current = Some(p);
+                    }
                     if texture != Some(d.texture) {
                         pass.set_bind_group(1, d.texture, &[]);
                         texture = Some(d.texture);

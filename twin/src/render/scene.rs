@@ -521,7 +521,7 @@ impl Scene {
             .collect();
         let white = gpu.create_texture(1, 1, &[255, 255, 255, 255]);
         let texture = regolith_texture(albedo, twin.world().seed);
-        // The texture's mean albedo: the terrain multiplies two samples of it and divides by it.
+        // The texture's mean albedo: rocks' tint is relative to it.
         let mean = texture.chunks_exact(4).map(|p| f64::from(p[0])).sum::<f64>()
             / (texture.len() / 4) as f64
             / 255.0;
@@ -543,10 +543,7 @@ impl Scene {
                 let a = (f64::from(rock_albedo) / mean) as f32;
                 [a, a, a, kind::ROCK]
             },
-            terrain_tint: {
-                let a = (1.0 / mean) as f32;
-                [a, a, a, kind::TERRAIN]
-            },
+            terrain_tint: [1.0, 1.0, 1.0, kind::TERRAIN],
             sky,
         })
     }

@@ -99,7 +99,7 @@ fn shadow_coords(world: vec3<f32>) -> vec3<f32> {
     return vec3<f32>(s.x * 0.5 + 0.5, 0.5 - s.y * 0.5, s.z);
 }
 
-// The share of the sun a point at shadow-map coordinates p sees (2 x 2 comparison filter); 1
+// The share of the sun a point at shadow-map coordinates p sees (0 or 1: one texel compared); 1
 // outside the map or without one (the sampler clamps to the edge, which the pass leaves empty).
 fn sunlit(p: vec3<f32>) -> f32 {
     let s = textureSampleCompareLevel(shadow_map, shadow_smp, p.xy, p.z - globals.shadow.y);
@@ -640,8 +640,9 @@ impl Renderer {
             label: Some("shadow"),
             address_mode_u: wgpu::AddressMode::ClampToEdge,
             address_mode_v: wgpu::AddressMode::ClampToEdge,
-            mag_filter: wgpu::FilterMode::Linear,
-            min_filter: wgpu::FilterMode::Linear,
+            // One texel per lookup: a 2 x 2 filter costs a software rasterizer four.
+            mag_filter: wgpu::FilterMode::Nearest,
+            min_filter: wgpu::FilterMode::Nearest,
             compare: Some(wgpu::CompareFunction::LessEqual),
             ..Default::default()
         });

@@ -1,14 +1,17 @@
 //! `cargo bench -p twin`: simulation cost of the rover on the Mars-like yard.
 //!
 //! - `full_dynamics_step`: one physics step of the rover (chassis, rockers, wheels, pan-tilt, 6-DoF
-//!   arm, gripper) and the canister on the 257 x 257 heightfield with its rock field, while driving
-//!   and moving the arm. Target: at most 100 us (10,000 steps/s) on one core.
+//!   arm, gripper, self-collision between the arm and the body) and the canister on the Mars yard's
+//!   collision grid with its rock field, while driving and moving the arm, with the IMU, encoder
+//!   and joint-state sampling. Target: at most 100 us (10,000 steps/s) on one core.
 //! - `kinematic_step`: the same rover in locomotion-level kinematic mode. Target: 10x cheaper.
 //! - `tof_pair`: both ToF cameras (176 x 144), rendered, read back, noise and validity applied.
 //!   Target on 2 cores with software Vulkan: under 4 ms.
-//! - `stereo_pair_640x480`: the head stereo pair, rendered in one submission, read back, distortion
-//!   and noise applied. Target: under 16 ms. `loc_stereo_pair_640x480`: the same for the body's
-//!   localization pair (wider, looking down: more terrain near the camera).
+//! - `stereo_pair_640x480`: the head stereo pair as built (each camera its own intrinsics and
+//!   distortion), rendered in one submission after the sun's shadow pass, with the sky, read back,
+//!   lens (without a black border) and photometric model applied. `loc_stereo_pair_640x480`: the
+//!   same for the body's localization pair (wider, looking down: more terrain near the camera).
+//!   Compare with an older renderer in one run (machines here differ by up to 2x between runs).
 //!
 //! The sensor benches stand the rover on the Mars-like yard with its pan-tilt looking at the ground
 //! ahead (full terrain, rocks, the arm and the canister in view) and print the adapter in use.

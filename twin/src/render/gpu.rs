@@ -860,19 +860,9 @@ impl Renderer {
             });
             pass.set_pipeline(&self.shadow_pipeline);
             pass.set_bind_group(0, &self.globals_bg, &[(k as u64 * OBJECT_STRIDE) as u32]);
-            let (mut slot, mut buffers) = (None, None);
+            let mut binder = Binder::default();
             for (d, &offset) in sp.draws.iter().zip(&slots[k]) {
-                if slot != Some(offset) {
-                    pass.set_bind_group(1, &self.objects_bg, &[offset]);
-                    slot = Some(offset);
-                }
-                if buffers != Some((&d.mesh.vertices, &d.mesh.indices)) {
-                    pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
-                    pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
-                    buffers = Some((&d.mesh.vertices, &d.mesh.indices));
-                }
-                let first = d.mesh.first_index;
-                pass.draw_indexed(first..first + d.mesh.index_count, 0, 0..1);
+                binder.draw(&mut pass, &self.objects_bg, (1, None), d, offset);
             }
         }
         for (k, (v, key)) in views.iter().zip(&keys).enumerate() {
@@ -922,29 +912,14 @@ impl Renderer {
                 }
                 pass.set_bind_group(0, &self.globals_bg, &[(k as u64 * OBJECT_STRIDE) as u32]);
                 pass.set_bind_group(3, &self.shadow.2, &[]);
-                // Bind only what changes from one draw to the next.
-                let (mut texture, mut slot, mut buffers) = (None, None, None);
+                let mut binder = Binder::default();
                 for (d, &offset) in v.draws.iter().zip(&slots[k]) {
                     let p = program(&d.object.tint);
                     if !key.2 && current != Some(p) {
                         pass.set_pipeline(&self.grey_pipelines[p]);
                         current = Some(p);
                     }
-                    if texture != Some(d.texture) {
-                        pass.set_bind_group(1, d.texture, &[]);
-                        texture = Some(d.texture);
-                    }
-                    if slot != Some(offset) {
-                        pass.set_bind_group(2, &self.objects_bg, &[offset]);
-                        slot = Some(offset);
-                    }
-                    if buffers != Some((&d.mesh.vertices, &d.mesh.indices)) {
-                        pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
-                        pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
-                        buffers = Some((&d.mesh.vertices, &d.mesh.indices));
-                    }
-                    let first = d.mesh.first_index;
-                    pass.draw_indexed(first..first + d.mesh.index_count, 0, 0..1);
+                    binder.draw(&mut pass, &self.objects_bg, (2, Some(1)), d, offset);
                 }
             } // pass dropped: encoder usable again
 
@@ -1004,6 +979,46 @@ impl Renderer {
             Some(e) => Err(e),
             None => Ok(frames),
         }
+    }
+}
+
+/// Issues draws, binding only what changes from one draw to the next (a software driver pays for
+/// every state change).
+#[derive(Default)]
+struct Binder<'a> {
+    texture: Option<&'a wgpu::BindGroup>,
+    slot: Option<u32>,
+    buffers: Option<(&'a wgpu::Buffer, &'a wgpu::Buffer)>,
+}
+
+impl<'a> Binder<'a> {
+    /// Draws `d` with its per-object uniforms at `offset` of `objects`, bound at group
+    /// `groups.0`, and its texture at group `groups.1` (none: the program samples no texture).
+    fn draw(
+        &mut self,
+        pass: &mut wgpu::RenderPass<'_>,
+        objects: &wgpu::BindGroup,
+        groups: (u32, Option<u32>),
+        d: &Draw<'a>,
+        offset: u32,
+    ) {
+        if let Some(g) = groups.1
+            && self.texture != Some(d.texture)
+        {
+            pass.set_bind_group(g, d.texture, &[]);
+            self.texture = Some(d.texture);
+        }
+        if self.slot != Some(offset) {
+            pass.set_bind_group(groups.0, objects, &[offset]);
+            self.slot = Some(offset);
+        }
+        if self.buffers != Some((&d.mesh.vertices, &d.mesh.indices)) {
+            pass.set_vertex_buffer(0, d.mesh.vertices.slice(..));
+            pass.set_index_buffer(d.mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+            self.buffers = Some((&d.mesh.vertices, &d.mesh.indices));
+        }
+        let first = d.mesh.first_index;
+        pass.draw_indexed(first..first + d.mesh.index_count, 0, 0..1);
     }
 }
 

@@ -44,7 +44,20 @@ pub fn check_file(path: &Path) -> Vec<String> {
     let origin = path.display().to_string();
     let located = match kind_of(&text) {
         FileKind::Sweep => crate::sweep::load(path).err().into_iter().collect(),
-        FileKind::World => worlds::World::load(path).err().into_iter().collect(),
+        FileKind::World => match worlds::World::load(path) {
+            Err(e) => vec![e],
+            // Its objects' marker ids against the object database's tables.
+            Ok(w) => match twin::render::scene::object_database() {
+                Err(e) => vec![e],
+                Ok(db) => twin::render::scene::check_marker_ids(&w, &db)
+                    .err()
+                    .map(|(i, why)| {
+                        Source::new(&origin, &text).error_at_key(&format!("objects.{i}.marker_ids"), why)
+                    })
+                    .into_iter()
+                    .collect(),
+            },
+        },
         FileKind::Scenario => match crate::scenario::load(path, &[]) {
             Err(e) => vec![e],
             // The world it names must load (its module tables were checked with the scenario).
@@ -78,5 +91,26 @@ fn check_unknown_module(origin: &str, text: &str) -> Vec<ConfigError> {
     match r {
         Err(e) => vec![e],
         Ok(c) => c.framework.validate(&src).err().into_iter().collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_world_whose_marker_ids_do_not_fit_the_object_database_is_located() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.toml");
+        let text = "name = \"bad\"\n[terrain]\nsize_m = [10.0, 10.0]\nresolution_m = 0.5\n\
+                    [[objects]]\nname = \"canister\"\nkind = \"canister\"\nposition_m = [1.0, 1.0]\nmarker_ids = [3]\n";
+        std::fs::write(&path, text).unwrap();
+        let errors = check_file(&path);
+        assert_eq!(errors.len(), 1, "{errors:?}");
+        assert!(errors[0].contains("bad.toml:9:") && errors[0].contains("5 slots"), "{}", errors[0]);
+        // The shipped worlds fit.
+        for w in ["mars_yard.toml", "flat_yard.toml"] {
+            assert!(check_file(&worlds::worlds_dir().join(w)).is_empty());
+        }
     }
 }

@@ -104,6 +104,12 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     if let Some(f) = s.world.friction {
         world.regolith.friction = f;
     }
+    // Marker ids that do not fit the object database's tables are bad input, found now.
+    if let Err((_, why)) =
+        twin::render::scene::check_marker_ids(&world, &twin::render::scene::object_database()?)
+    {
+        return Err(anyhow!("{}: {why}", wpath.display()));
+    }
     // Rocks keep out of wherever this scenario (or a sweep's dispersion) puts the rover and the
     // canister: room for the rover's footprint, and for it to stand beside the canister.
     world.keep_clear(s.rover.x, s.rover.y, START_CLEARANCE_M);

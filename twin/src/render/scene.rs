@@ -368,6 +368,37 @@ fn kind_name(k: ObjectKind) -> &'static str {
     }
 }
 
+/// Checks that each object of `world` that names its marker ids (`marker_ids`) names one per slot
+/// of its kind's table in the object database `db`. The index of the first object that does not,
+/// and why.
+pub fn check_marker_ids(
+    world: &worlds::World,
+    db: &framework::objects::ObjectDatabase,
+) -> Result<(), (usize, String)> {
+    for (i, o) in world.objects.iter().enumerate() {
+        let Some(entry) = db.object(kind_name(o.kind)) else { continue };
+        if !o.marker_ids.is_empty() && o.marker_ids.len() != entry.markers.len() {
+            return Err((
+                i,
+                format!(
+                    "world object '{}' gives {} marker ids; the {} table of the object database has {} slots ({})",
+                    o.name,
+                    o.marker_ids.len(),
+                    entry.kind,
+                    entry.markers.len(),
+                    entry.markers.iter().map(|m| m.slot.as_str()).collect::<Vec<_>>().join(", ")
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The object database shipped in `assets/objects.toml`.
+pub fn object_database() -> Result<framework::objects::ObjectDatabase, framework::config::ConfigError> {
+    framework::objects::ObjectDatabase::load(crate::assets_dir().join("objects.toml"))
+}
+
 /// The printed markers of the world's objects (their tables from the object database, their ids
 /// from the world file or the database), as quads with the index of their id in `ids`.
 fn marker_parts(
@@ -376,6 +407,7 @@ fn marker_parts(
     ids: &mut Vec<u32>,
 ) -> Result<Vec<(MeshData, Placement, TextureId)>, String> {
     let print = super::sensors::marker_print_ratio()?;
+    check_marker_ids(twin.world(), db).map_err(|(_, why)| why)?;
     let mut out = Vec::new();
     for o in &twin.world().objects {
         let Some(entry) = db.object(kind_name(o.kind)) else { continue };
@@ -384,15 +416,6 @@ fn marker_parts(
         } else {
             o.marker_ids.clone()
         };
-        if own.len() != entry.markers.len() {
-            return Err(format!(
-                "world object '{}' gives {} marker ids; the {} table of the object database has {} slots",
-                o.name,
-                own.len(),
-                entry.kind,
-                entry.markers.len()
-            ));
-        }
         let placed = Isometry3::from_parts(
             nalgebra::Translation3::new(o.position.x, o.position.y, o.position.z),
             UnitQuaternion::from_axis_angle(&Vector3::z_axis(), o.yaw),

@@ -485,9 +485,7 @@ impl SensorRenderer {
     pub fn new(twin: &Twin) -> Result<Self, RenderError> {
         let gpu = Renderer::new()?;
         tracing::info!(adapter = %gpu.adapter_info.name, backend = ?gpu.adapter_info.backend, "sensor renderer");
-        let db_path = crate::assets_dir().join("objects.toml");
-        let db = framework::objects::ObjectDatabase::load(&db_path)
-            .map_err(|e| RenderError::Gpu(e.to_string()))?;
+        let db = super::scene::object_database().map_err(|e| RenderError::Gpu(e.to_string()))?;
         let scene = Scene::new(&gpu, twin, &db).map_err(RenderError::Gpu)?;
         Ok(SensorRenderer {
             gpu,

@@ -38,11 +38,6 @@ impl<T> SampleBuffer<T> {
         SampleBuffer { period, next: Time::ZERO + period, seq: 0, capacity, samples: VecDeque::new() }
     }
 
-    /// Sample period.
-    pub fn period(&self) -> Duration {
-        self.period
-    }
-
     /// True when a sample is due at `now`.
     pub fn due(&self, now: Time) -> bool {
         now >= self.next

@@ -138,11 +138,6 @@ impl DryRunStereo {
             pending: VecDeque::new(),
         }
     }
-
-    /// The exposure the next frame will use.
-    pub fn exposure(&self) -> Exposure {
-        self.exposure
-    }
 }
 
 impl StereoCamera for DryRunStereo {

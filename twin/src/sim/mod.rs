@@ -561,11 +561,6 @@ impl Twin {
         self.self_collisions
     }
 
-    /// The arm-side and body-side parts in contact now.
-    pub fn self_contacts(&self) -> Vec<(String, String)> {
-        self.self_touching.iter().cloned().collect()
-    }
-
     /// True when nothing blocks the segment from `a` to `b` (world frame): not the terrain, a rock,
     /// an object or the rover (its links where they are now); the canister does not count (it is
     /// what one looks at). Ground truth, for the scripted operator and the scorer.

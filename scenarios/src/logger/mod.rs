@@ -16,7 +16,8 @@
 //! Entity tree of the `.rrd` (timeline `sim_time`): `world/terrain`, `world/rocks`,
 //! `world/truth/<link>`, `world/truth/canister`, `world/truth/track`, `world/estimate/base_link`,
 //! `world/estimate/uncertainty`, `world/estimate/track`, `plots/...`, `modules/<name>`, `logs/...`,
-//! `score`. MCAP topics and schemas are listed in `docs/logging.md`.
+//! `score`. MCAP topics and schemas are listed in `docs/logging.md`. The MCAP writer and its schemas
+//! are in `mcap_writer`, the Rerun layout and helpers in `rerun_view`.
 
 use crate::scenario::{LoggingSettings, Scenario};
 use crate::score::{LogFiles, Score};
@@ -26,69 +27,20 @@ use framework::camera::{Image, TofFrame};
 use framework::data::{JointStates, LocomotionState, PoseEstimate, StereoImages, TargetSelection};
 use framework::system::Core;
 use framework::{Duration, Time};
-use mcap::records::MessageHeader;
 use nalgebra::Isometry3;
-use rerun::{Quaternion, Transform3D};
 use std::collections::BTreeMap;
-use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use twin::Twin;
+
+mod mcap_writer;
+mod rerun_view;
+
+use mcap_writer::{Mcap, own_schema, pose_json, stamp_json};
+use rerun_view::{blueprint, extend_track, rr_transform};
 
 /// Simulated-time timeline of the recording.
 pub const TIMELINE: &str = "sim_time";
 
-// ---------------------------------------------------------------------------------------------
-// Foxglove JSON schemas (github.com/foxglove/schemas, jsonschema) and our own.
-
-const TIME: &str = r#"{"type":"object","title":"time","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,"maximum":999999999}}}"#;
-const VEC3: &str = r#"{"title":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}}"#;
-const VEC2: &str = r#"{"title":"foxglove.Vector2","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"}}}"#;
-const QUAT: &str = r#"{"title":"foxglove.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}"#;
-const PEF: &str = r#"{"title":"foxglove.PackedElementField","type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer","minimum":0},"type":{"title":"foxglove.NumericType","oneOf":[{"title":"UNKNOWN","const":0},{"title":"UINT8","const":1},{"title":"INT8","const":2},{"title":"UINT16","const":3},{"title":"INT16","const":4},{"title":"UINT32","const":5},{"title":"INT32","const":6},{"title":"FLOAT32","const":7},{"title":"FLOAT64","const":8}]}}}"#;
-
-fn pose_schema() -> String {
-    format!(
-        r#"{{"title":"foxglove.Pose","type":"object","properties":{{"position":{VEC3},"orientation":{QUAT}}}}}"#
-    )
-}
-
-fn foxglove_schema(name: &str) -> String {
-    let body = match name {
-        "foxglove.FrameTransform" => format!(
-            r#""timestamp":{TIME},"parent_frame_id":{{"type":"string"}},"child_frame_id":{{"type":"string"}},"translation":{VEC3},"rotation":{QUAT}"#
-        ),
-        "foxglove.PoseInFrame" => {
-            format!(r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{}"#, pose_schema())
-        }
-        "foxglove.Grid" => format!(
-            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"column_count":{{"type":"integer","minimum":0}},"cell_size":{VEC2},"row_stride":{{"type":"integer","minimum":0}},"cell_stride":{{"type":"integer","minimum":0}},"fields":{{"type":"array","items":{PEF}}},"data":{{"type":"string","contentEncoding":"base64"}}"#,
-            pose_schema()
-        ),
-        "foxglove.Log" => format!(
-            r#""timestamp":{TIME},"level":{{"title":"foxglove.LogLevel","oneOf":[{{"title":"UNKNOWN","const":0}},{{"title":"DEBUG","const":1}},{{"title":"INFO","const":2}},{{"title":"WARNING","const":3}},{{"title":"ERROR","const":4}},{{"title":"FATAL","const":5}}]}},"message":{{"type":"string"}},"name":{{"type":"string"}},"file":{{"type":"string"}},"line":{{"type":"integer","minimum":0}}"#
-        ),
-        "foxglove.RawImage" => format!(
-            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"width":{{"type":"integer","minimum":0}},"height":{{"type":"integer","minimum":0}},"encoding":{{"type":"string"}},"step":{{"type":"integer","minimum":0}},"data":{{"type":"string","contentEncoding":"base64"}}"#
-        ),
-        "foxglove.PointCloud" => format!(
-            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"point_stride":{{"type":"integer","minimum":0}},"fields":{{"type":"array","items":{PEF}}},"data":{{"type":"string","contentEncoding":"base64"}}"#,
-            pose_schema()
-        ),
-        _ => unreachable!("known schema"),
-    };
-    format!(
-        r#"{{"title":"{name}","$comment":"after https://github.com/foxglove/schemas","type":"object","properties":{{{body}}}}}"#
-    )
-}
-
-/// JSON schema of a message type of ours (documented in `docs/logging.md`).
-fn own_schema(name: &str, description: &str, properties: &str) -> String {
-    format!(
-        r#"{{"title":"{name}","description":"{description}","type":"object","properties":{{{properties}}}}}"#
-    )
-}
-
-/// Downsamples an image by `k` (each output pixel combines a k x k block with `merge`).
 fn downsample<T: Copy>(img: &Image<T>, k: u32, merge: impl Fn(&[T]) -> T) -> (u32, u32, Vec<T>) {
     if k <= 1 {
         return (img.width, img.height, img.data.clone());
@@ -108,133 +60,6 @@ fn downsample<T: Copy>(img: &Image<T>, k: u32, merge: impl Fn(&[T]) -> T) -> (u3
         }
     }
     (w, h, out)
-}
-
-fn stamp_json(t: Time) -> serde_json::Value {
-    let ns = t.as_nanos().max(0) as u64;
-    serde_json::json!({ "sec": ns / 1_000_000_000, "nsec": ns % 1_000_000_000 })
-}
-
-fn pose_json(p: &Isometry3<f64>) -> serde_json::Value {
-    let q = p.rotation.quaternion();
-    serde_json::json!({
-        "position": { "x": p.translation.x, "y": p.translation.y, "z": p.translation.z },
-        "orientation": { "x": q.i, "y": q.j, "z": q.k, "w": q.w }
-    })
-}
-
-// ---------------------------------------------------------------------------------------------
-
-struct Mcap {
-    writer: mcap::Writer<BufWriter<std::fs::File>>,
-    channels: BTreeMap<String, u16>,
-    schemas: BTreeMap<String, u16>,
-    seq: u32,
-    last_log_time: u64,
-}
-
-impl Mcap {
-    fn create(path: &Path) -> Result<Self> {
-        let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-        let writer = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_threads(0)
-            .profile("")
-            .create(BufWriter::new(file))?;
-        Ok(Mcap { writer, channels: BTreeMap::new(), schemas: BTreeMap::new(), seq: 0, last_log_time: 0 })
-    }
-
-    fn channel(&mut self, topic: &str, schema_name: &str, schema: impl FnOnce() -> String) -> Result<u16> {
-        if let Some(&c) = self.channels.get(topic) {
-            return Ok(c);
-        }
-        let sid = match self.schemas.get(schema_name) {
-            Some(&s) => s,
-            None => {
-                let s = self.writer.add_schema(schema_name, "jsonschema", schema().as_bytes())?;
-                self.schemas.insert(schema_name.to_string(), s);
-                s
-            }
-        };
-        let c = self.writer.add_channel(sid, topic, "json", &BTreeMap::new())?;
-        self.channels.insert(topic.to_string(), c);
-        Ok(c)
-    }
-
-    fn write(
-        &mut self,
-        topic: &str,
-        schema_name: &str,
-        schema: impl FnOnce() -> String,
-        t: Time,
-        msg: &serde_json::Value,
-    ) -> Result<()> {
-        let ch = self.channel(topic, schema_name, schema)?;
-        // Log times never go backwards (events may carry earlier stamps; theirs is in the message).
-        let log_time = (t.as_nanos().max(0) as u64).max(self.last_log_time);
-        self.last_log_time = log_time;
-        self.seq += 1;
-        self.writer.write_to_known_channel(
-            &MessageHeader { channel_id: ch, sequence: self.seq, log_time, publish_time: log_time },
-            &serde_json::to_vec(msg)?,
-        )?;
-        Ok(())
-    }
-
-    fn foxglove(&mut self, topic: &str, name: &str, t: Time, msg: &serde_json::Value) -> Result<()> {
-        self.write(topic, name, || foxglove_schema(name), t, msg)
-    }
-
-    fn finish(mut self) -> Result<()> {
-        self.writer.finish()?;
-        Ok(())
-    }
-}
-
-// ---------------------------------------------------------------------------------------------
-
-fn rr_transform(p: &Isometry3<f64>) -> Transform3D {
-    let q = p.rotation.quaternion();
-    Transform3D::from_translation_rotation(
-        [p.translation.x as f32, p.translation.y as f32, p.translation.z as f32],
-        Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
-    )
-}
-
-fn blueprint() -> rerun::blueprint::Blueprint {
-    use rerun::blueprint::{
-        Blueprint, ContainerLike, Horizontal, Spatial2DView, Spatial3DView, Tabs, TextLogView, TimePanel,
-        TimeSeriesView, Vertical,
-    };
-    Blueprint::new(
-        Horizontal::new(vec![
-            ContainerLike::from(Spatial3DView::new("World: truth and estimate").with_origin("/world")),
-            ContainerLike::from(
-                Vertical::new(vec![
-                    ContainerLike::from(Tabs::new(vec![
-                        ContainerLike::from(
-                            TimeSeriesView::new("Estimate errors").with_origin("/plots/errors"),
-                        ),
-                        ContainerLike::from(TimeSeriesView::new("Motion").with_origin("/plots/motion")),
-                        ContainerLike::from(TimeSeriesView::new("Joints").with_origin("/plots/joints")),
-                        ContainerLike::from(TimeSeriesView::new("Scheduler").with_origin("/plots/scheduler")),
-                        ContainerLike::from(
-                            Spatial2DView::new("Head camera").with_origin("/sensors/head_stereo/left"),
-                        ),
-                        ContainerLike::from(
-                            Spatial2DView::new("ToF depth").with_origin("/sensors/tof_left/depth"),
-                        ),
-                    ])),
-                    ContainerLike::from(
-                        TextLogView::new("Framework events and messages").with_origin("/logs"),
-                    ),
-                ])
-                .with_row_shares(vec![1.0, 1.0]),
-            ),
-        ])
-        .with_column_shares(vec![2.0, 1.0]),
-    )
-    .with_time_panel(TimePanel::new().with_timeline(TIMELINE))
 }
 
 /// What the run loop hands the logging thread: owned snapshots, cheap to take.
@@ -1128,23 +953,4 @@ impl Writer {
         }
         Ok(files)
     }
-}
-
-/// Adds a point (5 cm above `p`) to a track and logs the whole track (a line strip is logged
-/// whole) at its first points and then at every fifth only.
-fn extend_track(
-    rec: &rerun::RecordingStream,
-    path: &str,
-    track: &mut Vec<[f32; 3]>,
-    p: [f64; 3],
-    color: [u8; 3],
-) -> Result<()> {
-    track.push([p[0] as f32, p[1] as f32, p[2] as f32 + 0.05]);
-    if track.len() % 5 == 1 || track.len() < 5 {
-        rec.log(
-            path,
-            &rerun::LineStrips3D::new([track.clone()]).with_colors([color]).with_radii([0.02_f32]),
-        )?;
-    }
-    Ok(())
 }

@@ -1,0 +1,150 @@
+//! The MCAP side of the run logger: Foxglove's JSON schemas (github.com/foxglove/schemas) and our
+//! own, their JSON encodings of times and poses, and the writer that registers each topic's channel
+//! and schema on first use and keeps log times monotonic.
+
+use anyhow::{Context, Result};
+use framework::Time;
+use mcap::records::MessageHeader;
+use nalgebra::Isometry3;
+use std::collections::BTreeMap;
+use std::io::BufWriter;
+use std::path::Path;
+
+const TIME: &str = r#"{"type":"object","title":"time","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,"maximum":999999999}}}"#;
+const VEC3: &str = r#"{"title":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}}"#;
+const VEC2: &str = r#"{"title":"foxglove.Vector2","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"}}}"#;
+const QUAT: &str = r#"{"title":"foxglove.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}"#;
+const PEF: &str = r#"{"title":"foxglove.PackedElementField","type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer","minimum":0},"type":{"title":"foxglove.NumericType","oneOf":[{"title":"UNKNOWN","const":0},{"title":"UINT8","const":1},{"title":"INT8","const":2},{"title":"UINT16","const":3},{"title":"INT16","const":4},{"title":"UINT32","const":5},{"title":"INT32","const":6},{"title":"FLOAT32","const":7},{"title":"FLOAT64","const":8}]}}}"#;
+
+pub(super) fn pose_schema() -> String {
+    format!(
+        r#"{{"title":"foxglove.Pose","type":"object","properties":{{"position":{VEC3},"orientation":{QUAT}}}}}"#
+    )
+}
+
+pub(super) fn foxglove_schema(name: &str) -> String {
+    let body = match name {
+        "foxglove.FrameTransform" => format!(
+            r#""timestamp":{TIME},"parent_frame_id":{{"type":"string"}},"child_frame_id":{{"type":"string"}},"translation":{VEC3},"rotation":{QUAT}"#
+        ),
+        "foxglove.PoseInFrame" => {
+            format!(r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{}"#, pose_schema())
+        }
+        "foxglove.Grid" => format!(
+            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"column_count":{{"type":"integer","minimum":0}},"cell_size":{VEC2},"row_stride":{{"type":"integer","minimum":0}},"cell_stride":{{"type":"integer","minimum":0}},"fields":{{"type":"array","items":{PEF}}},"data":{{"type":"string","contentEncoding":"base64"}}"#,
+            pose_schema()
+        ),
+        "foxglove.Log" => format!(
+            r#""timestamp":{TIME},"level":{{"title":"foxglove.LogLevel","oneOf":[{{"title":"UNKNOWN","const":0}},{{"title":"DEBUG","const":1}},{{"title":"INFO","const":2}},{{"title":"WARNING","const":3}},{{"title":"ERROR","const":4}},{{"title":"FATAL","const":5}}]}},"message":{{"type":"string"}},"name":{{"type":"string"}},"file":{{"type":"string"}},"line":{{"type":"integer","minimum":0}}"#
+        ),
+        "foxglove.RawImage" => format!(
+            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"width":{{"type":"integer","minimum":0}},"height":{{"type":"integer","minimum":0}},"encoding":{{"type":"string"}},"step":{{"type":"integer","minimum":0}},"data":{{"type":"string","contentEncoding":"base64"}}"#
+        ),
+        "foxglove.PointCloud" => format!(
+            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"point_stride":{{"type":"integer","minimum":0}},"fields":{{"type":"array","items":{PEF}}},"data":{{"type":"string","contentEncoding":"base64"}}"#,
+            pose_schema()
+        ),
+        _ => unreachable!("known schema"),
+    };
+    format!(
+        r#"{{"title":"{name}","$comment":"after https://github.com/foxglove/schemas","type":"object","properties":{{{body}}}}}"#
+    )
+}
+
+/// JSON schema of a message type of ours (documented in `docs/logging.md`).
+pub(super) fn own_schema(name: &str, description: &str, properties: &str) -> String {
+    format!(
+        r#"{{"title":"{name}","description":"{description}","type":"object","properties":{{{properties}}}}}"#
+    )
+}
+
+/// Downsamples an image by `k` (each output pixel combines a k x k block with `merge`).
+pub(super) fn stamp_json(t: Time) -> serde_json::Value {
+    let ns = t.as_nanos().max(0) as u64;
+    serde_json::json!({ "sec": ns / 1_000_000_000, "nsec": ns % 1_000_000_000 })
+}
+
+pub(super) fn pose_json(p: &Isometry3<f64>) -> serde_json::Value {
+    let q = p.rotation.quaternion();
+    serde_json::json!({
+        "position": { "x": p.translation.x, "y": p.translation.y, "z": p.translation.z },
+        "orientation": { "x": q.i, "y": q.j, "z": q.k, "w": q.w }
+    })
+}
+
+pub(super) struct Mcap {
+    writer: mcap::Writer<BufWriter<std::fs::File>>,
+    channels: BTreeMap<String, u16>,
+    schemas: BTreeMap<String, u16>,
+    seq: u32,
+    last_log_time: u64,
+}
+
+impl Mcap {
+    pub(super) fn create(path: &Path) -> Result<Self> {
+        let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+        let writer = mcap::WriteOptions::new()
+            .compression(Some(mcap::Compression::Zstd))
+            .compression_threads(0)
+            .profile("")
+            .create(BufWriter::new(file))?;
+        Ok(Mcap { writer, channels: BTreeMap::new(), schemas: BTreeMap::new(), seq: 0, last_log_time: 0 })
+    }
+
+    pub(super) fn channel(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: impl FnOnce() -> String,
+    ) -> Result<u16> {
+        if let Some(&c) = self.channels.get(topic) {
+            return Ok(c);
+        }
+        let sid = match self.schemas.get(schema_name) {
+            Some(&s) => s,
+            None => {
+                let s = self.writer.add_schema(schema_name, "jsonschema", schema().as_bytes())?;
+                self.schemas.insert(schema_name.to_string(), s);
+                s
+            }
+        };
+        let c = self.writer.add_channel(sid, topic, "json", &BTreeMap::new())?;
+        self.channels.insert(topic.to_string(), c);
+        Ok(c)
+    }
+
+    pub(super) fn write(
+        &mut self,
+        topic: &str,
+        schema_name: &str,
+        schema: impl FnOnce() -> String,
+        t: Time,
+        msg: &serde_json::Value,
+    ) -> Result<()> {
+        let ch = self.channel(topic, schema_name, schema)?;
+        // Log times never go backwards (events may carry earlier stamps; theirs is in the message).
+        let log_time = (t.as_nanos().max(0) as u64).max(self.last_log_time);
+        self.last_log_time = log_time;
+        self.seq += 1;
+        self.writer.write_to_known_channel(
+            &MessageHeader { channel_id: ch, sequence: self.seq, log_time, publish_time: log_time },
+            &serde_json::to_vec(msg)?,
+        )?;
+        Ok(())
+    }
+
+    pub(super) fn foxglove(
+        &mut self,
+        topic: &str,
+        name: &str,
+        t: Time,
+        msg: &serde_json::Value,
+    ) -> Result<()> {
+        self.write(topic, name, || foxglove_schema(name), t, msg)
+    }
+
+    pub(super) fn finish(mut self) -> Result<()> {
+        self.writer.finish()?;
+        Ok(())
+    }
+}

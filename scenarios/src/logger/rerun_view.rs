@@ -1,0 +1,70 @@
+//! The Rerun side of the run logger: poses as transforms, the recording's default layout
+//! (blueprint), and tracks that grow as the rover drives.
+
+use super::TIMELINE;
+use anyhow::Result;
+use nalgebra::Isometry3;
+use rerun::{Quaternion, Transform3D};
+
+pub(super) fn rr_transform(p: &Isometry3<f64>) -> Transform3D {
+    let q = p.rotation.quaternion();
+    Transform3D::from_translation_rotation(
+        [p.translation.x as f32, p.translation.y as f32, p.translation.z as f32],
+        Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
+    )
+}
+
+pub(super) fn blueprint() -> rerun::blueprint::Blueprint {
+    use rerun::blueprint::{
+        Blueprint, ContainerLike, Horizontal, Spatial2DView, Spatial3DView, Tabs, TextLogView, TimePanel,
+        TimeSeriesView, Vertical,
+    };
+    Blueprint::new(
+        Horizontal::new(vec![
+            ContainerLike::from(Spatial3DView::new("World: truth and estimate").with_origin("/world")),
+            ContainerLike::from(
+                Vertical::new(vec![
+                    ContainerLike::from(Tabs::new(vec![
+                        ContainerLike::from(
+                            TimeSeriesView::new("Estimate errors").with_origin("/plots/errors"),
+                        ),
+                        ContainerLike::from(TimeSeriesView::new("Motion").with_origin("/plots/motion")),
+                        ContainerLike::from(TimeSeriesView::new("Joints").with_origin("/plots/joints")),
+                        ContainerLike::from(TimeSeriesView::new("Scheduler").with_origin("/plots/scheduler")),
+                        ContainerLike::from(
+                            Spatial2DView::new("Head camera").with_origin("/sensors/head_stereo/left"),
+                        ),
+                        ContainerLike::from(
+                            Spatial2DView::new("ToF depth").with_origin("/sensors/tof_left/depth"),
+                        ),
+                    ])),
+                    ContainerLike::from(
+                        TextLogView::new("Framework events and messages").with_origin("/logs"),
+                    ),
+                ])
+                .with_row_shares(vec![1.0, 1.0]),
+            ),
+        ])
+        .with_column_shares(vec![2.0, 1.0]),
+    )
+    .with_time_panel(TimePanel::new().with_timeline(TIMELINE))
+}
+
+/// Adds a point (5 cm above `p`) to a track and logs the whole track (a line strip is logged
+/// whole) at its first points and then at every fifth only.
+pub(super) fn extend_track(
+    rec: &rerun::RecordingStream,
+    path: &str,
+    track: &mut Vec<[f32; 3]>,
+    p: [f64; 3],
+    color: [u8; 3],
+) -> Result<()> {
+    track.push([p[0] as f32, p[1] as f32, p[2] as f32 + 0.05]);
+    if track.len() % 5 == 1 || track.len() < 5 {
+        rec.log(
+            path,
+            &rerun::LineStrips3D::new([track.clone()]).with_colors([color]).with_radii([0.02_f32]),
+        )?;
+    }
+    Ok(())
+}

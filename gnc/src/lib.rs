@@ -13,4 +13,5 @@
 pub mod cameras;
 pub mod joints;
 pub mod locomotion;
+pub mod navigation;
 pub mod odometry;

@@ -97,3 +97,6 @@ pub struct TargetSelection {
     /// Who selected it (`operator`: a person at the ground station, from what they see).
     pub source: String,
 }
+
+mod maps;
+pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};

@@ -1,0 +1,292 @@
+//! The global elevation map (seed 000, 8.2): local DEMs fused into one map of the `map` frame with
+//! the pose estimate's uncertainty, cell by cell by inverse-variance weighting; and the blind area
+//! around and under the rover, which its cameras cannot see, filled by interpolating from the edges
+//! of what they saw into a smooth surface.
+
+use framework::data::{ElevationMap, GridGeometry};
+use serde::{Deserialize, Serialize};
+
+/// How local maps are fused and the blind area filled.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionParams {
+    /// Smallest variance a fused cell keeps, m^2: the map stays able to follow new evidence (drift
+    /// of the pose estimate, a moved object) instead of freezing.
+    pub min_variance_m2: f64,
+    /// A new measurement this many standard deviations from the map replaces the cell instead of
+    /// averaging into it (the newest evidence wins).
+    pub replace_sigmas: f64,
+    /// Radius around the rover's centre where unknown cells are filled by interpolation, m.
+    pub blind_radius_m: f64,
+    /// Standard deviation a filled cell gets per metre of distance to the nearest measured cell, m/m.
+    pub fill_sigma_per_m: f64,
+    /// Relaxation sweeps of the interpolation (successive over-relaxation).
+    pub fill_iterations: usize,
+}
+
+impl Default for FusionParams {
+    fn default() -> Self {
+        FusionParams {
+            min_variance_m2: 1e-4,
+            replace_sigmas: 4.0,
+            blind_radius_m: 1.5,
+            fill_sigma_per_m: 0.05,
+            fill_iterations: 150,
+        }
+    }
+}
+
+/// The pose uncertainty a local map was placed with: position variances, m^2.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PlacementVariance {
+    /// Horizontal (per axis), m^2: turns into height error where the ground slopes.
+    pub xy: f64,
+    /// Vertical, m^2.
+    pub z: f64,
+}
+
+/// Fuses `local` into `global` (same frame and resolution, aligned cells); returns the number of
+/// cells updated. Cells of `global` without measurements (unknown or filled) take the local value.
+pub fn fuse(global: &mut ElevationMap, local: &ElevationMap, placement: PlacementVariance, p: &FusionParams) -> usize {
+    let Some((di, dj)) = local.geometry.offset_to(&global.geometry) else { return 0 };
+    let (lw, lh) = (local.geometry.width, local.geometry.height);
+    let (gw, gh) = (global.geometry.width as i64, global.geometry.height as i64);
+    let r = local.geometry.resolution_m;
+    let mut updated = 0;
+    for j in 0..lh {
+        for i in 0..lw {
+            let k = local.geometry.index(i, j);
+            if local.count[k] == 0 || !local.height[k].is_finite() {
+                continue;
+            }
+            let (gi, gj) = (i as i64 + di, j as i64 + dj);
+            if gi < 0 || gj < 0 || gi >= gw || gj >= gh {
+                continue;
+            }
+            // The local slope turns the horizontal placement error into height error.
+            let slope2 = local_slope2(local, i, j, r);
+            let v_new = f64::from(local.variance[k]) + placement.z + placement.xy * slope2;
+            let h_new = f64::from(local.height[k]);
+            let g = global.geometry.index(gi as usize, gj as usize);
+            let (h_old, v_old) = (f64::from(global.height[g]), f64::from(global.variance[g]));
+            let replace = global.count[g] == 0
+                || !h_old.is_finite()
+                || (h_new - h_old).abs() > p.replace_sigmas * (v_new + v_old).sqrt();
+            if replace {
+                global.height[g] = h_new as f32;
+                global.variance[g] = v_new.max(p.min_variance_m2) as f32;
+                global.count[g] = local.count[k];
+                global.min[g] = local.min[k];
+                global.max[g] = local.max[k];
+            } else {
+                let v = 1.0 / (1.0 / v_old + 1.0 / v_new);
+                global.height[g] = (v * (h_old / v_old + h_new / v_new)) as f32;
+                global.variance[g] = v.max(p.min_variance_m2) as f32;
+                global.count[g] = global.count[g].saturating_add(local.count[k]);
+                // Steps seen by the better of the two views.
+                if v_new <= 2.0 * v_old {
+                    global.min[g] = local.min[k];
+                    global.max[g] = local.max[k];
+                }
+            }
+            updated += 1;
+        }
+    }
+    updated
+}
+
+/// The squared gradient of the local map at (i, j) from its known neighbours (0 when none).
+fn local_slope2(m: &ElevationMap, i: usize, j: usize, r: f64) -> f64 {
+    let g = &m.geometry;
+    let at = |i: usize, j: usize| {
+        let h = m.height[g.index(i, j)];
+        h.is_finite().then_some(f64::from(h))
+    };
+    let Some(h) = at(i, j) else { return 0.0 };
+    let d = |a: Option<f64>, b: Option<f64>| match (a, b) {
+        (Some(a), Some(b)) => (b - a) / (2.0 * r),
+        (Some(a), None) => (h - a) / r,
+        (None, Some(b)) => (b - h) / r,
+        (None, None) => 0.0,
+    };
+    let gx = d((i > 0).then(|| at(i - 1, j)).flatten(), (i + 1 < g.width).then(|| at(i + 1, j)).flatten());
+    let gy = d((j > 0).then(|| at(i, j - 1)).flatten(), (j + 1 < g.height).then(|| at(i, j + 1)).flatten());
+    gx * gx + gy * gy
+}
+
+/// Fills the unknown cells of `map` within `p.blind_radius_m` of `centre` by harmonic interpolation
+/// from the known cells around them (a membrane stretched over the edges of what was seen: planes
+/// are reproduced exactly). Cells farther than the radius, and holes with no known edge, stay
+/// unknown. Returns the number of cells filled.
+pub fn fill_blind_area(map: &mut ElevationMap, centre: [f64; 2], p: &FusionParams) -> usize {
+    let g: GridGeometry = map.geometry.clone();
+    let r = g.resolution_m;
+    let reach = (p.blind_radius_m / r).ceil() as i64 + 1;
+    let Some((ci, cj)) = g.cell(centre[0], centre[1]) else { return 0 };
+    // The window around the rover, one cell wider than the radius (its edge cells are boundary).
+    let i0 = (ci as i64 - reach).max(0) as usize;
+    let j0 = (cj as i64 - reach).max(0) as usize;
+    let i1 = (ci as i64 + reach).min(g.width as i64 - 1) as usize;
+    let j1 = (cj as i64 + reach).min(g.height as i64 - 1) as usize;
+    let (w, h) = (i1 - i0 + 1, j1 - j0 + 1);
+    let radius2 = p.blind_radius_m * p.blind_radius_m;
+    // Unknowns of the window and the known cells they may lean on.
+    let mut value = vec![f64::NAN; w * h];
+    let mut free = vec![false; w * h];
+    let mut known = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            let k = g.index(i0 + i, j0 + j);
+            let hk = map.height[k];
+            if hk.is_finite() {
+                value[j * w + i] = f64::from(hk);
+                known.push((i, j, f64::from(hk)));
+            } else {
+                let c = g.centre(i0 + i, j0 + j);
+                let d2 = (c[0] - centre[0]).powi(2) + (c[1] - centre[1]).powi(2);
+                free[j * w + i] = d2 <= radius2;
+            }
+        }
+    }
+    if known.is_empty() {
+        return 0;
+    }
+    // Start from inverse-distance weighting of the known cells (close to the answer: few sweeps).
+    let mut unknowns = Vec::new();
+    for j in 0..h {
+        for i in 0..w {
+            if !free[j * w + i] {
+                continue;
+            }
+            let (mut sw, mut swh, mut nearest) = (0.0, 0.0, f64::MAX);
+            for &(ki, kj, kh) in &known {
+                let d2 = (ki as f64 - i as f64).powi(2) + (kj as f64 - j as f64).powi(2);
+                nearest = nearest.min(d2);
+                let wgt = 1.0 / (d2 * d2);
+                sw += wgt;
+                swh += wgt * kh;
+            }
+            value[j * w + i] = swh / sw;
+            unknowns.push((i, j, nearest.sqrt() * r));
+        }
+    }
+    // Successive over-relaxation of Laplace's equation on the unknowns; a neighbour outside the
+    // window or unknown and outside the radius does not pull (natural boundary).
+    let omega = 1.8;
+    for _ in 0..p.fill_iterations {
+        for &(i, j, _) in &unknowns {
+            let (mut s, mut n) = (0.0, 0.0);
+            let mut pull = |ii: i64, jj: i64| {
+                if ii < 0 || jj < 0 || ii >= w as i64 || jj >= h as i64 {
+                    return;
+                }
+                let v = value[jj as usize * w + ii as usize];
+                if v.is_finite() {
+                    s += v;
+                    n += 1.0;
+                }
+            };
+            let (ii, jj) = (i as i64, j as i64);
+            pull(ii - 1, jj);
+            pull(ii + 1, jj);
+            pull(ii, jj - 1);
+            pull(ii, jj + 1);
+            if n > 0.0 {
+                let v = &mut value[j * w + i];
+                *v += omega * (s / n - *v);
+            }
+        }
+    }
+    // The edge's variance plus the distance term.
+    let edge_var = known.iter().map(|&(i, j, _)| f64::from(map.variance[g.index(i0 + i, j0 + j)])).sum::<f64>()
+        / known.len() as f64;
+    for &(i, j, dist) in &unknowns {
+        let k = g.index(i0 + i, j0 + j);
+        map.height[k] = value[j * w + i] as f32;
+        map.variance[k] = (edge_var + (p.fill_sigma_per_m * dist).powi(2)) as f32;
+        map.count[k] = 0;
+    }
+    unknowns.len()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plane(g: &GridGeometry, f: impl Fn(f64, f64) -> f64) -> ElevationMap {
+        let mut m = ElevationMap::unknown(g.clone());
+        for j in 0..g.height {
+            for i in 0..g.width {
+                let c = g.centre(i, j);
+                let k = g.index(i, j);
+                m.height[k] = f(c[0], c[1]) as f32;
+                m.variance[k] = 1e-4;
+                m.count[k] = 5;
+                m.min[k] = m.height[k];
+                m.max[k] = m.height[k];
+            }
+        }
+        m
+    }
+
+    #[test]
+    fn the_blind_area_under_the_rover_is_filled_with_the_plane_around_it() {
+        let g = GridGeometry::centred("map", [2.0, 1.0], 0.1, 80, 80);
+        let f = |x: f64, y: f64| 0.2 * x - 0.15 * y + 0.3;
+        let mut m = plane(&g, f);
+        // The cameras never saw a 2.6 m disc around the rover.
+        let centre = [2.0, 1.0];
+        let mut hidden = 0;
+        for j in 0..80 {
+            for i in 0..80 {
+                let c = g.centre(i, j);
+                if (c[0] - centre[0]).hypot(c[1] - centre[1]) < 1.3 {
+                    let k = g.index(i, j);
+                    m.height[k] = f32::NAN;
+                    m.count[k] = 0;
+                    hidden += 1;
+                }
+            }
+        }
+        let p = FusionParams { blind_radius_m: 1.5, ..Default::default() };
+        assert_eq!(fill_blind_area(&mut m, centre, &p), hidden);
+        let mut worst: f64 = 0.0;
+        for j in 0..80 {
+            for i in 0..80 {
+                let c = g.centre(i, j);
+                let k = g.index(i, j);
+                assert!(m.height[k].is_finite());
+                worst = worst.max((f64::from(m.height[k]) - f(c[0], c[1])).abs());
+            }
+        }
+        assert!(worst < 0.02, "worst fill error {worst} m");
+    }
+
+    #[test]
+    fn fusion_weights_by_variance_and_replaces_on_disagreement() {
+        let g = GridGeometry::centred("map", [0.0, 0.0], 0.1, 20, 20);
+        let mut global = ElevationMap::unknown(g.clone());
+        let local = GridGeometry::centred("map", [0.5, 0.0], 0.1, 10, 10);
+        let a = plane(&local, |_, _| 1.0);
+        let p = FusionParams { min_variance_m2: 1e-6, ..Default::default() };
+        assert_eq!(fuse(&mut global, &a, PlacementVariance::default(), &p), 100);
+        let (i, j) = g.cell(0.52, 0.03).unwrap();
+        let k = g.index(i, j);
+        assert_eq!(global.height[k], 1.0);
+        // A second view, three times less certain, 1 cm higher: pulled a quarter of the way.
+        let mut b = plane(&local, |_, _| 1.01);
+        b.variance.iter_mut().for_each(|v| *v = 3e-4);
+        fuse(&mut global, &b, PlacementVariance::default(), &p);
+        assert!((global.height[k] - 1.0025).abs() < 1e-5, "{}", global.height[k]);
+        assert!((global.variance[k] - 0.75e-4).abs() < 1e-7);
+        // A view 0.5 m off (something moved, or the pose drifted): the newest evidence wins.
+        let c = plane(&local, |_, _| 1.5);
+        fuse(&mut global, &c, PlacementVariance::default(), &p);
+        assert_eq!(global.height[k], 1.5);
+        // Placement uncertainty on a slope inflates the variance.
+        let mut g2 = ElevationMap::unknown(g);
+        let s = plane(&local, |x, _| 0.5 * x);
+        fuse(&mut g2, &s, PlacementVariance { xy: 0.01, z: 0.0 }, &p);
+        assert!((g2.variance[k] - (1e-4 + 0.01 * 0.25)).abs() < 1e-6, "{}", g2.variance[k]);
+    }
+}

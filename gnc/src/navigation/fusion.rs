@@ -115,9 +115,9 @@ fn local_slope2(m: &ElevationMap, i: usize, j: usize, r: f64) -> f64 {
 }
 
 /// Fills the unknown cells of `map` within `p.blind_radius_m` of `centre` by harmonic interpolation
-/// from the known cells around them (a membrane stretched over the edges of what was seen: planes
-/// are reproduced exactly). Cells farther than the radius, and holes with no known edge, stay
-/// unknown. Returns the number of cells filled.
+/// from the measured cells around them (a membrane stretched over the edges of what was seen: planes
+/// are reproduced exactly); cells filled before are filled again. Cells farther than the radius, and
+/// windows with no measured cell, are left as they are. Returns the number of cells filled.
 pub fn fill_blind_area(map: &mut ElevationMap, centre: [f64; 2], p: &FusionParams) -> usize {
     let g: GridGeometry = map.geometry.clone();
     let r = g.resolution_m;
@@ -138,7 +138,8 @@ pub fn fill_blind_area(map: &mut ElevationMap, centre: [f64; 2], p: &FusionParam
         for i in 0..w {
             let k = g.index(i0 + i, j0 + j);
             let hk = map.height[k];
-            if hk.is_finite() {
+            // Cells filled before are filled again from today's edges.
+            if hk.is_finite() && map.count[k] > 0 {
                 value[j * w + i] = f64::from(hk);
                 known.push((i, j, f64::from(hk)));
             } else {

@@ -1,0 +1,116 @@
+//! `cargo bench -p gnc`: the navigation chain's costs on one core.
+//!
+//! - `local_dem_two_tof_frames`: both ToF frames (176 x 144 each) of rolling ground with rocks,
+//!   filtered and binned into an 8 m x 8 m local DEM at 0.1 m. Target: under 5 ms.
+//! - `global_fusion_update`: that local DEM fused into a 60 m x 60 m global DEM, and the blind area
+//!   around the rover filled. Target: under 5 ms.
+//! - `traversability_200x200` and `replan_200x200`: the navigation map of a 20 m x 20 m DEM with a
+//!   rock field, and a plan across it, corner to corner. Target for the replan: under 20 ms.
+
+use divan::{Bencher, black_box};
+use framework::camera::{CameraModel, DepthImage};
+use framework::data::{ElevationMap, GridGeometry};
+use gnc::navigation::{dem, fusion, planner, traversability};
+use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
+
+fn main() {
+    divan::main();
+}
+
+/// Rolling ground with round rocks every few metres.
+fn ground(x: f64, y: f64) -> f64 {
+    let base = 0.15 * (0.7 * x).sin() * (0.5 * y).cos() + 0.05 * x;
+    let (cx, cy) = ((x / 3.0).round() * 3.0 + 0.7, (y / 3.0).round() * 3.0 - 0.4);
+    let d = (x - cx).hypot(y - cy);
+    base + if d < 0.4 { 0.25 * (1.0 - (d / 0.4).powi(2)).sqrt() } else { 0.0 }
+}
+
+/// A ToF camera 1.6 m up looking 40 degrees down, yawed by `yaw`, and the depth image it sees
+/// (ray-marched against the ground).
+fn tof_frame(yaw: f64) -> (CameraModel, Isometry3<f64>, DepthImage) {
+    let model = CameraModel::from_hfov(176, 144, 43f64.to_radians(), "tof");
+    let look = UnitQuaternion::from_euler_angles(0.0, 40f64.to_radians(), yaw);
+    let fwd = look * Vector3::x();
+    let right = look * -Vector3::y();
+    let down = fwd.cross(&right);
+    let rot = nalgebra::Rotation3::from_basis_unchecked(&[right, down, fwd]);
+    let pose = Isometry3::from_parts(Translation3::new(0.0, 0.0, 1.6), UnitQuaternion::from_rotation_matrix(&rot));
+    let mut data = Vec::with_capacity(176 * 144);
+    for v in 0..144 {
+        for u in 0..176 {
+            let r = model.ray(&Point2::new(u as f64 + 0.5, v as f64 + 0.5));
+            let dir = pose.rotation * Vector3::new(r.x, r.y, 1.0);
+            let mut t = 0.05;
+            let mut z = f32::NAN;
+            while t < 8.0 {
+                let p = pose.translation.vector + dir * t;
+                if p.z <= ground(p.x, p.y) {
+                    z = t as f32;
+                    break;
+                }
+                t += 0.01;
+            }
+            data.push(if z.is_finite() && z < 5.0 { z } else { f32::NAN });
+        }
+    }
+    (model, pose, DepthImage { stamp: Default::default(), frame: "tof".into(), width: 176, height: 144, data })
+}
+
+fn local_dem(frames: &[(CameraModel, Isometry3<f64>, DepthImage)]) -> ElevationMap {
+    let filter = dem::DemFilter::default();
+    let mut d = dem::LocalDem::new(GridGeometry::centred("map", [0.0, 0.0], 0.1, 80, 80));
+    for (model, pose, depth) in frames {
+        d.add_depth_image(depth, model, pose, pose, &filter);
+    }
+    d.finish(filter.min_points)
+}
+
+#[divan::bench(sample_count = 30, sample_size = 5)]
+fn local_dem_two_tof_frames(b: Bencher<'_, '_>) {
+    let frames = [tof_frame(0.37), tof_frame(-0.37)];
+    b.bench_local(|| black_box(local_dem(&frames)));
+}
+
+#[divan::bench(sample_count = 30, sample_size = 5)]
+fn global_fusion_update(b: Bencher<'_, '_>) {
+    let local = local_dem(&[tof_frame(0.37), tof_frame(-0.37)]);
+    let p = fusion::FusionParams::default();
+    let mut global = ElevationMap::unknown(GridGeometry::centred("map", [0.0, 0.0], 0.1, 600, 600));
+    b.bench_local(|| {
+        fusion::fuse(&mut global, &local, fusion::PlacementVariance { xy: 1e-3, z: 1e-4 }, &p);
+        black_box(fusion::fill_blind_area(&mut global, [0.0, 0.0], &p))
+    });
+}
+
+/// A 20 m x 20 m DEM of the ground at 0.1 m.
+fn big_dem() -> ElevationMap {
+    let g = GridGeometry::centred("map", [0.0, 0.0], 0.1, 200, 200);
+    let mut m = ElevationMap::unknown(g.clone());
+    for j in 0..200 {
+        for i in 0..200 {
+            let c = g.centre(i, j);
+            let k = g.index(i, j);
+            let hs = [(-0.05, -0.05), (0.05, 0.05), (0.0, 0.0)].map(|(dx, dy)| ground(c[0] + dx, c[1] + dy) as f32);
+            m.height[k] = hs[2];
+            m.min[k] = hs[0].min(hs[1]).min(hs[2]);
+            m.max[k] = hs[0].max(hs[1]).max(hs[2]);
+            m.variance[k] = 1e-4;
+            m.count[k] = 5;
+        }
+    }
+    m
+}
+
+#[divan::bench(sample_count = 20, sample_size = 2)]
+fn traversability_200x200(b: Bencher<'_, '_>) {
+    let m = big_dem();
+    let p = traversability::TraversabilityParams::default();
+    b.bench_local(|| black_box(traversability::navigation_map(&m, &p)));
+}
+
+#[divan::bench(sample_count = 20, sample_size = 2)]
+fn replan_200x200(b: Bencher<'_, '_>) {
+    let (nav, _) = traversability::navigation_map(&big_dem(), &traversability::TraversabilityParams::default());
+    let p = planner::PlannerParams::default();
+    b.bench_local(|| black_box(planner::plan(&nav, [-9.5, -8.0], [8.8, 9.6], 0.2, &p).expect("a path")));
+}

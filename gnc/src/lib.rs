@@ -11,7 +11,10 @@
 //! odometry and localization fusion, target and marker tracking, visual servoing, autonomy.
 
 pub mod cameras;
+pub mod history;
 pub mod joints;
 pub mod locomotion;
 pub mod navigation;
 pub mod odometry;
+pub mod perception_fusion;
+pub mod perception_tof;

@@ -31,8 +31,8 @@ pub enum PlanError {
     /// The start is off the map.
     #[error("the start ({0:.2}, {1:.2}) is outside the navigation map")]
     StartOutside(f64, f64),
-    /// The goal is off the map.
-    #[error("the goal ({0:.2}, {1:.2}) is outside the navigation map")]
+    /// The goal is off the map, and unknown ground may not be entered.
+    #[error("the goal ({0:.2}, {1:.2}) is outside the navigation map and unknown ground is forbidden")]
     GoalOutside(f64, f64),
     /// Every cell within the tolerance of the goal is forbidden.
     #[error("no traversable cell within {tolerance:.2} m of the goal ({x:.2}, {y:.2}): it lies in an obstacle")]
@@ -107,9 +107,11 @@ pub fn plan(
     let g = &map.geometry;
     let r = g.resolution_m;
     let s = g.cell(start[0], start[1]).ok_or(PlanError::StartOutside(start[0], start[1]))?;
-    let goal_cell = g.cell(goal[0], goal[1]).ok_or(PlanError::GoalOutside(goal[0], goal[1]))?;
     let search = Search { map, weight: p.cost_weight.max(0.0), start: s, escape2: p.start_escape_m.powi(2) };
     let tol = tolerance_m.max(0.5 * r);
+    let Some(goal_cell) = g.cell(goal[0], goal[1]) else {
+        return plan_beyond(&search, s, start, goal, p);
+    };
     let near_goal = |i: usize, j: usize| {
         let c = g.centre(i, j);
         (c[0] - goal[0]).hypot(c[1] - goal[1]) <= tol
@@ -169,6 +171,67 @@ pub fn plan(
     {
         *last = goal;
     }
+    let clearance_m = points.iter().map(|q| clearance(map, *q, p.clearance_search_m)).collect();
+    Ok(Path { frame: g.frame.clone(), points, clearance_m, cost: total as f64 / UNIT })
+}
+
+/// The node standing for everything beyond the map's edge.
+const BEYOND: (usize, usize) = (usize::MAX, usize::MAX);
+
+/// Plans towards a goal off the map: the terrain beyond the edge is unknown, so every edge cell
+/// leads to the goal in a straight line at the unknown cost; the path ends at the goal, its last
+/// leg over unknown ground (to be replanned as the map grows).
+fn plan_beyond(
+    search: &Search<'_>,
+    s: (usize, usize),
+    start: [f64; 2],
+    goal: [f64; 2],
+    p: &PlannerParams,
+) -> Result<Path, PlanError> {
+    let map = search.map;
+    let g = &map.geometry;
+    let r = g.resolution_m;
+    if map.unknown_cost > cost::MAX_TRAVERSABLE {
+        return Err(PlanError::GoalOutside(goal[0], goal[1]));
+    }
+    let unknown = 1.0 + search.weight * f64::from(map.unknown_cost) / f64::from(cost::MAX_TRAVERSABLE);
+    let (w, h) = (g.width as i64, g.height as i64);
+    let to_goal = |i: usize, j: usize| {
+        let c = g.centre(i, j);
+        (c[0] - goal[0]).hypot(c[1] - goal[1])
+    };
+    let successors = |&(i, j): &(usize, usize)| {
+        let mut out = Vec::with_capacity(9);
+        if (i, j) == BEYOND {
+            return out;
+        }
+        let here = search.factor(i, j).unwrap_or(1.0 + search.weight);
+        if i == 0 || j == 0 || i + 1 == g.width || j + 1 == g.height {
+            out.push((BEYOND, (to_goal(i, j) * unknown * UNIT) as u64));
+        }
+        for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
+            let (ni, nj) = (i as i64 + di, j as i64 + dj);
+            if ni < 0 || nj < 0 || ni >= w || nj >= h {
+                continue;
+            }
+            let (ni, nj) = (ni as usize, nj as usize);
+            let Some(there) = search.factor(ni, nj) else { continue };
+            if di != 0 && dj != 0 && (search.factor(ni, j).is_none() || search.factor(i, nj).is_none()) {
+                continue;
+            }
+            let len = if di != 0 && dj != 0 { std::f64::consts::SQRT_2 } else { 1.0 } * r;
+            out.push(((ni, nj), (len * 0.5 * (here + there) * UNIT) as u64));
+        }
+        out
+    };
+    let heuristic = |&(i, j): &(usize, usize)| if (i, j) == BEYOND { 0 } else { (to_goal(i, j) * UNIT) as u64 };
+    let (mut cells, total) = pathfinding::directed::astar::astar(&s, successors, heuristic, |n| *n == BEYOND)
+        .ok_or(PlanError::NoPath { x: goal[0], y: goal[1] })?;
+    cells.pop();
+    let cells = shortcut(search, &cells);
+    let mut points: Vec<[f64; 2]> = cells.iter().map(|&(i, j)| g.centre(i, j)).collect();
+    points[0] = start;
+    points.push(goal);
     let clearance_m = points.iter().map(|q| clearance(map, *q, p.clearance_search_m)).collect();
     Ok(Path { frame: g.frame.clone(), points, clearance_m, cost: total as f64 / UNIT })
 }
@@ -295,6 +358,12 @@ mod tests {
         set(&mut m, 20, 20, cost::OBSTACLE);
         let e = plan(&m, [0.25, 0.25], [2.05, 2.05], 0.05, &PlannerParams::default()).unwrap_err();
         assert!(matches!(e, PlanError::GoalBlocked { .. }), "{e}");
+        // A goal beyond the map: through the map's edge, then straight over unknown ground; refused
+        // when unknown ground is.
+        let beyond = plan(&m, [0.25, 0.25], [9.0, 2.0], 0.05, &PlannerParams::default()).unwrap();
+        assert_eq!(beyond.points.last(), Some(&[9.0, 2.0]));
+        assert!(beyond.points.iter().all(|q| m.cost_at(q[0], q[1]).is_none_or(|c| c == cost::FREE)));
+        m.unknown_cost = cost::OBSTACLE;
         let e = plan(&m, [0.25, 0.25], [9.0, 2.0], 0.05, &PlannerParams::default()).unwrap_err();
         assert!(matches!(e, PlanError::GoalOutside(..)));
         // Unknown cells cost what the map says, or are refused.

@@ -34,7 +34,8 @@ fn tof_frame(yaw: f64) -> (CameraModel, Isometry3<f64>, DepthImage) {
     let right = look * -Vector3::y();
     let down = fwd.cross(&right);
     let rot = nalgebra::Rotation3::from_basis_unchecked(&[right, down, fwd]);
-    let pose = Isometry3::from_parts(Translation3::new(0.0, 0.0, 1.6), UnitQuaternion::from_rotation_matrix(&rot));
+    let pose =
+        Isometry3::from_parts(Translation3::new(0.0, 0.0, 1.6), UnitQuaternion::from_rotation_matrix(&rot));
     let mut data = Vec::with_capacity(176 * 144);
     for v in 0..144 {
         for u in 0..176 {
@@ -53,14 +54,18 @@ fn tof_frame(yaw: f64) -> (CameraModel, Isometry3<f64>, DepthImage) {
             data.push(if z.is_finite() && z < 5.0 { z } else { f32::NAN });
         }
     }
-    (model, pose, DepthImage { stamp: Default::default(), frame: "tof".into(), width: 176, height: 144, data })
+    (
+        model,
+        pose,
+        DepthImage { stamp: Default::default(), frame: "tof".into(), width: 176, height: 144, data },
+    )
 }
 
 fn local_dem(frames: &[(CameraModel, Isometry3<f64>, DepthImage)]) -> ElevationMap {
     let filter = dem::DemFilter::default();
     let mut d = dem::LocalDem::new(GridGeometry::centred("map", [0.0, 0.0], 0.1, 80, 80));
     for (model, pose, depth) in frames {
-        d.add_depth_image(depth, model, pose, pose, &filter);
+        d.add_depth_image(depth, model, pose, pose, &[], &filter);
     }
     d.finish(filter.min_points)
 }
@@ -90,7 +95,8 @@ fn big_dem() -> ElevationMap {
         for i in 0..200 {
             let c = g.centre(i, j);
             let k = g.index(i, j);
-            let hs = [(-0.05, -0.05), (0.05, 0.05), (0.0, 0.0)].map(|(dx, dy)| ground(c[0] + dx, c[1] + dy) as f32);
+            let hs = [(-0.05, -0.05), (0.05, 0.05), (0.0, 0.0)]
+                .map(|(dx, dy)| ground(c[0] + dx, c[1] + dy) as f32);
             m.height[k] = hs[2];
             m.min[k] = hs[0].min(hs[1]).min(hs[2]);
             m.max[k] = hs[0].max(hs[1]).max(hs[2]);
@@ -110,7 +116,8 @@ fn traversability_200x200(b: Bencher<'_, '_>) {
 
 #[divan::bench(sample_count = 20, sample_size = 2)]
 fn replan_200x200(b: Bencher<'_, '_>) {
-    let (nav, _) = traversability::navigation_map(&big_dem(), &traversability::TraversabilityParams::default());
+    let (nav, _) =
+        traversability::navigation_map(&big_dem(), &traversability::TraversabilityParams::default());
     let p = planner::PlannerParams::default();
     b.bench_local(|| black_box(planner::plan(&nav, [-9.5, -8.0], [8.8, 9.6], 0.2, &p).expect("a path")));
 }

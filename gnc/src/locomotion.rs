@@ -6,6 +6,10 @@
 //! - `goto {x, y, speed?}`: drives to a point of the pose estimate's frame (turning in place first
 //!   when the goal is far off the heading) and completes on arrival within tolerance;
 //! - `turn_to {yaw_deg}`: turns in place to a heading of the estimate's frame;
+//! - `follow_path {points, clearance_m?, speed?, tolerance_m?}`: follows a path of the estimate's
+//!   frame by pure pursuit (a lookahead point on the path, the arc through it), turning in place
+//!   when the path is far off the heading, slowing where the path's clearance to obstacles is small,
+//!   for heading error and near the end; completes at the last point with the cross-track errors;
 //! - `stop`: stops at once (also fails the manoeuvre in progress);
 //! - `recover`: leaves the `fault` state after a stall.
 //!
@@ -40,6 +44,12 @@ pub struct LocomotionParams {
     pub goal_tolerance_m: f64,
     /// Heading tolerance of `turn_to`, degrees.
     pub heading_tolerance_deg: f64,
+    /// Lookahead distance of `follow_path`, m.
+    pub lookahead_m: f64,
+    /// `follow_path` slows down in proportion where the path's clearance is below this, m.
+    pub slow_clearance_m: f64,
+    /// Slowest cruise speed of `follow_path` (near obstacles), m/s.
+    pub min_speed: f64,
     /// A wheel turning at less than this fraction of its commanded rate is stalling.
     pub stall_rate_fraction: f64,
     /// Commanded wheel rates below this are not checked for stalls, rad/s.
@@ -58,6 +68,9 @@ impl Default for LocomotionParams {
             turn_in_place_deg: 35.0,
             goal_tolerance_m: 0.15,
             heading_tolerance_deg: 2.0,
+            lookahead_m: 0.6,
+            slow_clearance_m: 1.0,
+            min_speed: 0.08,
             stall_rate_fraction: 0.2,
             stall_min_rate: 0.5,
             stall_time_s: 1.0,
@@ -102,11 +115,93 @@ pub struct TurnToArgs {
     pub yaw_deg: f64,
 }
 
+/// Arguments of `follow_path`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FollowPathArgs {
+    /// Waypoints (x, y) in the pose estimate's frame, m, from (about) the rover to the goal.
+    pub points: Vec<[f64; 2]>,
+    /// Per waypoint, the clearance to the nearest obstacle, m (default: no slowing).
+    #[serde(default)]
+    pub clearance_m: Option<Vec<f64>>,
+    /// Cruise speed, m/s (default: the configured one).
+    #[serde(default)]
+    pub speed: Option<f64>,
+    /// Arrival tolerance at the last point, m (default: the configured one).
+    #[serde(default)]
+    pub tolerance_m: Option<f64>,
+}
+
+/// A path being followed.
+#[derive(Clone, Debug)]
+struct Following {
+    points: Vec<[f64; 2]>,
+    clearance: Vec<f64>,
+    speed: f64,
+    tolerance: f64,
+    /// The segment the rover was last closest to (progress never goes back).
+    segment: usize,
+    /// Cross-track error statistics: largest, sum of squares, samples.
+    worst_cross_track: f64,
+    sum_sq: f64,
+    samples: u64,
+}
+
+impl Following {
+    /// The closest point to `p` on segments from the current one on (searching a few ahead), with
+    /// its segment, parameter and distance.
+    fn closest(&self, p: [f64; 2]) -> (usize, f64, f64) {
+        let mut best = (self.segment, 0.0, f64::INFINITY);
+        let last = (self.segment + 8).min(self.points.len() - 1);
+        for k in self.segment..last.max(self.segment + 1).min(self.points.len() - 1) {
+            let (a, b) = (self.points[k], self.points[k + 1]);
+            let d = [b[0] - a[0], b[1] - a[1]];
+            let len2 = d[0] * d[0] + d[1] * d[1];
+            let t = if len2 > 0.0 {
+                (((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let q = [a[0] + t * d[0], a[1] + t * d[1]];
+            let dist = (p[0] - q[0]).hypot(p[1] - q[1]);
+            if dist < best.2 - 1e-9 {
+                best = (k, t, dist);
+            }
+        }
+        best
+    }
+
+    /// The point `ahead` metres along the path from segment `k` at parameter `t`.
+    fn along(&self, mut k: usize, t: f64, ahead: f64) -> [f64; 2] {
+        let (a, b) = (self.points[k], self.points[k + 1]);
+        let mut from = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+        let mut left = ahead;
+        loop {
+            let to = self.points[k + 1];
+            let seg = (to[0] - from[0]).hypot(to[1] - from[1]);
+            if seg >= left || k + 2 >= self.points.len() {
+                let f = if seg > 0.0 { (left / seg).min(1.0) } else { 0.0 };
+                return [from[0] + f * (to[0] - from[0]), from[1] + f * (to[1] - from[1])];
+            }
+            left -= seg;
+            from = to;
+            k += 1;
+        }
+    }
+
+    /// The clearance at segment `k`, parameter `t` (linear between waypoints).
+    fn clearance_at(&self, k: usize, t: f64) -> f64 {
+        let (a, b) = (self.clearance[k], self.clearance[(k + 1).min(self.clearance.len() - 1)]);
+        a + t * (b - a)
+    }
+}
+
 #[derive(Clone, Debug)]
 enum Manoeuvre {
     Drive { twist: BodyTwist, until: Time },
     Goto { x: f64, y: f64, speed: f64, tolerance: f64 },
     TurnTo { yaw: f64 },
+    Follow(Box<Following>),
 }
 
 /// The locomotion module.
@@ -257,6 +352,45 @@ impl Locomotion {
                 };
                 Ok(BodyTwist { v, omega })
             }
+            Some(Manoeuvre::Follow(mut f)) => {
+                let Some(est) = pose else {
+                    return Err(Outcome::fail("no pose estimate to steer with"));
+                };
+                let pos = est.value.position();
+                let here = [pos.x, pos.y];
+                let end = *f.points.last().expect("a path has points");
+                let to_end = (end[0] - here[0]).hypot(end[1] - here[1]);
+                let (k, t, cross) = f.closest(here);
+                f.segment = k;
+                f.worst_cross_track = f.worst_cross_track.max(cross);
+                f.sum_sq += cross * cross;
+                f.samples += 1;
+                let at_last_segment = k + 2 >= f.points.len();
+                if to_end <= f.tolerance && (at_last_segment || to_end <= 0.5 * f.tolerance) {
+                    return Err(Outcome::Completed(serde_json::json!({
+                        "x": pos.x, "y": pos.y, "distance_to_goal_m": to_end,
+                        "max_cross_track_m": f.worst_cross_track,
+                        "rms_cross_track_m": (f.sum_sq / f.samples as f64).sqrt(),
+                    })));
+                }
+                let target = f.along(k, t, p.lookahead_m);
+                let (dx, dy) = (target[0] - pos.x, target[1] - pos.y);
+                let alpha = wrap(dy.atan2(dx) - est.value.yaw());
+                let clearance = f.clearance_at(k, t);
+                let result = if alpha.abs() > p.turn_in_place_deg.to_radians() {
+                    BodyTwist { v: 0.0, omega: (p.heading_gain * alpha).clamp(-wmax, wmax) }
+                } else {
+                    let slow = (clearance / p.slow_clearance_m).min(1.0);
+                    let cruise = (f.speed.min(vmax) * slow).max(p.min_speed.min(f.speed));
+                    let v = cruise.min(0.6 * to_end + 0.05) * alpha.cos();
+                    // Pure pursuit: the arc through the lookahead point (curvature 2 sin(alpha) / L).
+                    let lookahead = dx.hypot(dy).max(1e-3);
+                    let omega = (v * 2.0 * alpha.sin() / lookahead).clamp(-wmax, wmax);
+                    BodyTwist { v, omega }
+                };
+                self.manoeuvre = Some(Manoeuvre::Follow(f));
+                Ok(result)
+            }
             Some(Manoeuvre::TurnTo { yaw }) => {
                 let Some(est) = pose else {
                     return Err(Outcome::fail("no pose estimate to steer with"));
@@ -301,6 +435,7 @@ impl Locomotion {
             (None, Some(Manoeuvre::Drive { .. })) => ("drive", None),
             (None, Some(Manoeuvre::Goto { x, y, .. })) => ("goto", Some([*x, *y])),
             (None, Some(Manoeuvre::TurnTo { .. })) => ("turn", None),
+            (None, Some(Manoeuvre::Follow(f))) => ("follow", f.points.last().copied()),
         };
         if let Some(w) = &self.out {
             ctx.write(w, LocomotionState { command: self.command, mode: mode.into(), goal });
@@ -374,6 +509,39 @@ impl Module for Locomotion {
             }
             m.start(ctx, Manoeuvre::Goto { x: a.x, y: a.y, speed, tolerance })
         });
+        d.command("follow_path", |m, ctx, a: FollowPathArgs| {
+            let speed = a.speed.unwrap_or(m.params.speed);
+            let tolerance = a.tolerance_m.unwrap_or(m.params.goal_tolerance_m);
+            let clearance = a.clearance_m.unwrap_or_else(|| vec![f64::INFINITY; a.points.len()]);
+            if a.points.is_empty() || a.points.iter().flatten().any(|v| !v.is_finite()) {
+                return Outcome::reject("follow_path needs at least one finite point");
+            }
+            if clearance.len() != a.points.len() || !(speed > 0.0 && tolerance > 0.0) {
+                return Outcome::reject(
+                    "follow_path needs one clearance per point, a positive speed and a positive tolerance",
+                );
+            }
+            let mut points = a.points;
+            let mut clearance = clearance;
+            if points.len() == 1 {
+                // A single point: the segment from where the path was asked to it.
+                points.insert(0, points[0]);
+                clearance.insert(0, clearance[0]);
+            }
+            m.start(
+                ctx,
+                Manoeuvre::Follow(Box::new(Following {
+                    points,
+                    clearance,
+                    speed,
+                    tolerance,
+                    segment: 0,
+                    worst_cross_track: 0.0,
+                    sum_sq: 0.0,
+                    samples: 0,
+                })),
+            )
+        });
         d.command("turn_to", |m, ctx, a: TurnToArgs| {
             if !a.yaw_deg.is_finite() {
                 return Outcome::reject("yaw_deg must be finite");
@@ -413,6 +581,9 @@ impl Module for Locomotion {
             ("goal_tolerance_m", p.goal_tolerance_m),
             ("heading_tolerance_deg", p.heading_tolerance_deg),
             ("stall_time_s", p.stall_time_s),
+            ("lookahead_m", p.lookahead_m),
+            ("slow_clearance_m", p.slow_clearance_m),
+            ("min_speed", p.min_speed),
         ] {
             if !(v.is_finite() && v > 0.0) {
                 return Err(format!("{k} must be positive, got {v}"));

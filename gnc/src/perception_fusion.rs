@@ -184,17 +184,25 @@ impl PerceptionDataFusion {
                     return None;
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
-                    return Some(Outcome::fail(format!("scan: the pan-tilt unit refused pose {:?}: {r}", scan.poses[scan.next])));
+                    return Some(Outcome::fail(format!(
+                        "scan: the pan-tilt unit refused pose {:?}: {r}",
+                        scan.poses[scan.next]
+                    )));
                 }
                 _ if (now - since).as_secs_f64() > timeout => {
-                    return Some(Outcome::fail(format!("scan: the pan-tilt unit did not reach {:?} within {timeout} s", scan.poses[scan.next])));
+                    return Some(Outcome::fail(format!(
+                        "scan: the pan-tilt unit did not reach {:?} within {timeout} s",
+                        scan.poses[scan.next]
+                    )));
                 }
                 _ => return None,
             }
         }
         if scan.next >= scan.poses.len() {
             let known = self.map.as_ref().map(|m| m.known()).unwrap_or(0);
-            return Some(Outcome::Completed(serde_json::json!({ "poses": scan.poses.len(), "known_cells": known })));
+            return Some(Outcome::Completed(
+                serde_json::json!({ "poses": scan.poses.len(), "known_cells": known }),
+            ));
         }
         let pose = scan.poses[scan.next];
         let cmd = Command::new(&ptu, "move").json(serde_json::json!({ "positions": pose }));
@@ -233,7 +241,11 @@ impl Module for PerceptionDataFusion {
         d.command("scan", |m, ctx, a: ScanArgs| {
             let poses = a.poses.unwrap_or_else(|| m.params.scan_poses.clone());
             let settle_s = a.settle_s.unwrap_or(m.params.scan_settle_s);
-            if poses.is_empty() || poses.iter().flatten().any(|v| !v.is_finite()) || !(settle_s >= 0.0) {
+            if poses.is_empty()
+                || poses.iter().flatten().any(|v| !v.is_finite())
+                || settle_s.is_nan()
+                || settle_s < 0.0
+            {
                 return Outcome::reject("scan needs at least one finite [pan, tilt] pose and settle_s >= 0");
             }
             let Some(request) = ctx.request() else { return Outcome::reject("scan must come as a command") };
@@ -262,8 +274,13 @@ impl Module for PerceptionDataFusion {
                 return Err(format!("{k} must be positive, got {v}"));
             }
         }
-        if !(p.scan_settle_s >= 0.0 && p.fusion.blind_radius_m >= 0.0 && p.fusion.fill_sigma_per_m >= 0.0) {
-            return Err("scan_settle_s, fusion.blind_radius_m and fusion.fill_sigma_per_m must be >= 0".into());
+        if [p.scan_settle_s, p.fusion.blind_radius_m, p.fusion.fill_sigma_per_m]
+            .iter()
+            .any(|v| v.is_nan() || *v < 0.0)
+        {
+            return Err(
+                "scan_settle_s, fusion.blind_radius_m and fusion.fill_sigma_per_m must be >= 0".into()
+            );
         }
         self.params = p.clone();
         Ok(())

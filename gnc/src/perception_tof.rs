@@ -17,7 +17,7 @@ use framework::camera::{CameraCalibration, TofFrame};
 use framework::data::{ElevationMap, GridGeometry, JointStates, PoseEstimate};
 use framework::mechanism::MechanismModel;
 use framework::prelude::*;
-use nalgebra::Isometry3;
+use nalgebra::{Isometry3, Point3};
 use serde::{Deserialize, Serialize};
 
 /// PerceptionToF parameters.
@@ -56,18 +56,26 @@ struct TofInput {
     last_seq: u64,
 }
 
+/// A straight piece of the robot (between two joint origins), `base_link`.
+type Segment = (Point3<f64>, Point3<f64>);
+
+/// A joint group's states as the module follows them.
+struct JointInput {
+    slot: String,
+    reader: Option<Reader<JointStates>>,
+    values: History<Vec<f64>>,
+    names: Vec<String>,
+}
+
 /// The PerceptionToF module.
 pub struct PerceptionToF {
     cameras: Vec<TofInput>,
     mechanism: MechanismModel,
     pose_slot: String,
-    joints_slot: String,
     pose: Option<Reader<PoseEstimate>>,
-    joints: Option<Reader<JointStates>>,
+    joints: Vec<JointInput>,
     out: Option<Writer<ElevationMap>>,
     poses: History<PoseEstimate>,
-    joint_values: History<Vec<f64>>,
-    joint_names: Vec<String>,
     params: PerceptionToFParams,
     /// Frames placed and skipped since the start.
     placed: u64,
@@ -77,12 +85,13 @@ pub struct PerceptionToF {
 impl PerceptionToF {
     /// A module over the ToF cameras `cameras` (device name, believed calibration), mounted on the
     /// robot described by the believed `mechanism`, with the rover's pose from `pose_slot` and the
-    /// joints that move the cameras from `joints_slot` (a `JointStates` slot, e.g. `ptu/joints`).
+    /// robot's joints from `joints_slots` (`JointStates` slots: the pan-tilt unit that moves the
+    /// cameras, the arm that may stand in their view).
     pub fn new(
         cameras: Vec<(String, CameraCalibration)>,
         mechanism: MechanismModel,
         pose_slot: &str,
-        joints_slot: &str,
+        joints_slots: &[&str],
     ) -> Self {
         let p = PerceptionToFParams::default();
         PerceptionToF {
@@ -92,32 +101,62 @@ impl PerceptionToF {
                 .collect(),
             mechanism,
             pose_slot: pose_slot.to_string(),
-            joints_slot: joints_slot.to_string(),
             pose: None,
-            joints: None,
+            joints: joints_slots
+                .iter()
+                .map(|s| JointInput {
+                    slot: s.to_string(),
+                    reader: None,
+                    values: History::new(p.history_s),
+                    names: Vec::new(),
+                })
+                .collect(),
             out: None,
             poses: History::new(p.history_s),
-            joint_values: History::new(p.history_s),
-            joint_names: Vec::new(),
             params: p,
             placed: 0,
             skipped: 0,
         }
     }
 
-    /// Pose of `cam`'s optical frame in `base_link` for the movable-joint values of the history at
-    /// `stamp`.
-    fn base_from_optical(&self, cam: &CameraCalibration, stamp: Time) -> Result<Isometry3<f64>, String> {
-        let known = joints_at(&self.joint_values, stamp, self.params.max_extrapolation_s)
-            .ok_or_else(|| format!("no '{}' joint states at {stamp}", self.joints_slot))?;
+    /// The mechanism's joint values at `stamp`, from the joint histories.
+    fn joints_at(&self, stamp: Time) -> Result<Vec<f64>, String> {
         let mut q = vec![0.0; self.mechanism.dof_count()];
-        for (d, name) in self.mechanism.dof_names().iter().enumerate() {
-            if let Some(k) = self.joint_names.iter().position(|n| n == name) {
-                q[d] = known[k];
+        for group in &self.joints {
+            let known = joints_at(&group.values, stamp, self.params.max_extrapolation_s)
+                .ok_or_else(|| format!("no '{}' joint states at {stamp}", group.slot))?;
+            for (d, name) in self.mechanism.dof_names().iter().enumerate() {
+                if let Some(k) = group.names.iter().position(|n| n == name) {
+                    q[d] = known[k];
+                }
             }
         }
+        Ok(q)
+    }
+
+    /// The robot's link segments (between joint origins, below the root) in `base_link` for the
+    /// joint values `q`.
+    fn link_segments(&self, q: &[f64]) -> Result<Vec<Segment>, String> {
+        let poses = self.mechanism.link_poses(q).map_err(|e| e.to_string())?;
+        let root = self.mechanism.link(self.mechanism.root()).map_err(|e| e.to_string())?;
+        Ok(self
+            .mechanism
+            .joints()
+            .iter()
+            .filter(|j| j.parent != root)
+            .map(|j| {
+                (
+                    Point3::from(poses[j.parent].translation.vector),
+                    Point3::from(poses[j.child].translation.vector),
+                )
+            })
+            .collect())
+    }
+
+    /// Pose of `cam`'s optical frame in `base_link` for joint values `q`.
+    fn base_from_optical(&self, cam: &CameraCalibration, q: &[f64]) -> Result<Isometry3<f64>, String> {
         let root = self.mechanism.root().to_string();
-        let base_from_mount = self.mechanism.transform(&root, &cam.mount, &q).map_err(|e| e.to_string())?;
+        let base_from_mount = self.mechanism.transform(&root, &cam.mount, q).map_err(|e| e.to_string())?;
         Ok(base_from_mount * cam.mount_from_optical)
     }
 
@@ -125,11 +164,13 @@ impl PerceptionToF {
         if let Some(p) = self.pose.as_ref().and_then(|r| ctx.read(r)) {
             self.poses.push(p.stamp, p.value.clone());
         }
-        if let Some(j) = self.joints.as_ref().and_then(|r| ctx.read(r)) {
-            if self.joint_names.is_empty() {
-                self.joint_names = j.value.joints.iter().map(|s| s.name.clone()).collect();
+        for group in &mut self.joints {
+            if let Some(j) = group.reader.as_ref().and_then(|r| ctx.read(r)) {
+                if group.names.is_empty() {
+                    group.names = j.value.joints.iter().map(|s| s.name.clone()).collect();
+                }
+                group.values.push(j.stamp, j.value.joints.iter().map(|s| s.position).collect());
             }
-            self.joint_values.push(j.stamp, j.value.joints.iter().map(|s| s.position).collect());
         }
         // The frames that arrived since the last cycle.
         let mut fresh = Vec::new();
@@ -149,9 +190,14 @@ impl PerceptionToF {
             let cam = &self.cameras[*k];
             let placement = pose_at(&self.poses, stamp, self.params.max_extrapolation_s)
                 .ok_or_else(|| format!("no '{}' pose at {stamp}", self.pose_slot))
-                .and_then(|pose| Ok((pose, self.base_from_optical(&cam.calibration, stamp)?)));
+                .and_then(|pose| {
+                    let q = self.joints_at(stamp)?;
+                    Ok((pose, self.base_from_optical(&cam.calibration, &q)?, self.link_segments(&q)?))
+                });
             match placement {
-                Ok((pose, base_from_optical)) => placed.push((*k, frame, pose, base_from_optical)),
+                Ok((pose, base_from_optical, links)) => {
+                    placed.push((*k, frame, pose, base_from_optical, links))
+                }
                 Err(reason) => {
                     if self.skipped == 0 {
                         ctx.note(format!("skipping frames of '{}': {reason}", cam.device));
@@ -160,16 +206,26 @@ impl PerceptionToF {
                 }
             }
         }
-        let Some(newest) = placed.iter().map(|(_, f, _, _)| f.value.depth.stamp).max() else { return Ok(()) };
+        let Some(newest) = placed.iter().map(|(_, f, _, _, _)| f.value.depth.stamp).max() else {
+            return Ok(());
+        };
         let centre = placed[0].2.position();
         let p = &self.params;
         let cells = (p.size_m / p.resolution_m).round() as usize;
         let frame = placed[0].2.frame.clone();
-        let mut dem = LocalDem::new(GridGeometry::centred(&frame, [centre.x, centre.y], p.resolution_m, cells, cells));
-        for (k, f, pose, base_from_optical) in &placed {
+        let mut dem =
+            LocalDem::new(GridGeometry::centred(&frame, [centre.x, centre.y], p.resolution_m, cells, cells));
+        for (k, f, pose, base_from_optical, links) in &placed {
             let map_from_optical = pose.pose * base_from_optical;
             let model = &self.cameras[*k].calibration.model;
-            dem.add_depth_image(&f.value.depth, model, &map_from_optical, base_from_optical, &p.filter);
+            dem.add_depth_image(
+                &f.value.depth,
+                model,
+                &map_from_optical,
+                base_from_optical,
+                links,
+                &p.filter,
+            );
             self.placed += 1;
         }
         let map = dem.finish(p.filter.min_points);
@@ -189,7 +245,9 @@ impl Module for PerceptionToF {
             cam.frames = Some(d.reads(&format!("cameras/{}", cam.device)));
         }
         self.pose = Some(d.reads(&self.pose_slot));
-        self.joints = Some(d.reads(&self.joints_slot));
+        for group in &mut self.joints {
+            group.reader = Some(d.reads(&group.slot));
+        }
         self.out = Some(d.writes("perception/local_dem"));
         d.context_switchable();
         d.state("mapping", |m, ctx| m.cycle(ctx));
@@ -213,13 +271,18 @@ impl Module for PerceptionToF {
             }
         }
         if p.size_m / p.resolution_m > 1000.0 {
-            return Err(format!("size_m / resolution_m = {} cells a side is too many (at most 1000)", p.size_m / p.resolution_m));
+            return Err(format!(
+                "size_m / resolution_m = {} cells a side is too many (at most 1000)",
+                p.size_m / p.resolution_m
+            ));
         }
-        if !(p.max_extrapolation_s >= 0.0) {
+        if p.max_extrapolation_s.is_nan() || p.max_extrapolation_s < 0.0 {
             return Err("max_extrapolation_s must be >= 0".into());
         }
         self.poses = History::new(p.history_s);
-        self.joint_values = History::new(p.history_s);
+        for group in &mut self.joints {
+            group.values = History::new(p.history_s);
+        }
         self.params = p.clone();
         Ok(())
     }

@@ -53,8 +53,29 @@ pub fn module_config_dir() -> PathBuf {
 }
 
 /// Modules of the system a scenario runs, in registration order.
-/// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders).
-pub const MODULES: &[&str] = &["odometry", "locomotion", "arm", "ptu", "gripper", "cameras", faults::NAME];
+/// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders); the
+/// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate.
+pub const MODULES: &[&str] = &[
+    "odometry",
+    "locomotion",
+    "arm",
+    "ptu",
+    "gripper",
+    "cameras",
+    "perception_tof",
+    "perception_fusion",
+    "traversability",
+    "path_planning",
+    "navigator",
+    faults::NAME,
+];
+
+/// The navigation chain's modules (they need the ToF cameras).
+const NAVIGATION: &[&str] =
+    &["perception_tof", "perception_fusion", "traversability", "path_planning", "navigator"];
+
+/// The slot of the pose estimate the GNC steers and maps with.
+const POSE_SLOT: &str = "odometry/pose";
 
 /// Builds a module's configuration: its default file with the scenario's `[modules.<name>]` merged
 /// over it and the run's purpose (Debug/Mission) applied.
@@ -168,7 +189,7 @@ fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: boo
     let p = &loaded.path;
     let cameras = cameras_enabled(s);
     for name in MODULES {
-        if *name == "cameras" && !cameras {
+        if (*name == "cameras" && !cameras) || (NAVIGATION.contains(name) && !navigation_enabled(s)) {
             continue;
         }
         let extra = if *name == "odometry" { odo_extra.clone() } else { Default::default() };
@@ -235,6 +256,15 @@ fn cameras_enabled(s: &Scenario) -> bool {
     ["head_stereo_hz", "loc_stereo_hz", "tof_hz"].iter().any(|k| rate(k).is_none_or(|r| r > 0.0))
 }
 
+/// The navigation chain runs when the cameras do and the ToF cameras have a rate.
+fn navigation_enabled(s: &Scenario) -> bool {
+    if !cameras_enabled(s) {
+        return false;
+    }
+    let tof = s.modules.get("cameras").and_then(|t| t.get("params")).and_then(|p| p.get("tof_hz"));
+    tof.and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).is_none_or(|r| r > 0.0)
+}
+
 /// Registers module `name` of the runner's system, with its devices from `map`.
 fn add_module(
     b: &mut SystemBuilder,
@@ -254,6 +284,39 @@ fn add_module(
             gnc::cameras::Cameras::new(
                 vec![map.stereo_camera("head_stereo")?, map.stereo_camera("loc_stereo")?],
                 vec![map.tof_camera("tof_left")?, map.tof_camera("tof_right")?],
+            ),
+            config,
+        ),
+        "perception_tof" => {
+            let mut cams = Vec::new();
+            for device in ["tof_left", "tof_right"] {
+                cams.push((device.to_string(), map.tof_camera(device)?.calibration().clone()));
+            }
+            b.add(
+                name,
+                gnc::perception_tof::PerceptionToF::new(
+                    cams,
+                    map.mechanism()?,
+                    POSE_SLOT,
+                    &["ptu/joints", "arm/joints"],
+                ),
+                config,
+            )
+        }
+        "perception_fusion" => {
+            b.add(name, gnc::perception_fusion::PerceptionDataFusion::new(POSE_SLOT, "ptu"), config)
+        }
+        "traversability" => b.add(name, gnc::traversability::Traversability::new(POSE_SLOT), config),
+        "path_planning" => b.add(name, gnc::path_planning::PathPlanning::new(POSE_SLOT), config),
+        "navigator" => b.add(
+            name,
+            gnc::navigator::CoordinatorNavigator::new(
+                gnc::navigator::NavigatorPeers {
+                    fusion: "perception_fusion".into(),
+                    planner: "path_planning".into(),
+                    locomotion: "locomotion".into(),
+                },
+                POSE_SLOT,
             ),
             config,
         ),

@@ -200,6 +200,16 @@ fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), Confi
             return err("rocks.max_diameter_m", "must be larger than min_diameter_m".into());
         }
         positive("rocks.height_ratio", r.height_ratio)?;
+        let half = [spec.terrain.size_m[0] / 2.0, spec.terrain.size_m[1] / 2.0];
+        for (i, p) in r.placed.iter().enumerate() {
+            positive(&format!("rocks.placed.{i}.diameter_m"), p.diameter_m)?;
+            if !(p.center_m[0].abs() < half[0] && p.center_m[1].abs() < half[1]) {
+                return err(
+                    &format!("rocks.placed.{i}.center_m"),
+                    format!("{:?} is off the terrain", p.center_m),
+                );
+            }
+        }
     }
     if !(spec.regolith.friction >= 0.0 && spec.regolith.friction.is_finite()) {
         return err("regolith.friction", format!("must be >= 0, got {}", spec.regolith.friction));
@@ -338,7 +348,10 @@ fn generate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<World, Co
             let mut rng = Pcg64Mcg::seed_from_u64(sub_seed(spec.seed, "rocks"));
             let margin = r.max_diameter_m;
             let area = ([-half[0] + margin, half[0] - margin], [-half[1] + margin, half[1] - margin]);
-            rocks::scatter(r, area, |x, y| hf.height(x, y), &mut rng)
+            let mut rocks = rocks::scatter(r, area, |x, y| hf.height(x, y), &mut rng);
+            let mut rng = Pcg64Mcg::seed_from_u64(sub_seed(spec.seed, "placed rocks"));
+            rocks.extend(rocks::placed(r, |x, y| hf.height(x, y), &mut rng));
+            rocks
         }
         None => Vec::new(),
     };

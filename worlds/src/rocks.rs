@@ -94,6 +94,21 @@ pub fn scatter(
     rocks
 }
 
+/// The rocks the spec places by hand, sitting on `ground` like the scattered ones.
+pub fn placed(spec: &RockFieldSpec, ground: impl Fn(f64, f64) -> f64, rng: &mut impl Rng) -> Vec<Rock> {
+    spec.placed
+        .iter()
+        .map(|p| {
+            let [x, y] = p.center_m;
+            let d = p.diameter_m;
+            let height = d * spec.height_ratio;
+            let yaw = rng.random_range(0.0..std::f64::consts::TAU);
+            let position = Point3::new(x, y, ground(x, y) - 0.2 * height);
+            Rock { position, yaw, diameter: d, height, points: rock_points(d, height, rng.random::<u64>()) }
+        })
+        .collect()
+}
+
 /// Points of an irregular rock: a perturbed half-ellipsoid plus its base ring, so the hull is convex
 /// and flat-bottomed.
 pub fn rock_points(diameter: f64, height: f64, seed: u64) -> Vec<Point3<f64>> {
@@ -130,6 +145,7 @@ mod tests {
             max_diameter_m: 1.0,
             height_ratio: 0.5,
             keep_out: vec![],
+            placed: vec![],
         }
     }
 

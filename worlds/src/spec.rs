@@ -163,6 +163,20 @@ pub struct RockFieldSpec {
     /// Circles kept free of rocks (start areas, objects).
     #[serde(default)]
     pub keep_out: Vec<KeepOutSpec>,
+    /// Rocks placed where the world's author wants them (a barrier across a route), besides the
+    /// scattered ones; their shapes come from the world's seed.
+    #[serde(default)]
+    pub placed: Vec<PlacedRockSpec>,
+}
+
+/// A rock placed by hand.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlacedRockSpec {
+    /// Centre, metres.
+    pub center_m: [f64; 2],
+    /// Equivalent diameter, metres.
+    pub diameter_m: f64,
 }
 
 fn default_rock_aspect() -> f64 {

@@ -44,7 +44,8 @@ impl GridGeometry {
     pub fn cell(&self, x: f64, y: f64) -> Option<(usize, usize)> {
         let i = ((x - self.origin[0]) / self.resolution_m).floor();
         let j = ((y - self.origin[1]) / self.resolution_m).floor();
-        (i >= 0.0 && j >= 0.0 && i < self.width as f64 && j < self.height as f64).then_some((i as usize, j as usize))
+        (i >= 0.0 && j >= 0.0 && i < self.width as f64 && j < self.height as f64)
+            .then_some((i as usize, j as usize))
     }
     /// The index of cell (i, j).
     pub fn index(&self, i: usize, j: usize) -> usize {

@@ -98,5 +98,22 @@ pub struct TargetSelection {
     pub source: String,
 }
 
+/// What a navigator is doing (seed 000, 8.2): its goal, mode and progress.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct NavigationState {
+    /// `idle`, `scan`, `await_map`, `plan`, `drive`.
+    pub phase: String,
+    /// `stop_and_go` or `continuous`.
+    pub mode: String,
+    /// The goal (x, y) in `map`, m, while navigating.
+    pub goal: Option<[f64; 2]>,
+    /// Straight-line distance from the estimated position to the goal, m.
+    pub distance_to_goal_m: Option<f64>,
+    /// Plans made for the current goal.
+    pub plans: u32,
+    /// Consecutive failures (no path, a failed scan or drive) for the current goal.
+    pub failures: u32,
+}
+
 mod maps;
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};

@@ -26,6 +26,9 @@ pub struct DemFilter {
     /// The rover's own body in `base_link`, [x_min, x_max, y_min, y_max, z_min, z_max], m: points
     /// inside are the rover seeing itself and are dropped.
     pub body_box: [f64; 6],
+    /// Points within this distance of the robot's links (the segments between joint origins, as
+    /// the joints stand: the arm, the mast) are the rover seeing itself and are dropped, m.
+    pub self_radius_m: f64,
 }
 
 impl Default for DemFilter {
@@ -37,6 +40,7 @@ impl Default for DemFilter {
             max_range_m: 5.0,
             min_points: 2,
             body_box: [-0.75, 0.75, -0.6, 0.6, -0.5, 1.6],
+            self_radius_m: 0.15,
         }
     }
 }
@@ -93,14 +97,16 @@ impl LocalDem {
     }
 
     /// Adds the points of a depth image taken by `model` (its believed calibration) from
-    /// `map_from_optical`; `base_from_optical` places the camera on the rover for the body filter.
-    /// Returns the number of points binned.
+    /// `map_from_optical`; `base_from_optical` places the camera on the rover for the self filter,
+    /// with `links`, the robot's link segments in `base_link` as its joints stand. Returns the number
+    /// of points binned.
     pub fn add_depth_image(
         &mut self,
         depth: &DepthImage,
         model: &CameraModel,
         map_from_optical: &Isometry3<f64>,
         base_from_optical: &Isometry3<f64>,
+        links: &[(Point3<f64>, Point3<f64>)],
         filter: &DemFilter,
     ) -> usize {
         let (w, h) = (depth.width as usize, depth.height as usize);
@@ -119,7 +125,13 @@ impl LocalDem {
                 }
                 let p = model.unproject(&Point2::new(u as f64 + 0.5, v as f64 + 0.5), z);
                 let pb = base_from_optical * p;
-                if (b[0]..=b[1]).contains(&pb.x) && (b[2]..=b[3]).contains(&pb.y) && (b[4]..=b[5]).contains(&pb.z) {
+                if (b[0]..=b[1]).contains(&pb.x)
+                    && (b[2]..=b[3]).contains(&pb.y)
+                    && (b[4]..=b[5]).contains(&pb.z)
+                {
+                    continue;
+                }
+                if links.iter().any(|(a, c)| segment_distance(&pb, a, c) < filter.self_radius_m) {
                     continue;
                 }
                 let pm = map_from_optical * p;
@@ -156,6 +168,14 @@ impl LocalDem {
     }
 }
 
+/// Distance from `p` to the segment from `a` to `b`.
+pub fn segment_distance(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
+    let d = b - a;
+    let len2 = d.norm_squared();
+    let t = if len2 > 0.0 { ((p - a).dot(&d) / len2).clamp(0.0, 1.0) } else { 0.0 };
+    (p - (a + d * t)).norm()
+}
+
 /// Whether pixel (u, v) is a mixed pixel: a 4-neighbour with a return lies more than `jump` of
 /// its depth away.
 fn mixed(d: &[f32], w: usize, h: usize, u: usize, v: usize, jump: f64) -> bool {
@@ -185,7 +205,10 @@ mod tests {
         let right = -Vector3::y();
         let down = fwd.cross(&right);
         let rot = nalgebra::Rotation3::from_basis_unchecked(&[right, down, fwd]);
-        let pose = Isometry3::from_parts(Translation3::new(0.0, 0.0, 1.0), UnitQuaternion::from_rotation_matrix(&rot));
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, 1.0),
+            UnitQuaternion::from_rotation_matrix(&rot),
+        );
         let mut data = Vec::new();
         for v in 0..60 {
             for u in 0..80 {
@@ -196,7 +219,8 @@ mod tests {
                 data.push(if t > 0.0 { t as f32 } else { f32::NAN });
             }
         }
-        let depth = DepthImage { stamp: Default::default(), frame: "cam".into(), width: 80, height: 60, data };
+        let depth =
+            DepthImage { stamp: Default::default(), frame: "cam".into(), width: 80, height: 60, data };
         (model, pose, depth)
     }
 
@@ -207,7 +231,7 @@ mod tests {
         let mut dem = LocalDem::new(g);
         // Body filter far away from the scene.
         let filter = DemFilter { body_box: [10.0, 11.0, 10.0, 11.0, 10.0, 11.0], ..Default::default() };
-        let kept = dem.add_depth_image(&depth, &model, &pose, &pose, &filter);
+        let kept = dem.add_depth_image(&depth, &model, &pose, &pose, &[], &filter);
         assert!(kept > 4000, "{kept}");
         let m = dem.finish(1);
         let mut worst: f64 = 0.0;
@@ -238,12 +262,18 @@ mod tests {
         let g = GridGeometry::centred("map", [1.5, 0.0], 0.1, 40, 40);
         let far_box = DemFilter { body_box: [10.0, 11.0, 10.0, 11.0, 10.0, 11.0], ..Default::default() };
         let mut dem = LocalDem::new(g.clone());
-        dem.add_depth_image(&depth, &model, &pose, &pose, &far_box);
+        dem.add_depth_image(&depth, &model, &pose, &pose, &[], &far_box);
         assert_eq!(dem.points_in - dem.points_kept, 2 * 60, "two columns of mixed pixels");
         // A body box around the camera's optical axis removes the points near it.
         let mut dem = LocalDem::new(g);
-        let body = DemFilter { body_box: [-0.3, 1.0, -0.3, 0.3, -1.0, 10.0], ..far_box };
-        dem.add_depth_image(&depth, &model, &pose, &pose, &body);
-        assert!(dem.points_kept < dem.points_in - 2 * 60 - 100);
+        let body = DemFilter { body_box: [-0.3, 1.0, -0.3, 0.3, -1.0, 10.0], ..far_box.clone() };
+        dem.add_depth_image(&depth, &model, &pose, &pose, &[], &body);
+        let after_box = dem.points_kept;
+        assert!(after_box < dem.points_in - 2 * 60 - 100);
+        // A link (an arm held out over the ground) hides the points near it.
+        let mut dem = LocalDem::new(GridGeometry::centred("map", [1.5, 0.0], 0.1, 40, 40));
+        let arm = [(Point3::new(1.0, 0.0, 0.15), Point3::new(2.0, 0.0, 0.15))];
+        dem.add_depth_image(&depth, &model, &pose, &pose, &arm, &far_box);
+        assert!(dem.points_kept < dem.points_in - 2 * 60 - 100, "{} of {}", dem.points_kept, dem.points_in);
     }
 }

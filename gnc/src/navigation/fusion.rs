@@ -47,7 +47,12 @@ pub struct PlacementVariance {
 
 /// Fuses `local` into `global` (same frame and resolution, aligned cells); returns the number of
 /// cells updated. Cells of `global` without measurements (unknown or filled) take the local value.
-pub fn fuse(global: &mut ElevationMap, local: &ElevationMap, placement: PlacementVariance, p: &FusionParams) -> usize {
+pub fn fuse(
+    global: &mut ElevationMap,
+    local: &ElevationMap,
+    placement: PlacementVariance,
+    p: &FusionParams,
+) -> usize {
     let Some((di, dj)) = local.geometry.offset_to(&global.geometry) else { return 0 };
     let (lw, lh) = (local.geometry.width, local.geometry.height);
     let (gw, gh) = (global.geometry.width as i64, global.geometry.height as i64);
@@ -199,8 +204,9 @@ pub fn fill_blind_area(map: &mut ElevationMap, centre: [f64; 2], p: &FusionParam
         }
     }
     // The edge's variance plus the distance term.
-    let edge_var = known.iter().map(|&(i, j, _)| f64::from(map.variance[g.index(i0 + i, j0 + j)])).sum::<f64>()
-        / known.len() as f64;
+    let edge_var =
+        known.iter().map(|&(i, j, _)| f64::from(map.variance[g.index(i0 + i, j0 + j)])).sum::<f64>()
+            / known.len() as f64;
     for &(i, j, dist) in &unknowns {
         let k = g.index(i0 + i, j0 + j);
         map.height[k] = value[j * w + i] as f32;

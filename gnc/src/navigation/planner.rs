@@ -35,7 +35,9 @@ pub enum PlanError {
     #[error("the goal ({0:.2}, {1:.2}) is outside the navigation map and unknown ground is forbidden")]
     GoalOutside(f64, f64),
     /// Every cell within the tolerance of the goal is forbidden.
-    #[error("no traversable cell within {tolerance:.2} m of the goal ({x:.2}, {y:.2}): it lies in an obstacle")]
+    #[error(
+        "no traversable cell within {tolerance:.2} m of the goal ({x:.2}, {y:.2}): it lies in an obstacle"
+    )]
     GoalBlocked {
         /// Goal x, m.
         x: f64,
@@ -224,7 +226,8 @@ fn plan_beyond(
         }
         out
     };
-    let heuristic = |&(i, j): &(usize, usize)| if (i, j) == BEYOND { 0 } else { (to_goal(i, j) * UNIT) as u64 };
+    let heuristic =
+        |&(i, j): &(usize, usize)| if (i, j) == BEYOND { 0 } else { (to_goal(i, j) * UNIT) as u64 };
     let (mut cells, total) = pathfinding::directed::astar::astar(&s, successors, heuristic, |n| *n == BEYOND)
         .ok_or(PlanError::NoPath { x: goal[0], y: goal[1] })?;
     cells.pop();
@@ -280,7 +283,8 @@ pub fn clearance(map: &NavigationMap, q: [f64; 2], search_m: f64) -> f64 {
             if map.cost[g.index(i as usize, j as usize)] == cost::OBSTACLE {
                 let c = g.centre(i as usize, j as usize);
                 // To the cell's nearest edge.
-                let d = ((c[0] - q[0]).abs() - r / 2.0).max(0.0).hypot(((c[1] - q[1]).abs() - r / 2.0).max(0.0));
+                let d =
+                    ((c[0] - q[0]).abs() - r / 2.0).max(0.0).hypot(((c[1] - q[1]).abs() - r / 2.0).max(0.0));
                 best = best.min(d);
             }
         }
@@ -294,7 +298,8 @@ mod tests {
     use framework::data::GridGeometry;
 
     fn open_map(w: usize, h: usize) -> NavigationMap {
-        let g = GridGeometry { frame: "map".into(), origin: [0.0, 0.0], resolution_m: 0.1, width: w, height: h };
+        let g =
+            GridGeometry { frame: "map".into(), origin: [0.0, 0.0], resolution_m: 0.1, width: w, height: h };
         NavigationMap { cost: vec![cost::FREE; g.len()], geometry: g, unknown_cost: 100 }
     }
 
@@ -337,9 +342,23 @@ mod tests {
                 set(&mut m, i, j, cost::MAX_TRAVERSABLE);
             }
         }
-        let dear = plan(&m, [0.55, 0.25], [3.45, 0.25], 0.01, &PlannerParams { cost_weight: 20.0, ..Default::default() }).unwrap();
+        let dear = plan(
+            &m,
+            [0.55, 0.25],
+            [3.45, 0.25],
+            0.01,
+            &PlannerParams { cost_weight: 20.0, ..Default::default() },
+        )
+        .unwrap();
         assert!(dear.points.iter().any(|p| p[1] > 1.2), "{:?}", dear.points);
-        let cheap = plan(&m, [0.55, 0.25], [3.45, 0.25], 0.01, &PlannerParams { cost_weight: 0.5, ..Default::default() }).unwrap();
+        let cheap = plan(
+            &m,
+            [0.55, 0.25],
+            [3.45, 0.25],
+            0.01,
+            &PlannerParams { cost_weight: 0.5, ..Default::default() },
+        )
+        .unwrap();
         assert_eq!(cheap.points.len(), 2, "{:?}", cheap.points);
     }
 

@@ -1,7 +1,7 @@
 //! Traversability (seed 000, 8.2): the navigation map from an elevation map and the rover's
 //! trafficability limits. Per cell, over a window the size of the rover's footprint, a least-squares
 //! plane gives the slope and the roughness (residual); over a wheel-sized window the highest and
-//! lowest measurements give the step. A cell past any limit is an obstacle; obstacles are inflated
+//! lowest cells give the step. A cell past any limit is an obstacle; obstacles are inflated
 //! by the rover's footprint (the rover's centre may not come within its inscribed radius of one, and
 //! pays for coming within its inflation radius); unknown cells are handled as configured.
 
@@ -211,21 +211,19 @@ fn plane_fit(m: &[f64; 10], r: f64) -> Option<(f64, f64)> {
     Some((slope, residual.sqrt()))
 }
 
-/// The step at cell (i, j): the highest minus the lowest measurement within `half` cells.
+/// The step at cell (i, j): the highest minus the lowest cell height within `half` cells. Cell
+/// means, not the cells' extreme measurements: with hundreds of noisy points a cell's extremes are
+/// several noise deviations apart on flat ground; a step is resolved by the cells themselves.
 fn step_at(dem: &ElevationMap, i: usize, j: usize, half: usize) -> f64 {
     let g = &dem.geometry;
     let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
     for jj in j.saturating_sub(half)..(j + half + 1).min(g.height) {
         for ii in i.saturating_sub(half)..(i + half + 1).min(g.width) {
-            let k = g.index(ii, jj);
-            let hk = dem.height[k];
-            if !hk.is_finite() {
-                continue;
+            let hk = dem.height[g.index(ii, jj)];
+            if hk.is_finite() {
+                lo = lo.min(hk);
+                hi = hi.max(hk);
             }
-            // Interpolated cells have no measurements: their height stands for both.
-            let (a, b) = if dem.count[k] > 0 { (dem.min[k], dem.max[k]) } else { (hk, hk) };
-            lo = lo.min(a);
-            hi = hi.max(b);
         }
     }
     if hi >= lo { f64::from(hi - lo) } else { 0.0 }
@@ -259,7 +257,10 @@ fn inflate(c: &mut [u8], w: usize, h: usize, r: f64, p: &TraversabilityParams) {
         .flat_map(|j| (0..w as i64).map(move |i| (i, j)))
         .filter(|&(i, j)| {
             obstacle(c, i, j)
-                && !(obstacle(c, i - 1, j) && obstacle(c, i + 1, j) && obstacle(c, i, j - 1) && obstacle(c, i, j + 1))
+                && !(obstacle(c, i - 1, j)
+                    && obstacle(c, i + 1, j)
+                    && obstacle(c, i, j - 1)
+                    && obstacle(c, i, j + 1))
         })
         .collect();
     for (i, j) in edges {
@@ -295,7 +296,6 @@ mod tests {
             for i in 0..60 {
                 let c = g.centre(i, j);
                 let k = g.index(i, j);
-                // Each cell's measurements span its own corners (a step shows inside its cell).
                 let hs = [(-0.05, -0.05), (0.05, -0.05), (-0.05, 0.05), (0.05, 0.05), (0.0, 0.0)]
                     .map(|(dx, dy)| f(c[0] + dx, c[1] + dy) as f32);
                 m.height[k] = hs[4];
@@ -322,7 +322,10 @@ mod tests {
         assert!((fig.step[k] - 0.3).abs() < 1e-6);
         // Beyond the obstacle's edge: inflated within the inscribed radius, dearer within the
         // inflation radius, then free.
-        let edge = (0..60).map(|i| nav.geometry.centre(i, 30)[0]).find(|&x| at(&nav, x, 0.0) == cost::OBSTACLE).unwrap();
+        let edge = (0..60)
+            .map(|i| nav.geometry.centre(i, 30)[0])
+            .find(|&x| at(&nav, x, 0.0) == cost::OBSTACLE)
+            .unwrap();
         assert!(edge > -0.6, "the step's obstacle band starts at {edge}");
         assert_eq!(at(&nav, edge - 0.3, 0.0), cost::INFLATED);
         let near = at(&nav, edge - 0.8, 0.0);

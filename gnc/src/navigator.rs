@@ -1,0 +1,489 @@
+//! CoordinatorNavigator (seed 000, 7 and 8.2): takes the rover to a goal over unknown terrain.
+//!
+//! - `navigate_to {x, y, tolerance_m?}` (`map` frame): completes on arrival within the tolerance,
+//!   with the distance left and the plans made; fails with the reason once more consecutive
+//!   attempts failed (no path, a failed scan, a failed drive) than `max_failures`;
+//! - `cancel` (or `stop`): stops the rover and fails the navigation in progress.
+//!
+//! Its `navigating` state is a meta-state, switched at runtime with `set_meta`:
+//! - `stop_and_go`: stop, scan with the pan-tilt unit (PerceptionDataFusion `scan`), wait for the
+//!   navigation map, plan (PathPlanning `plan`), drive at most `segment_m` of the path (Locomotion
+//!   `follow_path`), and again until arrival;
+//! - `continuous`: one scan to start with, then map and replan while driving: every new path the
+//!   planner publishes (it replans on each new navigation map) replaces the one being followed;
+//!   when a replan finds no path the rover stops, scans and plans again.
+//!
+//! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` before
+//! scanning again. Progress is published on `navigation/state`.
+
+use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
+use framework::message::{AckStatus, MessageId};
+use framework::module::Request;
+use framework::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// Navigator parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct NavigatorParams {
+    /// Length of path driven between stops in stop-and-go, m.
+    pub segment_m: f64,
+    /// Default arrival tolerance, m.
+    pub tolerance_m: f64,
+    /// Cruise speed, m/s.
+    pub speed: f64,
+    /// Consecutive failures tolerated before `navigate_to` fails.
+    pub max_failures: u32,
+    /// After a stall, the rover backs off this far before scanning again, m.
+    pub back_off_m: f64,
+    /// Longest wait for a fresh navigation map after a scan, s.
+    pub map_wait_s: f64,
+}
+
+impl Default for NavigatorParams {
+    fn default() -> Self {
+        NavigatorParams {
+            segment_m: 2.5,
+            tolerance_m: 0.3,
+            speed: 0.25,
+            max_failures: 4,
+            back_off_m: 0.3,
+            map_wait_s: 3.0,
+        }
+    }
+}
+
+/// Arguments of `navigate_to`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NavigateArgs {
+    /// Goal x, m (`map`).
+    pub x: f64,
+    /// Goal y, m.
+    pub y: f64,
+    /// Arrival tolerance, m (default: configured).
+    #[serde(default)]
+    pub tolerance_m: Option<f64>,
+}
+
+/// Where a navigation is.
+#[derive(Clone, Debug)]
+enum Phase {
+    Scan(Option<MessageId>),
+    AwaitMap {
+        since: Time,
+        seq0: u64,
+    },
+    Plan(Option<MessageId>),
+    Drive {
+        id: MessageId,
+        path_seq: u64,
+    },
+    /// After a stall: clear locomotion's fault, then back off before scanning again.
+    Recover(Option<MessageId>),
+    BackOff(MessageId),
+}
+
+impl Phase {
+    fn name(&self) -> &'static str {
+        match self {
+            Phase::Scan(_) => "scan",
+            Phase::AwaitMap { .. } => "await_map",
+            Phase::Plan(_) => "plan",
+            Phase::Drive { .. } => "drive",
+            Phase::Recover(_) | Phase::BackOff(_) => "recover",
+        }
+    }
+}
+
+/// A navigation in progress.
+struct Goal {
+    request: Request,
+    at: [f64; 2],
+    tolerance: f64,
+    phase: Phase,
+    plans: u32,
+    failures: u32,
+}
+
+/// Names of the modules the navigator commands.
+#[derive(Clone, Debug)]
+pub struct NavigatorPeers {
+    /// PerceptionDataFusion (scans).
+    pub fusion: String,
+    /// PathPlanning.
+    pub planner: String,
+    /// Locomotion.
+    pub locomotion: String,
+}
+
+/// The CoordinatorNavigator module.
+pub struct CoordinatorNavigator {
+    peers: NavigatorPeers,
+    pose_slot: String,
+    pose: Option<Reader<PoseEstimate>>,
+    map: Option<Reader<NavigationMap>>,
+    path: Option<Reader<Path>>,
+    out: Option<Writer<NavigationState>>,
+    goal: Option<Goal>,
+    mode: &'static str,
+    params: NavigatorParams,
+}
+
+/// What a step of the navigation asks for.
+enum Next {
+    Stay,
+    To(Phase),
+    /// A failed attempt (counted), then this phase instead of a fresh scan.
+    FailThen(String, Phase),
+    Fail(String),
+    Arrived(f64),
+}
+
+impl CoordinatorNavigator {
+    /// A navigator commanding `peers`, with the rover's pose from `pose_slot`.
+    pub fn new(peers: NavigatorPeers, pose_slot: &str) -> Self {
+        CoordinatorNavigator {
+            peers,
+            pose_slot: pose_slot.to_string(),
+            pose: None,
+            map: None,
+            path: None,
+            out: None,
+            goal: None,
+            mode: "stop_and_go",
+            params: NavigatorParams::default(),
+        }
+    }
+
+    fn position(&self, ctx: &Ctx<'_>) -> Option<[f64; 2]> {
+        self.pose.as_ref().and_then(|r| ctx.read(r)).map(|p| {
+            let c = p.value.position();
+            [c.x, c.y]
+        })
+    }
+
+    fn distance_to_goal(&self, ctx: &Ctx<'_>) -> Option<f64> {
+        let g = self.goal.as_ref()?;
+        self.position(ctx).map(|p| (g.at[0] - p[0]).hypot(g.at[1] - p[1]))
+    }
+
+    /// Sends `name` with `args` to `to`; the phase to wait in, or the failure.
+    fn send(ctx: &mut Ctx<'_>, to: &str, name: &str, args: serde_json::Value) -> Result<MessageId, String> {
+        ctx.send(Command::new(to, name).json(args)).map_err(|e| format!("cannot command '{to}': {e}"))
+    }
+
+    /// The path to send to locomotion: the whole path, or (stop-and-go) its first `segment_m`.
+    fn path_args(&self, path: &Path, whole: bool) -> serde_json::Value {
+        let mut points = vec![path.points[0]];
+        let mut clearance = vec![path.clearance_m[0]];
+        let mut left = if whole { f64::INFINITY } else { self.params.segment_m };
+        for k in 1..path.points.len() {
+            let (a, b) = (path.points[k - 1], path.points[k]);
+            let d = (b[0] - a[0]).hypot(b[1] - a[1]);
+            if d >= left {
+                let f = left / d;
+                points.push([a[0] + f * (b[0] - a[0]), a[1] + f * (b[1] - a[1])]);
+                let (ca, cb) = (path.clearance_m[k - 1], path.clearance_m[k]);
+                clearance.push(ca + f * (cb - ca));
+                break;
+            }
+            left -= d;
+            points.push(b);
+            clearance.push(path.clearance_m[k]);
+        }
+        let tol = self.goal.as_ref().map(|g| g.tolerance).unwrap_or(self.params.tolerance_m);
+        serde_json::json!({
+            "points": points, "clearance_m": clearance, "speed": self.params.speed,
+            "tolerance_m": tol.min(self.params.tolerance_m),
+        })
+    }
+
+    /// One step of the navigation in progress, in mode `continuous` or stop-and-go.
+    fn step(&mut self, ctx: &mut Ctx<'_>, continuous: bool) -> Next {
+        let now = ctx.now();
+        let peers = self.peers.clone();
+        let map_seq = self.map.as_ref().and_then(|r| ctx.read(r)).map(|m| m.seq).unwrap_or(0);
+        let Some(g) = self.goal.as_ref() else { return Next::Stay };
+        let (at, tol) = (g.at, g.tolerance);
+        match g.phase.clone() {
+            Phase::Scan(None) => match Self::send(ctx, &peers.fusion, "scan", serde_json::json!({})) {
+                Ok(id) => Next::To(Phase::Scan(Some(id))),
+                Err(e) => Next::Fail(e),
+            },
+            Phase::Scan(Some(id)) => match ctx.ack_status(id) {
+                Some(AckStatus::Completed(_)) => Next::To(Phase::AwaitMap { since: now, seq0: map_seq }),
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                    Next::Fail(format!("scan failed: {r}"))
+                }
+                _ => Next::Stay,
+            },
+            Phase::AwaitMap { since, seq0 } => {
+                if map_seq > seq0 || (map_seq > 0 && (now - since).as_secs_f64() >= self.params.map_wait_s) {
+                    Next::To(Phase::Plan(None))
+                } else if (now - since).as_secs_f64() >= 3.0 * self.params.map_wait_s {
+                    Next::Fail("no navigation map after the scan".into())
+                } else {
+                    Next::Stay
+                }
+            }
+            Phase::Plan(None) => {
+                let args = serde_json::json!({ "x": at[0], "y": at[1], "tolerance_m": tol });
+                match Self::send(ctx, &peers.planner, "plan", args) {
+                    Ok(id) => Next::To(Phase::Plan(Some(id))),
+                    Err(e) => Next::Fail(e),
+                }
+            }
+            Phase::Plan(Some(id)) => match ctx.ack_status(id) {
+                Some(AckStatus::Completed(_)) => {
+                    let Some(path) = self.path.as_ref().and_then(|r| ctx.read(r)) else {
+                        return Next::Fail("the planner published no path".into());
+                    };
+                    if path.value.points.is_empty() {
+                        return Next::Fail("the planner published an empty path".into());
+                    }
+                    if let Some(g) = self.goal.as_mut() {
+                        g.plans += 1;
+                    }
+                    let args = self.path_args(&path.value, continuous);
+                    match Self::send(ctx, &peers.locomotion, "follow_path", args) {
+                        Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq }),
+                        Err(e) => Next::Fail(e),
+                    }
+                }
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Next::Fail(format!("no path: {r}")),
+                _ => Next::Stay,
+            },
+            Phase::Recover(None) => {
+                match Self::send(ctx, &peers.locomotion, "recover", serde_json::Value::Null) {
+                    Ok(id) => Next::To(Phase::Recover(Some(id))),
+                    Err(e) => Next::Fail(e),
+                }
+            }
+            Phase::Recover(Some(id)) => match ctx.ack_status(id) {
+                // Rejected: not in fault any more; either way, back off.
+                Some(AckStatus::Completed(_) | AckStatus::Rejected(_)) => {
+                    let speed = 0.1;
+                    let args = serde_json::json!({ "v": -speed, "omega": 0.0, "duration_s": self.params.back_off_m / speed });
+                    match Self::send(ctx, &peers.locomotion, "drive", args) {
+                        Ok(id) => Next::To(Phase::BackOff(id)),
+                        Err(e) => Next::Fail(e),
+                    }
+                }
+                Some(AckStatus::Failed(r)) => Next::Fail(format!("cannot clear locomotion's fault: {r}")),
+                _ => Next::Stay,
+            },
+            Phase::BackOff(id) => match ctx.ack_status(id) {
+                Some(AckStatus::Completed(_)) => Next::To(Phase::Scan(None)),
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                    Next::Fail(format!("backing off failed: {r}"))
+                }
+                _ => Next::Stay,
+            },
+            Phase::Drive { id, path_seq } => {
+                let status = ctx.ack_status(id);
+                match status {
+                    Some(AckStatus::Completed(_)) => {
+                        let left = self.distance_to_goal(ctx).unwrap_or(f64::INFINITY);
+                        if left <= tol {
+                            return Next::Arrived(left);
+                        }
+                        if let Some(g) = self.goal.as_mut() {
+                            g.failures = 0;
+                        }
+                        Next::To(if continuous { Phase::Plan(None) } else { Phase::Scan(None) })
+                    }
+                    Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                        if r.contains("stalled") || r.contains("fault") {
+                            Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None))
+                        } else {
+                            Next::Fail(format!("drive failed: {r}"))
+                        }
+                    }
+                    _ if continuous => {
+                        // A replanned path replaces the one being followed.
+                        let Some(path) = self.path.as_ref().and_then(|r| ctx.read(r)) else {
+                            return Next::Stay;
+                        };
+                        if path.seq == path_seq {
+                            return Next::Stay;
+                        }
+                        if path.value.points.is_empty() {
+                            let _ = Self::send(ctx, &peers.locomotion, "stop", serde_json::Value::Null);
+                            return Next::Fail("replanning found no path".into());
+                        }
+                        if let Some(g) = self.goal.as_mut() {
+                            g.plans += 1;
+                        }
+                        let args = self.path_args(&path.value, true);
+                        match Self::send(ctx, &peers.locomotion, "follow_path", args) {
+                            Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq }),
+                            Err(e) => Next::Fail(e),
+                        }
+                    }
+                    _ => Next::Stay,
+                }
+            }
+        }
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>, continuous: bool) -> StateResult {
+        self.mode = if continuous { "continuous" } else { "stop_and_go" };
+        match self.step(ctx, continuous) {
+            Next::Stay => {}
+            Next::To(phase) => {
+                if let Some(g) = self.goal.as_mut() {
+                    g.phase = phase;
+                }
+            }
+            Next::Arrived(left) => {
+                if let Some(g) = self.goal.take() {
+                    let _ = ctx.send(Command::new(&self.peers.planner, "clear"));
+                    ctx.reply(
+                        &g.request,
+                        Outcome::Completed(serde_json::json!({
+                            "distance_to_goal_m": left, "plans": g.plans,
+                        })),
+                    );
+                }
+                ctx.goto("idle").map_err(|e| ModuleError(e.to_string()))?;
+            }
+            Next::Fail(reason) => self.failed(ctx, reason, Phase::Scan(None))?,
+            Next::FailThen(reason, then) => self.failed(ctx, reason, then)?,
+        }
+        self.publish(ctx);
+        Ok(())
+    }
+
+    /// Counts a failure: tries again from `then` (a scan, or a recovery), or gives up past the limit.
+    fn failed(&mut self, ctx: &mut Ctx<'_>, reason: String, then: Phase) -> StateResult {
+        let max = self.params.max_failures;
+        let Some(g) = self.goal.as_mut() else { return Ok(()) };
+        g.failures += 1;
+        ctx.note(format!("navigation attempt failed ({} of {}): {reason}", g.failures, max + 1));
+        if g.failures <= max {
+            g.phase = then;
+            return Ok(());
+        }
+        let g = self.goal.take().expect("checked");
+        let _ = ctx.send(Command::new(&self.peers.locomotion, "stop"));
+        let _ = ctx.send(Command::new(&self.peers.planner, "clear"));
+        ctx.reply(
+            &g.request,
+            Outcome::fail(format!("gave up after {} failed attempts: {reason}", g.failures)),
+        );
+        ctx.goto("idle").map_err(|e| ModuleError(e.to_string()))
+    }
+
+    /// Stops the rover and fails the navigation in progress, if any, with `reason`.
+    fn halt(&mut self, ctx: &mut Ctx<'_>, reason: &str) {
+        if let Some(g) = self.goal.take() {
+            let _ = ctx.send(Command::new(&self.peers.locomotion, "stop"));
+            let _ = ctx.send(Command::new(&self.peers.planner, "clear"));
+            ctx.reply(&g.request, Outcome::fail(reason));
+        }
+        if ctx.state() != "idle" {
+            let _ = ctx.goto("idle");
+        }
+    }
+
+    fn publish(&self, ctx: &mut Ctx<'_>) {
+        let state = NavigationState {
+            phase: self.goal.as_ref().map(|g| g.phase.name()).unwrap_or("idle").to_string(),
+            mode: self.mode.to_string(),
+            goal: self.goal.as_ref().map(|g| g.at),
+            distance_to_goal_m: self.distance_to_goal(ctx),
+            plans: self.goal.as_ref().map(|g| g.plans).unwrap_or(0),
+            failures: self.goal.as_ref().map(|g| g.failures).unwrap_or(0),
+        };
+        if let Some(w) = &self.out {
+            ctx.write(w, state);
+        }
+    }
+}
+
+impl Module for CoordinatorNavigator {
+    type Params = NavigatorParams;
+    const KIND: ModuleKind = ModuleKind::Coordination;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.pose = Some(d.reads(&self.pose_slot));
+        self.map = Some(d.reads("navigation/map"));
+        self.path = Some(d.reads("navigation/path"));
+        self.out = Some(d.writes("navigation/state"));
+        d.sends_to(&self.peers.fusion).sends_to(&self.peers.planner).sends_to(&self.peers.locomotion);
+        d.context_switchable();
+        d.state("idle", |m, ctx| {
+            m.publish(ctx);
+            Ok(())
+        });
+        d.meta_state(
+            "navigating",
+            &[("stop_and_go", |m, ctx| m.cycle(ctx, false)), ("continuous", |m, ctx| m.cycle(ctx, true))],
+        );
+        d.transition("idle", "navigating")
+            .transition("navigating", "idle")
+            .transition("navigating", "navigating");
+        d.command("navigate_to", |m, ctx, a: NavigateArgs| {
+            let tolerance = a.tolerance_m.unwrap_or(m.params.tolerance_m);
+            if !(a.x.is_finite() && a.y.is_finite() && tolerance > 0.0) {
+                return Outcome::reject("navigate_to needs a finite goal and a positive tolerance_m");
+            }
+            let Some(request) = ctx.request() else {
+                return Outcome::reject("navigate_to must come as a command");
+            };
+            if let Some(old) = m.goal.take() {
+                ctx.reply(&old.request, Outcome::fail("superseded by a new navigate_to"));
+            }
+            m.goal = Some(Goal {
+                request,
+                at: [a.x, a.y],
+                tolerance,
+                phase: Phase::Scan(None),
+                plans: 0,
+                failures: 0,
+            });
+            match ctx.goto("navigating") {
+                Ok(()) => Outcome::Accepted,
+                Err(e) => Outcome::reject(e.to_string()),
+            }
+        });
+        d.command("cancel", |m, ctx, _: ()| {
+            if m.goal.is_none() {
+                return Outcome::reject("not navigating");
+            }
+            m.halt(ctx, "cancelled");
+            Outcome::done()
+        });
+        // What the ground sends a module whose step it aborts: stop whatever is under way.
+        d.command("stop", |m, ctx, _: ()| {
+            m.halt(ctx, "stopped by command");
+            Outcome::done()
+        });
+    }
+
+    fn configure(&mut self, p: &NavigatorParams) -> Result<(), String> {
+        for (k, v) in [
+            ("segment_m", p.segment_m),
+            ("tolerance_m", p.tolerance_m),
+            ("speed", p.speed),
+            ("map_wait_s", p.map_wait_s),
+            ("back_off_m", p.back_off_m),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(format!("{k} must be positive, got {v}"));
+            }
+        }
+        self.params = p.clone();
+        Ok(())
+    }
+
+    fn on_transition(&mut self, ctx: &mut Ctx<'_>, _from: Lifecycle, to: Lifecycle) -> Result<(), String> {
+        if matches!(to, Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown)
+            && let Some(g) = self.goal.take()
+        {
+            ctx.reply(&g.request, Outcome::fail(format!("the navigator left Run for {to}")));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,143 @@
+//! PathPlanning (seed 000, 8.2): safe, cost-optimal paths on the navigation map.
+//!
+//! - `plan {x, y, tolerance_m?}`: plans from the rover's estimated position to within the tolerance
+//!   of (x, y) (`map` frame) on the newest `navigation/map`, publishes the path on
+//!   `navigation/path` and completes with its summary; "no path" (walled off, goal in an obstacle,
+//!   no map yet) fails the command with the reason, never silently.
+//! - `clear`: forgets the goal.
+//!
+//! While a goal is set, every new navigation map is planned on again (the map grows as the rover
+//! drives) and the new path published; a replan that finds no path publishes an empty path and
+//! notes the reason.
+
+use crate::navigation::planner::{PlannerParams, plan};
+use framework::data::{NavigationMap, Path, PoseEstimate};
+use framework::prelude::*;
+use serde::Deserialize;
+
+/// Arguments of `plan`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlanArgs {
+    /// Goal x, m (`map` frame).
+    pub x: f64,
+    /// Goal y, m.
+    pub y: f64,
+    /// Arrival tolerance, m (default 0.3).
+    #[serde(default)]
+    pub tolerance_m: Option<f64>,
+}
+
+/// The PathPlanning module.
+pub struct PathPlanning {
+    pose_slot: String,
+    map: Option<Reader<NavigationMap>>,
+    pose: Option<Reader<PoseEstimate>>,
+    out: Option<Writer<Path>>,
+    goal: Option<([f64; 2], f64)>,
+    last_map: u64,
+    failing: bool,
+    params: PlannerParams,
+}
+
+impl PathPlanning {
+    /// A planner starting its paths at the pose estimate of `pose_slot`.
+    pub fn new(pose_slot: &str) -> Self {
+        PathPlanning {
+            pose_slot: pose_slot.to_string(),
+            map: None,
+            pose: None,
+            out: None,
+            goal: None,
+            last_map: 0,
+            failing: false,
+            params: PlannerParams::default(),
+        }
+    }
+
+    /// Plans to the goal on the newest map and publishes the result.
+    fn replan(&mut self, ctx: &mut Ctx<'_>) -> Result<Path, String> {
+        let (goal, tol) = self.goal.ok_or("no goal")?;
+        let map = self.map.as_ref().and_then(|r| ctx.read(r)).ok_or("no navigation map yet")?;
+        self.last_map = map.seq;
+        let pose = self
+            .pose
+            .as_ref()
+            .and_then(|r| ctx.read(r))
+            .ok_or_else(|| format!("no pose estimate on '{}'", self.pose_slot))?;
+        let p = pose.value.position();
+        let result = plan(&map.value, [p.x, p.y], goal, tol, &self.params).map_err(|e| e.to_string());
+        if let Some(w) = &self.out {
+            let published = result
+                .clone()
+                .unwrap_or_else(|_| Path { frame: map.value.geometry.frame.clone(), ..Default::default() });
+            ctx.write(w, published);
+        }
+        result
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        if self.goal.is_none() {
+            return Ok(());
+        }
+        let fresh = self.map.as_ref().and_then(|r| ctx.read(r)).is_some_and(|m| m.seq != self.last_map);
+        if fresh {
+            match self.replan(ctx) {
+                Ok(_) => self.failing = false,
+                Err(reason) => {
+                    if !self.failing {
+                        ctx.note(format!("replanning found no path: {reason}"));
+                    }
+                    self.failing = true;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Module for PathPlanning {
+    type Params = PlannerParams;
+    const KIND: ModuleKind = ModuleKind::Resource;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.map = Some(d.reads("navigation/map"));
+        self.pose = Some(d.reads(&self.pose_slot));
+        self.out = Some(d.writes("navigation/path"));
+        d.context_switchable();
+        d.state("planning", |m, ctx| m.cycle(ctx));
+        d.command("plan", |m, ctx, a: PlanArgs| {
+            let tol = a.tolerance_m.unwrap_or(0.3);
+            if !(a.x.is_finite() && a.y.is_finite() && tol > 0.0) {
+                return Outcome::reject("plan needs a finite goal and a positive tolerance_m");
+            }
+            m.goal = Some(([a.x, a.y], tol));
+            match m.replan(ctx) {
+                Ok(path) => {
+                    m.failing = false;
+                    Outcome::Completed(serde_json::json!({
+                        "waypoints": path.points.len(),
+                        "length_m": path.length(),
+                        "cost": path.cost,
+                    }))
+                }
+                Err(reason) => {
+                    m.failing = true;
+                    Outcome::fail(reason)
+                }
+            }
+        });
+        d.command("clear", |m, _ctx, _: ()| {
+            m.goal = None;
+            Outcome::done()
+        });
+    }
+
+    fn configure(&mut self, p: &PlannerParams) -> Result<(), String> {
+        if !(p.cost_weight >= 0.0 && p.start_escape_m >= 0.0 && p.clearance_search_m > 0.0) {
+            return Err("cost_weight and start_escape_m must be >= 0, clearance_search_m positive".into());
+        }
+        self.params = p.clone();
+        Ok(())
+    }
+}

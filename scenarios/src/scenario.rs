@@ -345,6 +345,8 @@ pub struct LoggingSettings {
     pub images_hz: f64,
     /// Image downsampling factor (1: full resolution).
     pub image_downsample: u32,
+    /// Maps (elevation and navigation maps), Hz per slot.
+    pub maps_hz: f64,
     /// Framework events (lifecycle, FSM, messages, watchdog).
     pub events: bool,
     /// Scheduler statistics, Hz.
@@ -360,6 +362,7 @@ impl Default for LoggingSettings {
             slots_hz: 10.0,
             images_hz: 1.0,
             image_downsample: 2,
+            maps_hz: 0.5,
             events: true,
             stats_hz: 1.0,
         }
@@ -678,6 +681,7 @@ fn validate(s: &Scenario, files: &[FileText], overrides: &[(String, String)]) ->
         ("logging.truth_hz", l.truth_hz),
         ("logging.slots_hz", l.slots_hz),
         ("logging.images_hz", l.images_hz),
+        ("logging.maps_hz", l.maps_hz),
         ("logging.stats_hz", l.stats_hz),
     ] {
         if !(v.is_finite() && v >= 0.0) {

@@ -44,6 +44,10 @@ pub(super) fn foxglove_schema(name: &str) -> String {
             r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"pose":{},"point_stride":{{"type":"integer","minimum":0}},"fields":{{"type":"array","items":{PEF}}},"data":{{"type":"string","contentEncoding":"base64"}}"#,
             pose_schema()
         ),
+        "foxglove.PosesInFrame" => format!(
+            r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"poses":{{"type":"array","items":{}}}"#,
+            pose_schema()
+        ),
         _ => unreachable!("known schema"),
     };
     format!(

@@ -24,7 +24,9 @@ use crate::score::{LogFiles, Score};
 use anyhow::{Context, Result};
 use base64::Engine;
 use framework::camera::{Image, TofFrame};
-use framework::data::{JointStates, LocomotionState, PoseEstimate, StereoImages, TargetSelection};
+use framework::data::{
+    ElevationMap, JointStates, LocomotionState, NavigationMap, PoseEstimate, StereoImages, TargetSelection,
+};
 use framework::system::Core;
 use framework::{Duration, Time};
 use nalgebra::Isometry3;
@@ -32,6 +34,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use twin::Twin;
 
+mod maps;
 mod mcap_writer;
 mod rerun_view;
 
@@ -106,6 +109,10 @@ enum Known {
     Stereo(std::sync::Arc<framework::Stamped<StereoImages>>),
     Tof(std::sync::Arc<framework::Stamped<TofFrame>>),
     Target(TargetSelection),
+    Elevation(Time, std::sync::Arc<framework::Stamped<ElevationMap>>),
+    Navigation(Time, std::sync::Arc<framework::Stamped<NavigationMap>>),
+    /// A path with the ground height under each point.
+    Path(Time, framework::data::Path, Vec<f64>),
     Other,
 }
 
@@ -134,7 +141,7 @@ pub struct RunLogger {
     next_slots: Time,
     next_stats: Time,
     slot_seq: BTreeMap<String, u64>,
-    /// Next time each image slot may be logged (`images_hz`).
+    /// Next time each image or map slot may be logged (`images_hz`, `maps_hz`).
     next_image: BTreeMap<String, Time>,
     events_seen: usize,
 }
@@ -320,9 +327,33 @@ impl RunLogger {
                 any.downcast_ref::<framework::blackboard::SlotCell<TofFrame>>().and_then(|c| c.latest())
             {
                 Known::Tof(s)
+            } else if let Some(s) =
+                any.downcast_ref::<framework::blackboard::SlotCell<ElevationMap>>().and_then(|c| c.latest())
+            {
+                Known::Elevation(s.stamp, s)
+            } else if let Some(s) =
+                any.downcast_ref::<framework::blackboard::SlotCell<NavigationMap>>().and_then(|c| c.latest())
+            {
+                Known::Navigation(s.stamp, s)
+            } else if let Some(s) = any
+                .downcast_ref::<framework::blackboard::SlotCell<framework::data::Path>>()
+                .and_then(|c| c.latest())
+            {
+                let z = s.value.points.iter().map(|q| twin.world().ground_height(q[0], q[1])).collect();
+                Known::Path(s.stamp, s.value.clone(), z)
             } else {
                 Known::Other
             };
+            if matches!(known, Known::Elevation(..) | Known::Navigation(..)) {
+                // Maps: at their own rate, never as JSON (a global map is megabytes of it).
+                let Some(p) = period(self.settings.maps_hz) else { continue };
+                if self.next_image.get(&name).is_some_and(|t| now < *t) {
+                    continue;
+                }
+                self.next_image.insert(name.clone(), now + p);
+                out.push(SlotRecord { name, type_name: slot.type_name(), json: None, known });
+                continue;
+            }
             if matches!(known, Known::Stereo(_) | Known::Tof(_)) {
                 // Images: at their own rate, never as JSON.
                 let Some(p) = period(self.settings.images_hz) else { continue };
@@ -654,6 +685,15 @@ impl Writer {
                                 .with_colors([[255u8, 200, 0]]),
                         )?;
                     }
+                }
+                Known::Elevation(stamp, m) => {
+                    maps::elevation(self.rrd.as_ref(), self.mcap.as_mut(), &r.name, *stamp, &m.value)?
+                }
+                Known::Navigation(stamp, m) => {
+                    maps::navigation(self.rrd.as_ref(), self.mcap.as_mut(), &r.name, *stamp, &m.value)?
+                }
+                Known::Path(stamp, p, z) => {
+                    maps::path(self.rrd.as_ref(), self.mcap.as_mut(), &r.name, *stamp, p, z)?
                 }
                 Known::Other => {}
             }

@@ -37,6 +37,12 @@ pub(super) fn blueprint() -> rerun::blueprint::Blueprint {
                         ContainerLike::from(
                             Spatial2DView::new("ToF depth").with_origin("/sensors/tof_left/depth"),
                         ),
+                        ContainerLike::from(
+                            Spatial2DView::new("Elevation map").with_origin("/maps/perception_global_dem"),
+                        ),
+                        ContainerLike::from(
+                            Spatial2DView::new("Navigation map").with_origin("/maps/navigation_map"),
+                        ),
                     ])),
                     ContainerLike::from(
                         TextLogView::new("Framework events and messages").with_origin("/logs"),

@@ -3,12 +3,16 @@
 //! The mission's module set (seed 000, section 8). GNC code sees the world only through the
 //! framework's HAL and blackboard; this crate never depends on `twin` and never reads ground truth.
 //!
-//! Today: the HAL-level modules that scenarios command through message passing —
-//! [`locomotion::Locomotion`] (body motion, `goto`, stall detection), [`joints::JointGroupModule`]
-//! (arm, pan-tilt unit, gripper), [`cameras::Cameras`] (stereo and ToF frames on the blackboard) — and
-//! [`odometry::Odometry`] (wheel-inertial dead reckoning).
-//! To come (see DESIGN.md): ToF elevation maps and fusion, traversability, path planning, visual
-//! odometry and localization fusion, target and marker tracking, visual servoing, autonomy.
+//! The HAL-level modules that scenarios command through message passing —
+//! [`locomotion::Locomotion`] (body motion, `goto`, `follow_path`, stall detection),
+//! [`joints::JointGroupModule`] (arm, pan-tilt unit, gripper), [`cameras::Cameras`] (stereo and ToF
+//! frames on the blackboard) — [`odometry::Odometry`] (wheel-inertial dead reckoning), and the
+//! navigation chain of seed 000, 8.2: [`perception_tof::PerceptionToF`],
+//! [`perception_fusion::PerceptionDataFusion`], [`traversability::Traversability`],
+//! [`path_planning::PathPlanning`] and [`navigator::CoordinatorNavigator`], over the algorithms of
+//! [`navigation`].
+//! To come (see DESIGN.md): visual odometry and localization fusion, target and marker tracking,
+//! visual servoing, autonomy.
 
 pub mod cameras;
 pub mod history;

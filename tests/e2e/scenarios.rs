@@ -472,3 +472,29 @@ fn a_hung_module_ends_the_run_naming_it_with_finalized_logs() {
     assert!(topics["/tf"].len() > 20);
     assert!(rrd_entities(&dir.path().join("run.rrd")).contains("/world/truth/base_link"));
 }
+
+#[test]
+fn the_navigator_goes_round_a_barrier_and_reports_a_walled_off_goal() {
+    // Round a barrier of rocks across the straight line: the ToF maps, traversability and the
+    // planner find the way; nothing is hit.
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("nav_barrier.toml"), dir.path(), &[]);
+    assert!(o.status.success(), "{}", show(&o));
+    let s = score(dir.path());
+    assert_eq!(s["metrics"]["collisions"], 0, "{s}");
+    let mcap = read_mcap(&dir.path().join("run.mcap"));
+    let path = mcap.get("/navigation_path").expect("paths logged");
+    // Some path leaves the straight line by more than the barrier's half-length plus a margin.
+    let detour = path.iter().any(|m| {
+        m["poses"].as_array().unwrap().iter().any(|p| p["position"]["y"].as_f64().unwrap().abs() > 1.8)
+    });
+    assert!(detour, "no path goes round the barrier");
+    assert!(mcap.contains_key("/maps/perception_global_dem") && mcap.contains_key("/maps/navigation_map"));
+    // A goal inside a closed ring of rocks: the navigation fails, saying there is no path.
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("nav_ring.toml"), dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(1), "{}", show(&o));
+    let s = score(dir.path());
+    let reason = s["phases"][0]["reason"].as_str().unwrap_or_default().to_string();
+    assert!(reason.contains("no path"), "{reason}");
+}

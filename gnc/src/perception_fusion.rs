@@ -3,7 +3,9 @@
 //! Every local DEM of PerceptionToF (`perception/local_dem`) is fused into one map of the `map`
 //! frame, inverse-variance weighted, its variance raised by the pose estimate's uncertainty (on
 //! slopes a horizontal error is a height error); then the blind area around and under the rover is
-//! filled by interpolation from the edges of what was seen. The map is published on
+//! filled by interpolation from the edges of what was seen. A local map that overlaps the global one
+//! is first shifted vertically onto it (the pose estimate's height drifts; the shift is reported
+//! by `scan`). The map is published on
 //! `perception/global_dem` at most at `publish_hz`.
 //!
 //! Commands:
@@ -87,6 +89,8 @@ pub struct PerceptionDataFusion {
     last_local_stamp: Option<Time>,
     last_publish: Option<Time>,
     dirty: bool,
+    /// The vertical shift that put the last local map onto the global one, m.
+    last_shift_m: f64,
     scan: Option<Scan>,
     params: PerceptionFusionParams,
 }
@@ -106,6 +110,7 @@ impl PerceptionDataFusion {
             last_local_stamp: None,
             last_publish: None,
             dirty: false,
+            last_shift_m: 0.0,
             scan: None,
             params: PerceptionFusionParams::default(),
         }
@@ -137,7 +142,8 @@ impl PerceptionDataFusion {
             let cells = (p.size_m / g.resolution_m).round() as usize;
             ElevationMap::unknown(GridGeometry::centred(&g.frame, centre, g.resolution_m, cells, cells))
         });
-        fuse(map, &local.value, placement, &p.fusion);
+        let report = fuse(map, &local.value, placement, &p.fusion);
+        self.last_shift_m = report.shift_m;
         fill_blind_area(map, centre, &p.fusion);
         self.dirty = true;
     }
@@ -161,6 +167,7 @@ impl PerceptionDataFusion {
         let timeout = self.params.scan_pose_timeout_s;
         let ptu = self.pan_tilt.clone();
         let last_local_stamp = self.last_local_stamp;
+        let last_shift = self.last_shift_m;
         let scan = self.scan.as_mut()?;
         if let Some((after, since)) = scan.waiting {
             if last_local_stamp.is_some_and(|s| s >= after) {
@@ -201,7 +208,7 @@ impl PerceptionDataFusion {
         if scan.next >= scan.poses.len() {
             let known = self.map.as_ref().map(|m| m.known()).unwrap_or(0);
             return Some(Outcome::Completed(
-                serde_json::json!({ "poses": scan.poses.len(), "known_cells": known }),
+                serde_json::json!({ "poses": scan.poses.len(), "known_cells": known, "last_shift_m": last_shift }),
             ));
         }
         let pose = scan.poses[scan.next];

@@ -22,6 +22,10 @@ pub struct FusionParams {
     pub fill_sigma_per_m: f64,
     /// Relaxation sweeps of the interpolation (successive over-relaxation).
     pub fill_iterations: usize,
+    /// A local map overlapping the global one on at least this many measured cells is first
+    /// shifted vertically by the median height difference over them: the pose estimate's height
+    /// drifts, and a map re-observed after a drift would otherwise meet itself at a false step.
+    pub align_min_cells: usize,
 }
 
 impl Default for FusionParams {
@@ -32,6 +36,7 @@ impl Default for FusionParams {
             blind_radius_m: 1.5,
             fill_sigma_per_m: 0.05,
             fill_iterations: 150,
+            align_min_cells: 50,
         }
     }
 }
@@ -45,17 +50,65 @@ pub struct PlacementVariance {
     pub z: f64,
 }
 
-/// Fuses `local` into `global` (same frame and resolution, aligned cells); returns the number of
-/// cells updated. Cells of `global` without measurements (unknown or filled) take the local value.
+/// What one fusion did.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FusionReport {
+    /// Cells updated.
+    pub updated: usize,
+    /// Vertical shift applied to the local map before fusing it, m.
+    pub shift_m: f64,
+}
+
+/// The global cell of local cell (i, j) under offset `(di, dj)`, if inside.
+fn to_global(g: &GridGeometry, (di, dj): (i64, i64), i: usize, j: usize) -> Option<usize> {
+    let (gi, gj) = (i as i64 + di, j as i64 + dj);
+    (gi >= 0 && gj >= 0 && gi < g.width as i64 && gj < g.height as i64)
+        .then(|| g.index(gi as usize, gj as usize))
+}
+
+/// The median height difference (local minus global) over the cells measured in both, if there
+/// are at least `min_cells` of them.
+fn vertical_offset(
+    global: &ElevationMap,
+    local: &ElevationMap,
+    offset: (i64, i64),
+    min_cells: usize,
+) -> Option<f64> {
+    let lg = &local.geometry;
+    let mut d = Vec::new();
+    for j in 0..lg.height {
+        for i in 0..lg.width {
+            let k = lg.index(i, j);
+            if local.count[k] == 0 || !local.height[k].is_finite() {
+                continue;
+            }
+            if let Some(g) = to_global(&global.geometry, offset, i, j)
+                && global.count[g] > 0
+                && global.height[g].is_finite()
+            {
+                d.push(f64::from(local.height[k]) - f64::from(global.height[g]));
+            }
+        }
+    }
+    if d.len() < min_cells.max(1) {
+        return None;
+    }
+    d.sort_by(f64::total_cmp);
+    Some(d[d.len() / 2])
+}
+
+/// Fuses `local` into `global` (same frame and resolution, aligned cells), after shifting it
+/// vertically onto the global map where they overlap enough. Cells of `global` without
+/// measurements (unknown or filled) take the local value.
 pub fn fuse(
     global: &mut ElevationMap,
     local: &ElevationMap,
     placement: PlacementVariance,
     p: &FusionParams,
-) -> usize {
-    let Some((di, dj)) = local.geometry.offset_to(&global.geometry) else { return 0 };
+) -> FusionReport {
+    let Some((di, dj)) = local.geometry.offset_to(&global.geometry) else { return FusionReport::default() };
+    let shift = vertical_offset(global, local, (di, dj), p.align_min_cells).unwrap_or(0.0);
     let (lw, lh) = (local.geometry.width, local.geometry.height);
-    let (gw, gh) = (global.geometry.width as i64, global.geometry.height as i64);
     let r = local.geometry.resolution_m;
     let mut updated = 0;
     for j in 0..lh {
@@ -64,25 +117,23 @@ pub fn fuse(
             if local.count[k] == 0 || !local.height[k].is_finite() {
                 continue;
             }
-            let (gi, gj) = (i as i64 + di, j as i64 + dj);
-            if gi < 0 || gj < 0 || gi >= gw || gj >= gh {
-                continue;
-            }
+            let Some(g) = to_global(&global.geometry, (di, dj), i, j) else { continue };
             // The local slope turns the horizontal placement error into height error.
             let slope2 = local_slope2(local, i, j, r);
             let v_new = f64::from(local.variance[k]) + placement.z + placement.xy * slope2;
-            let h_new = f64::from(local.height[k]);
-            let g = global.geometry.index(gi as usize, gj as usize);
+            let h_new = f64::from(local.height[k]) - shift;
             let (h_old, v_old) = (f64::from(global.height[g]), f64::from(global.variance[g]));
             let replace = global.count[g] == 0
                 || !h_old.is_finite()
                 || (h_new - h_old).abs() > p.replace_sigmas * (v_new + v_old).sqrt();
+            let (lo, hi) =
+                ((f64::from(local.min[k]) - shift) as f32, (f64::from(local.max[k]) - shift) as f32);
             if replace {
                 global.height[g] = h_new as f32;
                 global.variance[g] = v_new.max(p.min_variance_m2) as f32;
                 global.count[g] = local.count[k];
-                global.min[g] = local.min[k];
-                global.max[g] = local.max[k];
+                global.min[g] = lo;
+                global.max[g] = hi;
             } else {
                 let v = 1.0 / (1.0 / v_old + 1.0 / v_new);
                 global.height[g] = (v * (h_old / v_old + h_new / v_new)) as f32;
@@ -90,14 +141,14 @@ pub fn fuse(
                 global.count[g] = global.count[g].saturating_add(local.count[k]);
                 // Steps seen by the better of the two views.
                 if v_new <= 2.0 * v_old {
-                    global.min[g] = local.min[k];
-                    global.max[g] = local.max[k];
+                    global.min[g] = lo;
+                    global.max[g] = hi;
                 }
             }
             updated += 1;
         }
     }
-    updated
+    FusionReport { updated, shift_m: shift }
 }
 
 /// The squared gradient of the local map at (i, j) from its known neighbours (0 when none).
@@ -275,8 +326,8 @@ mod tests {
         let mut global = ElevationMap::unknown(g.clone());
         let local = GridGeometry::centred("map", [0.5, 0.0], 0.1, 10, 10);
         let a = plane(&local, |_, _| 1.0);
-        let p = FusionParams { min_variance_m2: 1e-6, ..Default::default() };
-        assert_eq!(fuse(&mut global, &a, PlacementVariance::default(), &p), 100);
+        let p = FusionParams { min_variance_m2: 1e-6, align_min_cells: 1000, ..Default::default() };
+        assert_eq!(fuse(&mut global, &a, PlacementVariance::default(), &p).updated, 100);
         let (i, j) = g.cell(0.52, 0.03).unwrap();
         let k = g.index(i, j);
         assert_eq!(global.height[k], 1.0);
@@ -290,6 +341,13 @@ mod tests {
         let c = plane(&local, |_, _| 1.5);
         fuse(&mut global, &c, PlacementVariance::default(), &p);
         assert_eq!(global.height[k], 1.5);
+        // A re-observation of the same ground 0.12 m higher (the pose estimate's height drifted)
+        // is moved back onto the map before fusing: no false step.
+        let aligning = FusionParams { align_min_cells: 50, ..p.clone() };
+        let lifted = plane(&local, |_, _| 1.62);
+        let report = fuse(&mut global, &lifted, PlacementVariance::default(), &aligning);
+        assert!((report.shift_m - 0.12).abs() < 1e-5, "{report:?}");
+        assert!((global.height[k] - 1.5).abs() < 1e-5);
         // Placement uncertainty on a slope inflates the variance.
         let mut g2 = ElevationMap::unknown(g);
         let s = plane(&local, |x, _| 0.5 * x);

@@ -46,6 +46,8 @@ pub struct LocomotionParams {
     pub heading_tolerance_deg: f64,
     /// Lookahead distance of `follow_path`, m.
     pub lookahead_m: f64,
+    /// Integral gain of `follow_path` on the cross-track error, rad/s per m s.
+    pub cross_track_gain_i: f64,
     /// `follow_path` slows down in proportion where the path's clearance is below this, m.
     pub slow_clearance_m: f64,
     /// Slowest cruise speed of `follow_path` (near obstacles), m/s.
@@ -69,6 +71,7 @@ impl Default for LocomotionParams {
             goal_tolerance_m: 0.15,
             heading_tolerance_deg: 2.0,
             lookahead_m: 0.6,
+            cross_track_gain_i: 0.3,
             slow_clearance_m: 1.0,
             min_speed: 0.08,
             stall_rate_fraction: 0.2,
@@ -141,6 +144,9 @@ struct Following {
     tolerance: f64,
     /// The segment the rover was last closest to (progress never goes back).
     segment: usize,
+    /// Integral of the signed cross-track error, m s (removes the steady offset a skid-steer rover's
+    /// sluggish yaw leaves under pure pursuit).
+    cross_integral: f64,
     /// Cross-track error statistics: largest, sum of squares, samples.
     worst_cross_track: f64,
     sum_sq: f64,
@@ -187,6 +193,22 @@ impl Following {
             from = to;
             k += 1;
         }
+    }
+
+    /// The path's length from segment `k` at parameter `t` to its end.
+    fn remaining(&self, k: usize, t: f64) -> f64 {
+        let seg = |k: usize| {
+            let (a, b) = (self.points[k], self.points[k + 1]);
+            (b[0] - a[0]).hypot(b[1] - a[1])
+        };
+        (1.0 - t) * seg(k) + (k + 1..self.points.len() - 1).map(seg).sum::<f64>()
+    }
+
+    /// The signed distance of `p` from segment `k` (positive to the left of the path).
+    fn signed_cross_track(&self, k: usize, p: [f64; 2], distance: f64) -> f64 {
+        let (a, b) = (self.points[k], self.points[k + 1]);
+        let side = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
+        distance.copysign(side)
     }
 
     /// The clearance at segment `k`, parameter `t` (linear between waypoints).
@@ -353,6 +375,7 @@ impl Locomotion {
                 Ok(BodyTwist { v, omega })
             }
             Some(Manoeuvre::Follow(mut f)) => {
+                let dt = self.last_cycle.map(|t| (ctx.now() - t).as_secs_f64()).unwrap_or(0.0);
                 let Some(est) = pose else {
                     return Err(Outcome::fail("no pose estimate to steer with"));
                 };
@@ -366,7 +389,7 @@ impl Locomotion {
                 f.sum_sq += cross * cross;
                 f.samples += 1;
                 let at_last_segment = k + 2 >= f.points.len();
-                if to_end <= f.tolerance && (at_last_segment || to_end <= 0.5 * f.tolerance) {
+                if to_end <= f.tolerance && at_last_segment {
                     return Err(Outcome::Completed(serde_json::json!({
                         "x": pos.x, "y": pos.y, "distance_to_goal_m": to_end,
                         "max_cross_track_m": f.worst_cross_track,
@@ -377,16 +400,21 @@ impl Locomotion {
                 let (dx, dy) = (target[0] - pos.x, target[1] - pos.y);
                 let alpha = wrap(dy.atan2(dx) - est.value.yaw());
                 let clearance = f.clearance_at(k, t);
+                let left = f.remaining(k, t);
+                let signed = f.signed_cross_track(k, here, cross);
+                f.cross_integral = (f.cross_integral + signed * dt).clamp(-0.5, 0.5);
                 let result = if alpha.abs() > p.turn_in_place_deg.to_radians() {
                     BodyTwist { v: 0.0, omega: (p.heading_gain * alpha).clamp(-wmax, wmax) }
                 } else {
                     let slow = (clearance / p.slow_clearance_m).min(1.0);
                     let cruise = (f.speed.min(vmax) * slow).max(p.min_speed.min(f.speed));
-                    let v = cruise.min(0.6 * to_end + 0.05) * alpha.cos();
-                    // Pure pursuit: the arc through the lookahead point (curvature 2 sin(alpha) / L).
+                    let v =
+                        cruise.min(0.6 * left.min(to_end.max(left.min(p.lookahead_m))) + 0.05) * alpha.cos();
+                    // Pure pursuit: the arc through the lookahead point (curvature 2 sin(alpha) / L),
+                    // with an integral on the cross-track error.
                     let lookahead = dx.hypot(dy).max(1e-3);
-                    let omega = (v * 2.0 * alpha.sin() / lookahead).clamp(-wmax, wmax);
-                    BodyTwist { v, omega }
+                    let omega = v * 2.0 * alpha.sin() / lookahead - p.cross_track_gain_i * f.cross_integral;
+                    BodyTwist { v, omega: omega.clamp(-wmax, wmax) }
                 };
                 self.manoeuvre = Some(Manoeuvre::Follow(f));
                 Ok(result)
@@ -536,6 +564,7 @@ impl Module for Locomotion {
                     speed,
                     tolerance,
                     segment: 0,
+                    cross_integral: 0.0,
                     worst_cross_track: 0.0,
                     sum_sq: 0.0,
                     samples: 0,
@@ -582,6 +611,7 @@ impl Module for Locomotion {
             ("heading_tolerance_deg", p.heading_tolerance_deg),
             ("stall_time_s", p.stall_time_s),
             ("lookahead_m", p.lookahead_m),
+            ("cross_track_gain_i", p.cross_track_gain_i),
             ("slow_clearance_m", p.slow_clearance_m),
             ("min_speed", p.min_speed),
         ] {

@@ -53,6 +53,9 @@ pub struct OdometryParams {
     pub still_settle_s: f64,
     /// A sensor whose stamp does not advance for this long is reported as silent, s.
     pub silent_after_s: f64,
+    /// Gyro samples further than this from the bias learnt so far are not learnt from (the rover
+    /// turning before its encoders show it), rad/s.
+    pub bias_gate_rad_s: f64,
 }
 
 impl Default for OdometryParams {
@@ -70,6 +73,7 @@ impl Default for OdometryParams {
             bias_gain: 0.01,
             still_settle_s: 2.0,
             silent_after_s: 0.2,
+            bias_gate_rad_s: 0.02,
         }
     }
 }
@@ -100,8 +104,9 @@ struct OdoState {
     last_imu: ImuSample,
     enc_silent: bool,
     imu_silent: bool,
-    /// Since when the wheels stand still.
+    /// Since when the wheels stand still, and their angles then.
     still_since: Option<Time>,
+    still_angles: Vec<f64>,
     /// The gyro bias has been learnt at least once.
     bias_learnt: bool,
 }
@@ -132,6 +137,7 @@ impl Odometry {
             enc_silent: false,
             imu_silent: false,
             still_since: None,
+            still_angles: Vec::new(),
             bias_learnt: false,
         }
     }
@@ -180,8 +186,19 @@ impl Odometry {
             None => (0.0, 0.0, 0.0),
         };
         // Without a fresh reading the wheels are as they were (until the encoders count as silent).
+        // Still: no wheel turning now, and none has turned since the stillness began (a slow turn
+        // moves a wheel less than a count per reading, so its rate reads zero, but its angle
+        // moves: taking it for stillness would learn the turn as gyro bias).
         let still = match &enc {
-            Some(e) => e.rates.iter().all(|w| w.abs() < p.still_wheel_rate),
+            Some(e) => {
+                let resting = e.rates.iter().all(|w| w.abs() < p.still_wheel_rate);
+                let unmoved = s.still_angles.len() == e.angles.len()
+                    && e.angles.iter().zip(&s.still_angles).all(|(a, b)| (a - b).abs() < 1e-9);
+                if !(resting && unmoved) {
+                    s.still_angles = e.angles.clone();
+                }
+                resting && unmoved
+            }
             None => !enc_silent && s.still_since.is_some(),
         };
         if !still {
@@ -190,14 +207,22 @@ impl Odometry {
             s.still_since = Some(now);
         }
         let settled = s.still_since.is_some_and(|t| (now - t).as_secs_f64() >= p.still_settle_s);
+        // Gyro samples are learnt from only up to the encoder reading that shows the wheels still:
+        // the IMU's samples run ahead of the encoders' (a faster rate, a shorter latency), and a
+        // drive that starts between them turns the rover while the wheels still read still.
+        let still_until =
+            if settled { enc.as_ref().map(|e| e.stamp).or(Some(s.last_enc.stamp)) } else { None };
 
         // Attitude and heading change from every IMU sample since the last cycle.
         let (dyaw, yaw_var) = if imu_fresh {
             let (mut dyaw, mut var) = (0.0, 0.0);
             for sample in &imu {
                 let dt = (sample.stamp - s.last_imu.stamp).as_secs_f64().max(0.0);
-                if settled && p.bias_gain > 0.0 {
-                    s.bias += p.bias_gain * (sample.angular_rate - s.bias);
+                let innovation = sample.angular_rate - s.bias;
+                let learn = still_until.is_some_and(|t| sample.stamp <= t)
+                    && (!s.bias_learnt || innovation.norm() < p.bias_gate_rad_s);
+                if learn && p.bias_gain > 0.0 {
+                    s.bias += p.bias_gain * innovation;
                     s.bias_learnt = true;
                 }
                 let w = sample.angular_rate - s.bias;
@@ -323,6 +348,9 @@ impl Module for Odometry {
                 "turn_center_x_m must be within 2 m of base_link, got {}",
                 p.turn_center_x_m
             ));
+        }
+        if !(p.bias_gate_rad_s.is_finite() && p.bias_gate_rad_s > 0.0) {
+            return Err(format!("bias_gate_rad_s must be positive, got {}", p.bias_gate_rad_s));
         }
         if p.tilt_time_constant_s.is_nan()
             || p.tilt_time_constant_s <= 0.0

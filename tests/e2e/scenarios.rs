@@ -498,3 +498,25 @@ fn the_navigator_goes_round_a_barrier_and_reports_a_walled_off_goal() {
     let reason = s["phases"][0]["reason"].as_str().unwrap_or_default().to_string();
     assert!(reason.contains("no path"), "{reason}");
 }
+
+#[test]
+fn the_path_follower_tracks_a_circle() {
+    // Pure pursuit with its cross-track integral round a 2.5 m circle in full dynamics: the error
+    // it controls (its pose estimate against the path) stays small; the truth adds the odometry's
+    // drift (the localization issue's).
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("follow_circle.toml"), dir.path(), &["--set", "logging.rrd=false"]);
+    assert!(o.status.success(), "{}", show(&o));
+    let mcap = read_mcap(&dir.path().join("run.mcap"));
+    let done = mcap["/messages"]
+        .iter()
+        .find(|m| {
+            m["body"]["Ack"]["command"] == "follow_path"
+                && m["body"]["Ack"]["status"]["status"] == "completed"
+        })
+        .expect("follow_path completed");
+    let detail = &done["body"]["Ack"]["status"]["detail"];
+    let rms = detail["rms_cross_track_m"].as_f64().unwrap();
+    assert!(rms < 0.05, "rms cross-track {rms} m ({detail})");
+    assert!(score(dir.path())["metrics"]["distance_m"].as_f64().unwrap() > 15.0);
+}

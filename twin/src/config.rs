@@ -50,6 +50,10 @@ pub struct PhysicsConfig {
     pub friction_in_bias_pass: bool,
     /// Cell size of the terrain's collision grid, m (the world's own when smaller).
     pub terrain_cell_m: f64,
+    /// Kinematic fidelity: the skid-steer rover turns about a point this far ahead of `base_link`,
+    /// m, as it does in full dynamics (its wheels slip about the loaded axle), so both fidelities
+    /// move alike for the same wheel rates.
+    pub kinematic_turn_center_x_m: f64,
 }
 
 /// rapier's friction models.

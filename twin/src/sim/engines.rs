@@ -91,9 +91,11 @@ impl Twin {
         let rates = self.effective_wheel_rates();
         let twist = self.locomotor.body_twist(&rates);
         let Engine::Kinematic(k) = &self.engine else { return };
-        // Exact unicycle integration over the step.
+        // Exact unicycle integration over the step of the turning centre (ahead of base_link, as
+        // a skid-steer rover turns), then base_link behind it.
         let (v, w) = (twist.v, twist.omega);
-        let (mut x, mut y) = (k.x, k.y);
+        let c = self.config.physics.kinematic_turn_center_x_m;
+        let (mut x, mut y) = (k.x + c * k.yaw.cos(), k.y + c * k.yaw.sin());
         if w.abs() < 1e-12 {
             x += v * dt * k.yaw.cos();
             y += v * dt * k.yaw.sin();
@@ -102,6 +104,7 @@ impl Twin {
             y -= v / w * ((k.yaw + w * dt).cos() - k.yaw.cos());
         }
         let yaw = wrap(k.yaw + w * dt);
+        let (x, y) = (x - c * yaw.cos(), y - c * yaw.sin());
         // Rocks and objects stop the rover: the step is not taken, the drives hold their wheels.
         let (hl, hw) = self.footprint();
         let hits = self.obstacles.hits(x, y, yaw, hl, hw);

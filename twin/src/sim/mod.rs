@@ -609,7 +609,9 @@ impl Twin {
                     (from_rapier(body.velocity_at_point(p)), from_rapier(body.angvel()))
                 }
                 (Engine::Kinematic(k), _) => {
-                    let v = k.base.rotation * Vector3::new(k.twist.v, 0.0, 0.0);
+                    // base_link slides sideways as the rover turns about its turning centre.
+                    let side = -k.twist.omega * self.config.physics.kinematic_turn_center_x_m;
+                    let v = k.base.rotation * Vector3::new(k.twist.v, side, 0.0);
                     (v, Vector3::new(0.0, 0.0, k.twist.omega))
                 }
             };

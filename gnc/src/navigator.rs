@@ -66,6 +66,9 @@ pub struct NavigateArgs {
     pub tolerance_m: Option<f64>,
 }
 
+/// A drive that ends less than this nearer the goal than it started made no progress, m.
+const MIN_PROGRESS_M: f64 = 0.05;
+
 /// Where a navigation is.
 #[derive(Clone, Debug)]
 enum Phase {
@@ -75,9 +78,11 @@ enum Phase {
         seq0: u64,
     },
     Plan(Option<MessageId>),
+    /// Following a path; the distance to the goal when it started.
     Drive {
         id: MessageId,
         path_seq: u64,
+        from: f64,
     },
     /// After a stall: clear locomotion's fault, then back off before scanning again.
     Recover(Option<MessageId>),
@@ -246,8 +251,9 @@ impl CoordinatorNavigator {
                         g.plans += 1;
                     }
                     let args = self.path_args(&path.value, continuous);
+                    let from = self.distance_to_goal(ctx).unwrap_or(f64::INFINITY);
                     match Self::send(ctx, &peers.locomotion, "follow_path", args) {
-                        Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq }),
+                        Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq, from }),
                         Err(e) => Next::Fail(e),
                     }
                 }
@@ -280,13 +286,18 @@ impl CoordinatorNavigator {
                 }
                 _ => Next::Stay,
             },
-            Phase::Drive { id, path_seq } => {
+            Phase::Drive { id, path_seq, from } => {
                 let status = ctx.ack_status(id);
                 match status {
                     Some(AckStatus::Completed(_)) => {
                         let left = self.distance_to_goal(ctx).unwrap_or(f64::INFINITY);
                         if left <= tol {
                             return Next::Arrived(left);
+                        }
+                        if left > from - MIN_PROGRESS_M {
+                            return Next::Fail(format!(
+                                "no progress: the path ended {left:.2} m from the goal, {from:.2} m before it"
+                            ));
                         }
                         if let Some(g) = self.goal.as_mut() {
                             g.failures = 0;
@@ -317,7 +328,7 @@ impl CoordinatorNavigator {
                         }
                         let args = self.path_args(&path.value, true);
                         match Self::send(ctx, &peers.locomotion, "follow_path", args) {
-                            Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq }),
+                            Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq, from }),
                             Err(e) => Next::Fail(e),
                         }
                     }

@@ -137,7 +137,16 @@ pub fn plan(
     let (w, h) = (g.width as i64, g.height as i64);
     let goal_c = g.centre(goal_cell.0, goal_cell.1);
     let successors = |&(i, j): &(usize, usize)| {
-        let mut out = Vec::with_capacity(8);
+        let mut out = Vec::with_capacity(9);
+        if (i, j) == GOAL {
+            return out;
+        }
+        // A cell within the tolerance leads to the goal at a price for the distance it leaves: the
+        // search ends as near the goal as the terrain allows, not on the tolerance circle.
+        if near_goal(i, j) {
+            let c = g.centre(i, j);
+            out.push((GOAL, ((c[0] - goal[0]).hypot(c[1] - goal[1]) * TERMINAL_WEIGHT * UNIT) as u64));
+        }
         let here = search.factor(i, j).unwrap_or(1.0 + search.weight);
         for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
             let (ni, nj) = (i as i64 + di, j as i64 + dj);
@@ -156,13 +165,16 @@ pub fn plan(
         out
     };
     let heuristic = |&(i, j): &(usize, usize)| {
+        if (i, j) == GOAL {
+            return 0;
+        }
         let c = g.centre(i, j);
         // Straight-line distance to the goal's tolerance circle at the lowest cost factor (1).
         ((((c[0] - goal_c[0]).hypot(c[1] - goal_c[1]) - tol).max(0.0)) * UNIT) as u64
     };
-    let (cells, total) =
-        pathfinding::directed::astar::astar(&s, successors, heuristic, |&(i, j)| near_goal(i, j))
-            .ok_or(PlanError::NoPath { x: goal[0], y: goal[1] })?;
+    let (mut cells, total) = pathfinding::directed::astar::astar(&s, successors, heuristic, |n| *n == GOAL)
+        .ok_or(PlanError::NoPath { x: goal[0], y: goal[1] })?;
+    cells.pop();
     let cells = shortcut(&search, &cells);
     let mut points: Vec<[f64; 2]> = cells.iter().map(|&(i, j)| g.centre(i, j)).collect();
     // Start and end exactly where asked (the cells' centres are up to half a cell off).
@@ -176,6 +188,12 @@ pub fn plan(
     let clearance_m = points.iter().map(|q| clearance(map, *q, p.clearance_search_m)).collect();
     Ok(Path { frame: g.frame.clone(), points, clearance_m, cost: total as f64 / UNIT })
 }
+
+/// The node standing for the goal (reached from any cell within the tolerance).
+const GOAL: (usize, usize) = (usize::MAX - 1, usize::MAX - 1);
+
+/// Price per metre of the distance a path's end leaves to the goal, in cost-weighted metres.
+const TERMINAL_WEIGHT: f64 = 10.0;
 
 /// The node standing for everything beyond the map's edge.
 const BEYOND: (usize, usize) = (usize::MAX, usize::MAX);
@@ -393,6 +411,22 @@ mod tests {
         assert!(plan(&u, [0.25, 0.25], [2.85, 0.25], 0.05, &PlannerParams::default()).is_ok());
         u.unknown_cost = cost::OBSTACLE;
         assert!(plan(&u, [0.25, 0.25], [2.85, 0.25], 0.05, &PlannerParams::default()).is_err());
+    }
+
+    #[test]
+    fn a_goal_in_an_obstacle_is_approached_as_near_as_the_terrain_allows() {
+        // A 0.5 m square obstacle on the goal; tolerance 1 m: the path ends at the obstacle's edge,
+        // not on the tolerance circle.
+        let mut m = open_map(40, 40);
+        for j in 18..23 {
+            for i in 18..23 {
+                set(&mut m, i, j, cost::OBSTACLE);
+            }
+        }
+        let path = plan(&m, [0.25, 2.05], [2.05, 2.05], 1.0, &PlannerParams::default()).unwrap();
+        let end = path.points.last().unwrap();
+        let left = (end[0] - 2.05).hypot(end[1] - 2.05);
+        assert!(left < 0.35, "the path ends {left} m from the goal: {:?}", path.points);
     }
 
     #[test]

@@ -204,9 +204,13 @@ impl Following {
         (1.0 - t) * seg(k) + (k + 1..self.points.len() - 1).map(seg).sum::<f64>()
     }
 
-    /// The signed distance of `p` from segment `k` (positive to the left of the path).
+    /// The signed distance of `p` from segment `k` (positive to the left of the path); 0 on a
+    /// segment of no length (a path to a single point has no line to keep to).
     fn signed_cross_track(&self, k: usize, p: [f64; 2], distance: f64) -> f64 {
         let (a, b) = (self.points[k], self.points[k + 1]);
+        if (b[0] - a[0]).hypot(b[1] - a[1]) < 1e-9 {
+            return 0.0;
+        }
         let side = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
         distance.copysign(side)
     }
@@ -540,11 +544,15 @@ impl Module for Locomotion {
         d.command("follow_path", |m, ctx, a: FollowPathArgs| {
             let speed = a.speed.unwrap_or(m.params.speed);
             let tolerance = a.tolerance_m.unwrap_or(m.params.goal_tolerance_m);
-            let clearance = a.clearance_m.unwrap_or_else(|| vec![f64::INFINITY; a.points.len()]);
+            // No clearance given: nothing to slow down for (finite, so interpolation stays exact).
+            let clearance = a.clearance_m.unwrap_or_else(|| vec![f64::MAX; a.points.len()]);
             if a.points.is_empty() || a.points.iter().flatten().any(|v| !v.is_finite()) {
                 return Outcome::reject("follow_path needs at least one finite point");
             }
-            if clearance.len() != a.points.len() || !(speed > 0.0 && tolerance > 0.0) {
+            if clearance.len() != a.points.len()
+                || clearance.iter().any(|c| c.is_nan() || *c < 0.0)
+                || !(speed > 0.0 && tolerance > 0.0)
+            {
                 return Outcome::reject(
                     "follow_path needs one clearance per point, a positive speed and a positive tolerance",
                 );
@@ -552,7 +560,7 @@ impl Module for Locomotion {
             let mut points = a.points;
             let mut clearance = clearance;
             if points.len() == 1 {
-                // A single point: the segment from where the path was asked to it.
+                // A single point: a segment of no length, steered to like a goto (no cross-track).
                 points.insert(0, points[0]);
                 clearance.insert(0, clearance[0]);
             }

@@ -66,6 +66,9 @@ pub struct NavigateArgs {
     pub tolerance_m: Option<f64>,
 }
 
+/// The tightest tolerance locomotion is asked to stop within at a path's end, m.
+const MIN_FOLLOW_TOLERANCE_M: f64 = 0.1;
+
 /// A drive that ends less than this nearer the goal than it started made no progress, m.
 const MIN_PROGRESS_M: f64 = 0.05;
 
@@ -73,9 +76,10 @@ const MIN_PROGRESS_M: f64 = 0.05;
 #[derive(Clone, Debug)]
 enum Phase {
     Scan(Option<MessageId>),
+    /// Waiting since `since` for a navigation map holding what was seen at `after`.
     AwaitMap {
         since: Time,
-        seq0: u64,
+        after: Time,
     },
     Plan(Option<MessageId>),
     /// Following a path; the distance to the goal when it started.
@@ -197,10 +201,21 @@ impl CoordinatorNavigator {
             points.push(b);
             clearance.push(path.clearance_m[k]);
         }
-        let tol = self.goal.as_ref().map(|g| g.tolerance).unwrap_or(self.params.tolerance_m);
+        // Stop near enough the path's end that the goal's tolerance holds: the path may end short
+        // of the goal (when the goal lies in an obstacle) by up to that tolerance.
+        let (tol, at) =
+            self.goal.as_ref().map(|g| (g.tolerance, g.at)).unwrap_or((self.params.tolerance_m, [0.0; 2]));
+        let path_end = *path.points.last().expect("a path has points");
+        let follow_tol = if points.last() == Some(&path_end) {
+            let short = (path_end[0] - at[0]).hypot(path_end[1] - at[1]);
+            self.params.tolerance_m.min(tol - short).max(MIN_FOLLOW_TOLERANCE_M)
+        } else {
+            // A stop-and-go segment ends anywhere on the path.
+            self.params.tolerance_m
+        };
         serde_json::json!({
             "points": points, "clearance_m": clearance, "speed": self.params.speed,
-            "tolerance_m": tol.min(self.params.tolerance_m),
+            "tolerance_m": follow_tol,
         })
     }
 
@@ -208,7 +223,7 @@ impl CoordinatorNavigator {
     fn step(&mut self, ctx: &mut Ctx<'_>, continuous: bool) -> Next {
         let now = ctx.now();
         let peers = self.peers.clone();
-        let map_seq = self.map.as_ref().and_then(|r| ctx.read(r)).map(|m| m.seq).unwrap_or(0);
+        let map_stamp = self.map.as_ref().and_then(|r| ctx.read(r)).map(|m| m.stamp);
         let Some(g) = self.goal.as_ref() else { return Next::Stay };
         let (at, tol) = (g.at, g.tolerance);
         match g.phase.clone() {
@@ -217,14 +232,23 @@ impl CoordinatorNavigator {
                 Err(e) => Next::Fail(e),
             },
             Phase::Scan(Some(id)) => match ctx.ack_status(id) {
-                Some(AckStatus::Completed(_)) => Next::To(Phase::AwaitMap { since: now, seq0: map_seq }),
+                Some(AckStatus::Completed(detail)) => {
+                    // The navigation map to plan on holds the scan's last local map.
+                    let after = detail
+                        .get("last_map_stamp_ns")
+                        .and_then(|v| v.as_i64())
+                        .map(|ns| Time::from_secs_f64(ns as f64 * 1e-9))
+                        .unwrap_or(now);
+                    Next::To(Phase::AwaitMap { since: now, after })
+                }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     Next::Fail(format!("scan failed: {r}"))
                 }
                 _ => Next::Stay,
             },
-            Phase::AwaitMap { since, seq0 } => {
-                if map_seq > seq0 || (map_seq > 0 && (now - since).as_secs_f64() >= self.params.map_wait_s) {
+            Phase::AwaitMap { since, after } => {
+                let fresh = map_stamp.is_some_and(|t| t >= after);
+                if fresh || (map_stamp.is_some() && (now - since).as_secs_f64() >= self.params.map_wait_s) {
                     Next::To(Phase::Plan(None))
                 } else if (now - since).as_secs_f64() >= 3.0 * self.params.map_wait_s {
                     Next::Fail("no navigation map after the scan".into())
@@ -340,6 +364,11 @@ impl CoordinatorNavigator {
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>, continuous: bool) -> StateResult {
         self.mode = if continuous { "continuous" } else { "stop_and_go" };
+        if self.goal.is_none() {
+            // The goal went with a lifecycle change (Hold): back to idle.
+            self.publish(ctx);
+            return ctx.goto("idle").map_err(|e| ModuleError(e.to_string()));
+        }
         match self.step(ctx, continuous) {
             Next::Stay => {}
             Next::To(phase) => {
@@ -444,6 +473,8 @@ impl Module for CoordinatorNavigator {
                 return Outcome::reject("navigate_to must come as a command");
             };
             if let Some(old) = m.goal.take() {
+                // The rover stops following the old goal's path before the new goal's scan.
+                let _ = ctx.send(Command::new(&m.peers.locomotion, "stop"));
                 ctx.reply(&old.request, Outcome::fail("superseded by a new navigate_to"));
             }
             m.goal = Some(Goal {
@@ -493,6 +524,8 @@ impl Module for CoordinatorNavigator {
         if matches!(to, Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown)
             && let Some(g) = self.goal.take()
         {
+            // The planner keeps no goal of ours (it would replan forever).
+            let _ = ctx.send(Command::new(&self.peers.planner, "clear"));
             ctx.reply(&g.request, Outcome::fail(format!("the navigator left Run for {to}")));
         }
         Ok(())

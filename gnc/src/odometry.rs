@@ -107,8 +107,9 @@ struct OdoState {
     /// Since when the wheels stand still, and their angles then.
     still_since: Option<Time>,
     still_angles: Vec<f64>,
-    /// The gyro bias has been learnt at least once.
+    /// The gyro bias has been learnt at least once, and from how many samples.
     bias_learnt: bool,
+    bias_samples: u64,
 }
 
 impl Odometry {
@@ -139,6 +140,7 @@ impl Odometry {
             still_since: None,
             still_angles: Vec::new(),
             bias_learnt: false,
+            bias_samples: 0,
         }
     }
 
@@ -219,11 +221,15 @@ impl Odometry {
             for sample in &imu {
                 let dt = (sample.stamp - s.last_imu.stamp).as_secs_f64().max(0.0);
                 let innovation = sample.angular_rate - s.bias;
+                // The gate holds only once the estimate has converged (a few time constants of the
+                // learning): before, a large true bias would be gated out for good.
+                let converged = s.bias_samples as f64 * p.bias_gain > 3.0;
                 let learn = still_until.is_some_and(|t| sample.stamp <= t)
-                    && (!s.bias_learnt || innovation.norm() < p.bias_gate_rad_s);
+                    && (!converged || innovation.norm() < p.bias_gate_rad_s);
                 if learn && p.bias_gain > 0.0 {
                     s.bias += p.bias_gain * innovation;
                     s.bias_learnt = true;
+                    s.bias_samples += 1;
                 }
                 let w = sample.angular_rate - s.bias;
                 if let Some((roll, pitch)) = tilt_from_gravity(&sample.specific_force) {

@@ -207,9 +207,10 @@ impl PerceptionDataFusion {
         }
         if scan.next >= scan.poses.len() {
             let known = self.map.as_ref().map(|m| m.known()).unwrap_or(0);
-            return Some(Outcome::Completed(
-                serde_json::json!({ "poses": scan.poses.len(), "known_cells": known, "last_shift_m": last_shift }),
-            ));
+            return Some(Outcome::Completed(serde_json::json!({
+                "poses": scan.poses.len(), "known_cells": known, "last_shift_m": last_shift,
+                "last_map_stamp_ns": last_local_stamp.map(|t| t.as_nanos()),
+            })));
         }
         let pose = scan.poses[scan.next];
         let cmd = Command::new(&ptu, "move").json(serde_json::json!({ "positions": pose }));

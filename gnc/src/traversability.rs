@@ -139,8 +139,8 @@ impl Module for Traversability {
 
     fn configure(&mut self, p: &TraversabilityModuleParams) -> Result<(), String> {
         p.rover.validate()?;
-        if !(p.max_size_m.is_finite() && p.max_size_m > 0.0 && p.margin_m >= 0.0) {
-            return Err("max_size_m must be positive and margin_m >= 0".into());
+        if !(p.max_size_m.is_finite() && p.max_size_m >= 1.0 && p.margin_m >= 0.0) {
+            return Err("max_size_m must be at least 1 m and margin_m >= 0".into());
         }
         self.params = p.clone();
         Ok(())

@@ -107,7 +107,8 @@ pub fn fuse(
     p: &FusionParams,
 ) -> FusionReport {
     let Some((di, dj)) = local.geometry.offset_to(&global.geometry) else { return FusionReport::default() };
-    let shift = vertical_offset(global, local, (di, dj), p.align_min_cells).unwrap_or(0.0);
+    let offset = vertical_offset(global, local, (di, dj), p.align_min_cells);
+    let (aligned, shift) = (offset.is_some(), offset.unwrap_or(0.0));
     let (lw, lh) = (local.geometry.width, local.geometry.height);
     let r = local.geometry.resolution_m;
     let mut updated = 0;
@@ -120,7 +121,9 @@ pub fn fuse(
             let Some(g) = to_global(&global.geometry, (di, dj), i, j) else { continue };
             // The local slope turns the horizontal placement error into height error.
             let slope2 = local_slope2(local, i, j, r);
-            let v_new = f64::from(local.variance[k]) + placement.z + placement.xy * slope2;
+            // A local map shifted onto the global one has no vertical placement error left.
+            let z_var = if aligned { 0.0 } else { placement.z };
+            let v_new = f64::from(local.variance[k]) + z_var + placement.xy * slope2;
             let h_new = f64::from(local.height[k]) - shift;
             let (h_old, v_old) = (f64::from(global.height[g]), f64::from(global.variance[g]));
             let replace = global.count[g] == 0

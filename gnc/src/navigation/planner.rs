@@ -110,7 +110,8 @@ pub fn plan(
     let r = g.resolution_m;
     let s = g.cell(start[0], start[1]).ok_or(PlanError::StartOutside(start[0], start[1]))?;
     let search = Search { map, weight: p.cost_weight.max(0.0), start: s, escape2: p.start_escape_m.powi(2) };
-    let tol = tolerance_m.max(0.5 * r);
+    // At least half a cell's diagonal: some cell centre is always that near.
+    let tol = tolerance_m.max(r * std::f64::consts::FRAC_1_SQRT_2);
     let Some(goal_cell) = g.cell(goal[0], goal[1]) else {
         return plan_beyond(&search, s, start, goal, p);
     };
@@ -226,7 +227,14 @@ fn plan_beyond(
             return out;
         }
         let here = search.factor(i, j).unwrap_or(1.0 + search.weight);
-        if i == 0 || j == 0 || i + 1 == g.width || j + 1 == g.height {
+        // Only through an edge that faces the goal: the straight leg then leaves the map at once
+        // (a ray leaving a rectangle never comes back), never recrossing known obstacles.
+        let c = g.centre(i, j);
+        let faces = (i == 0 && goal[0] < c[0])
+            || (j == 0 && goal[1] < c[1])
+            || (i + 1 == g.width && goal[0] > c[0])
+            || (j + 1 == g.height && goal[1] > c[1]);
+        if faces {
             out.push((BEYOND, (to_goal(i, j) * unknown * UNIT) as u64));
         }
         for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
@@ -285,11 +293,12 @@ fn shortcut(search: &Search<'_>, cells: &[(usize, usize)]) -> Vec<(usize, usize)
 }
 
 /// Distance from `q` to the nearest obstacle cell of `map` (not counting inflation), capped at
-/// `search_m`.
+/// `search_m` (which it is off the map).
 pub fn clearance(map: &NavigationMap, q: [f64; 2], search_m: f64) -> f64 {
     let g = &map.geometry;
     let r = g.resolution_m;
-    let Some((ci, cj)) = g.cell(q[0], q[1]) else { return 0.0 };
+    // Off the map no obstacle is known.
+    let Some((ci, cj)) = g.cell(q[0], q[1]) else { return search_m };
     let reach = (search_m / r).ceil() as i64;
     let mut best = search_m;
     for dj in -reach..=reach {
@@ -411,6 +420,26 @@ mod tests {
         assert!(plan(&u, [0.25, 0.25], [2.85, 0.25], 0.05, &PlannerParams::default()).is_ok());
         u.unknown_cost = cost::OBSTACLE;
         assert!(plan(&u, [0.25, 0.25], [2.85, 0.25], 0.05, &PlannerParams::default()).is_err());
+    }
+
+    #[test]
+    fn a_goal_beyond_the_map_is_reached_through_the_edge_that_faces_it() {
+        // A wall across the map between the rover and the east edge; the goal lies east beyond
+        // it. The leg over unknown ground may not start from the west, north or south edges and
+        // cross back over the wall: the path goes round the wall's end.
+        let mut m = open_map(40, 20);
+        for j in 0..17 {
+            set(&mut m, 20, j, cost::OBSTACLE);
+        }
+        let path = plan(&m, [0.55, 0.55], [8.0, 0.55], 0.1, &PlannerParams::default()).unwrap();
+        for w in path.points.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            for k in 0..=100 {
+                let t = k as f64 / 100.0;
+                let q = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
+                assert_ne!(m.cost_at(q[0], q[1]), Some(cost::OBSTACLE), "{:?} crosses the wall", path.points);
+            }
+        }
     }
 
     #[test]

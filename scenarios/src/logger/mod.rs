@@ -345,9 +345,11 @@ impl RunLogger {
                 Known::Other
             };
             if matches!(known, Known::Elevation(..) | Known::Navigation(..)) {
-                // Maps: at their own rate, never as JSON (a global map is megabytes of it).
+                // Maps: at their own rate, never as JSON (a global map is megabytes of it). One
+                // skipped for the rate stays unseen, so the newest is logged when the rate allows.
                 let Some(p) = period(self.settings.maps_hz) else { continue };
                 if self.next_image.get(&name).is_some_and(|t| now < *t) {
+                    self.slot_seq.remove(&name);
                     continue;
                 }
                 self.next_image.insert(name.clone(), now + p);

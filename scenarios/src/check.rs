@@ -4,7 +4,7 @@
 //! `[framework]` or `[params]` (and a name matching a module of the runner's system) a module
 //! configuration, anything else is read as a scenario.
 
-use crate::runner::MODULES;
+use crate::system::MODULES;
 use framework::config::{ConfigError, Source, read_file};
 use std::path::Path;
 
@@ -76,7 +76,7 @@ pub fn check_file(path: &Path) -> Vec<String> {
             // start-up.
             let name = path.file_stem().and_then(|s| s.to_str()).unwrap_or("");
             if MODULES.contains(&name) {
-                return crate::runner::check_module_config(name, path).err().unwrap_or_default();
+                return crate::system::check_module_config(name, path).err().unwrap_or_default();
             }
             check_unknown_module(&origin, &text)
         }

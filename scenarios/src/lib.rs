@@ -1,7 +1,8 @@
 //! # scenarios: the rover-twin workbench's front door
 //!
 //! Scenario files and their loader ([`scenario`]), the runner that steps the twin and the module
-//! system in lockstep and plays a mission's ground plan ([`runner`]), the scorer ([`score`]), the
+//! system in lockstep and plays a mission's ground plan ([`runner`]), the module system it runs
+//! ([`system`]), the scorer ([`score`]), the
 //! run logger writing Rerun and MCAP files ([`logger`]), Monte Carlo sweeps with shards and merging
 //! ([`sweep`], [`report`]), file validation ([`check`]), the twin's fault injector ([`faults`]), the scripted operator ([`operator`]) and
 //! the framework demo ([`demo`]). The `rover-twin` binary is a thin CLI over these.
@@ -18,3 +19,4 @@ pub mod scenario;
 pub mod score;
 pub mod snapshot;
 pub mod sweep;
+pub mod system;

@@ -1,25 +1,19 @@
 //! The scenario runner: builds the twin and the module system of a scenario, steps them in lockstep,
 //! plays the ground plan and the timed events through message passing, scores the run and keeps its
-//! logs complete whatever happens.
+//! logs complete whatever happens. The module system it runs is built by [`crate::system`].
 //!
 //! Time: the executor's simulated clock and the twin advance together. Before each executor tick to
 //! time `t`, the twin is stepped to `t`, so modules running at `t` read sensors stamped `t` and their
 //! commands act from `t` on.
 
-use crate::faults::{self, TwinFaults};
 use crate::logger::RunLogger;
 use crate::scenario::{FidelityName, Loaded, OnFailure, Scenario};
 use crate::score::{CriterionResult, LogFiles, Metrics, PhaseResult, PhaseStatus, Score};
 use anyhow::{Context, Result, anyhow};
 use framework::data::PoseEstimate;
-use framework::hal::DeviceMap;
 use framework::{
-    AckStatus, Command, ConfigSource, Duration, Endpoint, Executor, Lifecycle, LockstepExecutor, MessageId,
-    SystemBuilder, Time,
+    AckStatus, Command, Duration, Endpoint, Executor, Lifecycle, LockstepExecutor, MessageId, Time,
 };
-use gnc::joints::JointGroupModule;
-use gnc::locomotion::Locomotion;
-use gnc::odometry::Odometry;
 use nalgebra::Isometry3;
 use parking_lot::Mutex;
 use std::collections::{BTreeMap, HashSet};
@@ -27,7 +21,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
-use twin::devices::{DryRunDeviceMap, SharedTwin};
+use twin::devices::SharedTwin;
 use twin::{Fidelity, StartPose, Twin, TwinConfig};
 
 /// Options of one run.
@@ -45,67 +39,6 @@ pub struct RunOptions {
     pub write_logs: bool,
     /// Set to stop the run (SIGINT/SIGTERM): it ends as aborted, logs finalized.
     pub interrupt: Arc<AtomicBool>,
-}
-
-/// Module configuration defaults shipped with the runner.
-pub fn module_config_dir() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/modules")
-}
-
-/// Modules of the system a scenario runs, in registration order.
-/// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders); the
-/// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate.
-pub const MODULES: &[&str] = &[
-    "odometry",
-    "locomotion",
-    "arm",
-    "ptu",
-    "gripper",
-    "cameras",
-    "perception_tof",
-    "perception_fusion",
-    "traversability",
-    "path_planning",
-    "navigator",
-    faults::NAME,
-];
-
-/// The navigation chain's modules (they need the ToF cameras).
-const NAVIGATION: &[&str] =
-    &["perception_tof", "perception_fusion", "traversability", "path_planning", "navigator"];
-
-/// The slot of the pose estimate the GNC steers and maps with.
-const POSE_SLOT: &str = "odometry/pose";
-
-/// Builds a module's configuration: its default file with the scenario's `[modules.<name>]` merged
-/// over it and the run's purpose (Debug/Mission) applied.
-fn module_config(name: &str, s: &Scenario, scenario_path: &Path, extra: toml::Table) -> Result<ConfigSource> {
-    let path = module_config_dir().join(format!("{name}.toml"));
-    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
-    let mut doc: toml::Table =
-        toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
-    let mut context = toml::Table::new();
-    context.insert("mode".into(), "dry-run".into());
-    context.insert(
-        "purpose".into(),
-        match s.run.purpose {
-            framework::Purpose::Debug => "debug",
-            framework::Purpose::Mission => "mission",
-        }
-        .into(),
-    );
-    let mut fw = toml::Table::new();
-    fw.insert("context".into(), toml::Value::Table(context));
-    let mut over = toml::Table::new();
-    over.insert("framework".into(), toml::Value::Table(fw));
-    crate::scenario::merge(&mut doc, over);
-    crate::scenario::merge(&mut doc, extra);
-    let mut origin = path.display().to_string();
-    if let Some(t) = s.modules.get(name) {
-        crate::scenario::merge(&mut doc, t.clone());
-        origin = format!("{origin} with [modules.{name}] of {}", scenario_path.display());
-    }
-    Ok(ConfigSource::inline(origin, toml::to_string(&doc)?))
 }
 
 /// Radius kept free of rocks around the rover's start, m (its footprint's half-diagonal, 0.7 m,
@@ -165,182 +98,6 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     };
     let start = StartPose { x: s.rover.x, y: s.rover.y, yaw: s.rover.yaw_deg.to_radians() };
     Ok(Twin::new(world, config, &twin::rover_urdf(), start, fid)?)
-}
-
-/// Builds the module system of a scenario over `twin`.
-fn build_system(loaded: &Loaded, twin: &SharedTwin, seed: u64, log_messages: bool) -> Result<SystemBuilder> {
-    let s = &loaded.scenario;
-    let mut b = SystemBuilder::new();
-    // Every message and acknowledgement is traced for the logger.
-    b.trace_messages(log_messages);
-    let map = DryRunDeviceMap::with_sensors(twin.clone(), b.resources().clone(), seed, sensor_config(loaded));
-    let model = map.locomotor()?.model().clone();
-    let mut odo_extra = toml::Table::new();
-    let mut params = toml::Table::new();
-    // What the operator knows of the start: base_link's pose as surveyed, off the truth by the
-    // scenario's uncertainty (drawn from the run's seed).
-    let known = known_start(&twin.lock().base_pose(), &s.rover, seed);
-    params.insert("initial_pose".into(), toml::Value::Array(known.iter().map(|v| (*v).into()).collect()));
-    params.insert(
-        "initial_sigma".into(),
-        toml::Value::Array(vec![s.rover.known_sigma_m.into(), s.rover.known_sigma_deg.into()]),
-    );
-    odo_extra.insert("params".into(), toml::Value::Table(params));
-    let p = &loaded.path;
-    let cameras = cameras_enabled(s);
-    for name in MODULES {
-        if (*name == "cameras" && !cameras) || (NAVIGATION.contains(name) && !navigation_enabled(s)) {
-            continue;
-        }
-        let extra = if *name == "odometry" { odo_extra.clone() } else { Default::default() };
-        add_module(&mut b, name, &map, twin, model.clone(), module_config(name, s, p, extra)?)?;
-    }
-    if s.operator.select_target && cameras {
-        let truth = map.stereo_belief("head_stereo")?.left;
-        let source = ConfigSource::inline(
-            format!("<operator of {}>", loaded.path.display()),
-            "[framework]\nperiod_s = 0.1\n",
-        );
-        b.add(
-            crate::operator::NAME,
-            crate::operator::Operator::new(twin.clone(), "head_stereo", truth),
-            source,
-        );
-    }
-    b.endpoint("ground").endpoint("events");
-    Ok(b)
-}
-
-/// The rendered sensors' configuration: `assets/rover/sensors.toml` with the scenario's `[sensors]`
-/// table over it (an error is reported when a camera is asked for, naming both files).
-fn sensor_config(loaded: &Loaded) -> std::result::Result<twin::render::SensorConfig, String> {
-    let path = twin::render::SensorConfig::default_path();
-    let s = &loaded.scenario;
-    if s.sensors.is_empty() {
-        return twin::render::SensorConfig::load(&path).map_err(|e| e.to_string());
-    }
-    let text = std::fs::read_to_string(&path).map_err(|e| format!("reading {}: {e}", path.display()))?;
-    let mut doc: toml::Table = toml::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
-    crate::scenario::merge(&mut doc, s.sensors.clone());
-    let origin = format!("{} with [sensors] of {}", path.display(), loaded.path.display());
-    let merged = toml::to_string(&doc).map_err(|e| e.to_string())?;
-    twin::render::SensorConfig::from_str(&merged, &origin).map_err(|e| e.to_string())
-}
-
-/// What the operator knows of the start pose of `base_link` (`truth`): [x, y, z, yaw_deg], each off
-/// the truth by a normal draw with the scenario's sigmas, from the run's seed.
-pub fn known_start(
-    truth: &nalgebra::Isometry3<f64>,
-    rover: &crate::scenario::RoverStart,
-    seed: u64,
-) -> [f64; 4] {
-    let mut d = twin::belief::Draws::new(seed, "operator:start");
-    let p = truth.translation.vector;
-    let yaw = truth.rotation.euler_angles().2.to_degrees();
-    [
-        p.x + d.normal(rover.known_sigma_m),
-        p.y + d.normal(rover.known_sigma_m),
-        p.z + d.normal(rover.known_sigma_m),
-        yaw + d.normal(rover.known_sigma_deg),
-    ]
-}
-
-/// The cameras run when the scenario has a `[modules.cameras]` table with a non-zero rate (sweeps
-/// turn them off by setting both rates to 0).
-fn cameras_enabled(s: &Scenario) -> bool {
-    let Some(t) = s.modules.get("cameras") else { return false };
-    let rate = |k: &str| {
-        t.get("params").and_then(|p| p.get(k)).and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
-    };
-    // Absent rates take the module defaults (on).
-    ["head_stereo_hz", "loc_stereo_hz", "tof_hz"].iter().any(|k| rate(k).is_none_or(|r| r > 0.0))
-}
-
-/// The navigation chain runs when the cameras do and the ToF cameras have a rate.
-fn navigation_enabled(s: &Scenario) -> bool {
-    if !cameras_enabled(s) {
-        return false;
-    }
-    let tof = s.modules.get("cameras").and_then(|t| t.get("params")).and_then(|p| p.get("tof_hz"));
-    tof.and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).is_none_or(|r| r > 0.0)
-}
-
-/// Registers module `name` of the runner's system, with its devices from `map`.
-fn add_module(
-    b: &mut SystemBuilder,
-    name: &str,
-    map: &DryRunDeviceMap,
-    twin: &SharedTwin,
-    model: framework::hal::LocomotorModel,
-    config: ConfigSource,
-) -> Result<()> {
-    match name {
-        "odometry" => b.add(name, Odometry::new(map.encoders()?, map.imu()?, model), config),
-        "locomotion" => b.add(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
-        "arm" | "ptu" | "gripper" => b.add(name, JointGroupModule::new(map.joint_group(name)?), config),
-        faults::NAME => b.add(name, TwinFaults::new(twin.clone()), config),
-        "cameras" => b.add(
-            name,
-            gnc::cameras::Cameras::new(
-                vec![map.stereo_camera("head_stereo")?, map.stereo_camera("loc_stereo")?],
-                vec![map.tof_camera("tof_left")?, map.tof_camera("tof_right")?],
-            ),
-            config,
-        ),
-        "perception_tof" => {
-            let mut cams = Vec::new();
-            for device in ["tof_left", "tof_right"] {
-                cams.push((device.to_string(), map.tof_camera(device)?.calibration().clone()));
-            }
-            b.add(
-                name,
-                gnc::perception_tof::PerceptionToF::new(
-                    cams,
-                    map.mechanism()?,
-                    POSE_SLOT,
-                    &["ptu/joints", "arm/joints"],
-                ),
-                config,
-            )
-        }
-        "perception_fusion" => {
-            b.add(name, gnc::perception_fusion::PerceptionDataFusion::new(POSE_SLOT, "ptu"), config)
-        }
-        "traversability" => b.add(name, gnc::traversability::Traversability::new(POSE_SLOT), config),
-        "path_planning" => b.add(name, gnc::path_planning::PathPlanning::new(POSE_SLOT), config),
-        "navigator" => b.add(
-            name,
-            gnc::navigator::CoordinatorNavigator::new(
-                gnc::navigator::NavigatorPeers {
-                    fusion: "perception_fusion".into(),
-                    planner: "path_planning".into(),
-                    locomotion: "locomotion".into(),
-                },
-                POSE_SLOT,
-            ),
-            config,
-        ),
-        other => return Err(anyhow!("no module '{other}' in the runner's system")),
-    };
-    Ok(())
-}
-
-/// Checks a module configuration file by registering its module (named by the file) against a
-/// kinematic twin of the flat yard: every problem the system would find at start-up.
-pub fn check_module_config(name: &str, path: &Path) -> std::result::Result<(), Vec<String>> {
-    let fail = |e: anyhow::Error| {
-        vec![format!("{}: cannot build module '{name}' to check it: {e:#}", path.display())]
-    };
-    let world =
-        worlds::World::load(worlds::worlds_dir().join("flat_yard.toml")).map_err(|e| fail(e.into()))?;
-    let start = StartPose { x: 0.0, y: 0.0, yaw: 0.0 };
-    let twin = Twin::with_defaults(world, start, Fidelity::Kinematic).map_err(|e| fail(e.into()))?;
-    let twin = twin::devices::share(twin);
-    let mut b = SystemBuilder::new();
-    let map = DryRunDeviceMap::new(twin.clone(), b.resources().clone(), 1);
-    let model = map.locomotor().map_err(|e| fail(e.into()))?.model().clone();
-    add_module(&mut b, name, &map, &twin, model, ConfigSource::file(path)).map_err(fail)?;
-    if b.problems().is_empty() { Ok(()) } else { Err(b.problems().to_vec()) }
 }
 
 #[derive(Debug)]
@@ -688,7 +445,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let twin = twin::devices::share(build_twin(loaded, fidelity)?);
     let log_messages = opts.write_logs && s.logging.events && (s.logging.rrd || s.logging.mcap);
-    let builder = build_system(loaded, &twin, seed, log_messages)?;
+    let builder = crate::system::build_system(loaded, &twin, seed, log_messages)?;
     let base = Duration::from_secs_f64(s.run.base_period_s);
     let mut ex = LockstepExecutor::new(builder, base)?;
     let logger = Arc::new(Mutex::new(if opts.write_logs && (s.logging.rrd || s.logging.mcap) {

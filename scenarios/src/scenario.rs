@@ -647,8 +647,8 @@ fn validate(s: &Scenario, files: &[FileText], overrides: &[(String, String)]) ->
         return err("world.friction", format!("must be >= 0, got {f}"));
     }
     for name in s.modules.keys() {
-        if !crate::runner::MODULES.contains(&name.as_str()) {
-            let modules = crate::runner::MODULES.join(", ");
+        if !crate::system::MODULES.contains(&name.as_str()) {
+            let modules = crate::system::MODULES.join(", ");
             return err(
                 &format!("modules.{name}"),
                 format!("no module '{name}' in this system (it has: {modules})"),

@@ -62,7 +62,7 @@ pub(super) fn own_schema(name: &str, description: &str, properties: &str) -> Str
     )
 }
 
-/// Downsamples an image by `k` (each output pixel combines a k x k block with `merge`).
+/// A time as Foxglove's `{sec, nsec}`.
 pub(super) fn stamp_json(t: Time) -> serde_json::Value {
     let ns = t.as_nanos().max(0) as u64;
     serde_json::json!({ "sec": ns / 1_000_000_000, "nsec": ns % 1_000_000_000 })

@@ -23,7 +23,7 @@ use crate::scenario::{LoggingSettings, Scenario};
 use crate::score::{LogFiles, Score};
 use anyhow::{Context, Result};
 use base64::Engine;
-use framework::camera::{Image, TofFrame};
+use framework::camera::TofFrame;
 use framework::data::{
     ElevationMap, JointStates, LocomotionState, NavigationMap, PoseEstimate, StereoImages, TargetSelection,
 };
@@ -34,6 +34,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use twin::Twin;
 
+mod framework_log;
+mod images;
 mod maps;
 mod mcap_writer;
 mod rerun_view;
@@ -43,27 +45,6 @@ use rerun_view::{blueprint, extend_track, rr_transform};
 
 /// Simulated-time timeline of the recording.
 pub const TIMELINE: &str = "sim_time";
-
-fn downsample<T: Copy>(img: &Image<T>, k: u32, merge: impl Fn(&[T]) -> T) -> (u32, u32, Vec<T>) {
-    if k <= 1 {
-        return (img.width, img.height, img.data.clone());
-    }
-    let (w, h) = (img.width / k, img.height / k);
-    let mut out = Vec::with_capacity((w * h) as usize);
-    let mut block = Vec::with_capacity((k * k) as usize);
-    for v in 0..h {
-        for u in 0..w {
-            block.clear();
-            for dv in 0..k {
-                for du in 0..k {
-                    block.push(img.at(u * k + du, v * k + dv));
-                }
-            }
-            out.push(merge(&block));
-        }
-    }
-    (w, h, out)
-}
 
 /// What the run loop hands the logging thread: owned snapshots, cheap to take.
 enum Item {
@@ -720,78 +701,6 @@ impl Writer {
         Ok(())
     }
 
-    /// A greyscale image, downsampled: Rerun `Image` and MCAP `foxglove.RawImage` (mono8).
-    fn grey(&mut self, path: &str, img: &Image<u8>) -> Result<()> {
-        let (w, h, data) = downsample(img, self.downsample, |v: &[u8]| {
-            (v.iter().map(|&x| x as u32).sum::<u32>() / v.len() as u32) as u8
-        });
-        if let Some(rec) = &self.rrd {
-            rec.log(path, &rerun::Image::from_l8(data.clone(), [w, h]))?;
-        }
-        if let Some(m) = &mut self.mcap {
-            m.foxglove(
-                &format!("/{path}"),
-                "foxglove.RawImage",
-                img.stamp,
-                &serde_json::json!({
-                    "timestamp": stamp_json(img.stamp), "frame_id": img.frame, "width": w, "height": h,
-                    "encoding": "mono8", "step": w, "data": base64::engine::general_purpose::STANDARD.encode(&data),
-                }),
-            )?;
-        }
-        Ok(())
-    }
-
-    /// A ToF frame: the depth image (Rerun `DepthImage`, MCAP `foxglove.RawImage` 32FC1,
-    /// downsampled) and the full point cloud in the optical frame (Rerun `Points3D` under the
-    /// frame's truth entity, MCAP `foxglove.PointCloud`).
-    fn tof(&mut self, name: &str, f: &TofFrame) -> Result<()> {
-        let d = &f.depth;
-        let (w, h, depth) = downsample(d, self.downsample, |v: &[f32]| {
-            let ok: Vec<f32> = v.iter().copied().filter(|x| x.is_finite()).collect();
-            if ok.is_empty() { f32::NAN } else { ok.iter().sum::<f32>() / ok.len() as f32 }
-        });
-        let depth_bytes: Vec<u8> = depth.iter().flat_map(|x| x.to_le_bytes()).collect();
-        let points: Vec<[f32; 3]> = f.points.iter().map(|p| [p.x, p.y, p.z]).collect();
-        if let Some(rec) = &self.rrd {
-            let zeroed: Vec<u8> =
-                depth.iter().flat_map(|x| if x.is_finite() { *x } else { 0.0 }.to_le_bytes()).collect();
-            rec.log(
-                format!("sensors/{name}/depth"),
-                &rerun::DepthImage::from_data_type_and_bytes(zeroed, [w, h], rerun::ChannelDatatype::F32)
-                    .with_meter(1.0_f32),
-            )?;
-            rec.log(
-                format!("world/truth/{}/points", d.frame),
-                &rerun::Points3D::new(points.clone()).with_radii([0.01_f32]).with_colors([[255u8, 120, 40]]),
-            )?;
-        }
-        if let Some(m) = &mut self.mcap {
-            m.foxglove(
-                &format!("/sensors/{name}/depth"),
-                "foxglove.RawImage",
-                d.stamp,
-                &serde_json::json!({
-                    "timestamp": stamp_json(d.stamp), "frame_id": d.frame, "width": w, "height": h,
-                    "encoding": "32FC1", "step": w * 4, "data": base64::engine::general_purpose::STANDARD.encode(&depth_bytes),
-                }),
-            )?;
-            let bytes: Vec<u8> = points.iter().flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())).collect();
-            m.foxglove(
-                &format!("/sensors/{name}/points"),
-                "foxglove.PointCloud",
-                d.stamp,
-                &serde_json::json!({
-                    "timestamp": stamp_json(d.stamp), "frame_id": d.frame, "pose": pose_json(&Isometry3::identity()),
-                    "point_stride": 12,
-                    "fields": [{"name": "x", "offset": 0, "type": 7}, {"name": "y", "offset": 4, "type": 7}, {"name": "z", "offset": 8, "type": 7}],
-                    "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
-                }),
-            )?;
-        }
-        Ok(())
-    }
-
     fn pose_estimate(
         &mut self,
         slot: &str,
@@ -845,108 +754,6 @@ impl Writer {
                 "foxglove.PoseInFrame",
                 stamp,
                 &serde_json::json!({ "timestamp": stamp_json(stamp), "frame_id": e.frame, "pose": pose_json(&e.pose) }),
-            )?;
-        }
-        Ok(())
-    }
-
-    fn events(
-        &mut self,
-        now: Time,
-        events: Vec<framework::events::Event>,
-        messages: Vec<(String, String, framework::message::Message)>,
-    ) -> Result<()> {
-        use framework::events::EventKind as K;
-        for e in events {
-            let (level, rr_level, module) = match &e.kind {
-                K::ModuleIsolated { module, .. } => (4, rerun::TextLogLevel::ERROR, Some(module.clone())),
-                K::MessageRejected { module, .. } | K::Overrun { module, .. } => {
-                    (3, rerun::TextLogLevel::WARN, Some(module.clone()))
-                }
-                K::ModuleLifecycle { module, .. }
-                | K::ModuleState { module, .. }
-                | K::MetaStateSwitched { module, .. }
-                | K::Note { module, .. } => (2, rerun::TextLogLevel::INFO, Some(module.clone())),
-                K::ReservationOverridden { .. } => (3, rerun::TextLogLevel::WARN, None),
-                K::SystemState { .. } => (2, rerun::TextLogLevel::INFO, None),
-            };
-            let text = serde_json::to_string(&e.kind)?;
-            if let Some(rec) = &self.rrd {
-                rec.log("logs/events", &rerun::TextLog::new(text.clone()).with_level(rr_level))?;
-                if let Some(m) = &module {
-                    rec.log(format!("modules/{m}"), &rerun::TextLog::new(text.clone()).with_level(rr_level))?;
-                }
-            }
-            if let Some(m) = &mut self.mcap {
-                m.foxglove(
-                    "/events",
-                    "foxglove.Log",
-                    now,
-                    &serde_json::json!({ "timestamp": stamp_json(e.stamp), "level": level, "message": text, "name": module.unwrap_or_else(|| "system".into()), "file": "", "line": 0 }),
-                )?;
-            }
-        }
-        for (from, to, msg) in messages {
-            let (kind, what) = match &msg.body {
-                framework::message::Body::Command { name, args } => {
-                    ("command", format!("{from} -> {to}: {name} {args}"))
-                }
-                framework::message::Body::Ack(a) => (
-                    "ack",
-                    format!("{from} -> {to}: ack of {}: {}", a.command, serde_json::to_string(&a.status)?),
-                ),
-            };
-            if let Some(rec) = &self.rrd {
-                rec.log(
-                    "logs/messages",
-                    &rerun::TextLog::new(what.clone()).with_level(rerun::TextLogLevel::DEBUG),
-                )?;
-            }
-            if let Some(m) = &mut self.mcap {
-                m.write(
-                    "/messages",
-                    "rover_twin.Message",
-                    || own_schema("rover_twin.Message", "A message of the message-passing system (command or acknowledgement)", r#""id":{"type":"integer"},"stamp":{"type":"integer"},"from":{"type":"string"},"to":{"type":"string"},"queue":{"type":"string"},"kind":{"type":"string","enum":["command","ack"]},"body":{}"#),
-                    now,
-                    &serde_json::json!({ "id": serde_json::to_value(msg.id)?, "stamp": msg.stamp.as_nanos(), "from": from, "to": to, "queue": format!("{:?}", msg.queue).to_lowercase(), "kind": kind, "body": msg.body }),
-                )?;
-            }
-        }
-        Ok(())
-    }
-
-    fn stats(&mut self, now: Time, reports: Vec<framework::system::ModuleReport>) -> Result<()> {
-        if let Some(rec) = &self.rrd {
-            for r in &reports {
-                let (c0, e0) = self.last_stats.get(&r.name).copied().unwrap_or((0, 0));
-                let cycles = r.stats.cycles - c0;
-                if cycles > 0 {
-                    let mean_us = (r.stats.exec_total_ns - e0) as f64 / cycles as f64 / 1e3;
-                    rec.log(
-                        format!("plots/scheduler/{}/exec_mean_us", r.name),
-                        &rerun::Scalars::single(mean_us),
-                    )?;
-                }
-                rec.log(
-                    format!("plots/scheduler/{}/overruns", r.name),
-                    &rerun::Scalars::single(r.stats.overruns as f64),
-                )?;
-                self.last_stats.insert(r.name.clone(), (r.stats.cycles, r.stats.exec_total_ns));
-            }
-        }
-        if let Some(m) = &mut self.mcap {
-            m.write(
-                "/scheduler/stats",
-                "rover_twin.ModuleReports",
-                || {
-                    own_schema(
-                        "rover_twin.ModuleReports",
-                        "Per-module lifecycle, FSM state, context and task statistics",
-                        r#""modules":{"type":"array","items":{"type":"object"}}"#,
-                    )
-                },
-                now,
-                &serde_json::json!({ "modules": reports }),
             )?;
         }
         Ok(())

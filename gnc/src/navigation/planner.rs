@@ -82,6 +82,28 @@ impl Search<'_> {
         (c == cost::INFLATED && d2 <= self.escape2).then_some(1.0 + self.weight)
     }
 
+    /// The moves from cell (i, j) to its 8 neighbours the rover's centre may make, with their
+    /// costs (length times the mean of both cells' factors); a diagonal move may not cut the corner
+    /// of a forbidden cell.
+    fn moves(&self, (i, j): (usize, usize), out: &mut Vec<((usize, usize), u64)>) {
+        let g = &self.map.geometry;
+        let (w, h, r) = (g.width as i64, g.height as i64, g.resolution_m);
+        let here = self.factor(i, j).unwrap_or(1.0 + self.weight);
+        for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
+            let (ni, nj) = (i as i64 + di, j as i64 + dj);
+            if ni < 0 || nj < 0 || ni >= w || nj >= h {
+                continue;
+            }
+            let (ni, nj) = (ni as usize, nj as usize);
+            let Some(there) = self.factor(ni, nj) else { continue };
+            if di != 0 && dj != 0 && (self.factor(ni, j).is_none() || self.factor(i, nj).is_none()) {
+                continue;
+            }
+            let len = if di != 0 && dj != 0 { std::f64::consts::SQRT_2 } else { 1.0 } * r;
+            out.push(((ni, nj), (len * 0.5 * (here + there) * UNIT) as u64));
+        }
+    }
+
     /// Cost of the straight segment between two cell centres (sampled at a quarter cell), or None
     /// when it crosses a forbidden cell.
     fn line(&self, a: (usize, usize), b: (usize, usize)) -> Option<f64> {
@@ -135,7 +157,6 @@ pub fn plan(
     if !reachable {
         return Err(PlanError::GoalBlocked { x: goal[0], y: goal[1], tolerance: tol });
     }
-    let (w, h) = (g.width as i64, g.height as i64);
     let goal_c = g.centre(goal_cell.0, goal_cell.1);
     let successors = |&(i, j): &(usize, usize)| {
         let mut out = Vec::with_capacity(9);
@@ -148,21 +169,7 @@ pub fn plan(
             let c = g.centre(i, j);
             out.push((GOAL, ((c[0] - goal[0]).hypot(c[1] - goal[1]) * TERMINAL_WEIGHT * UNIT) as u64));
         }
-        let here = search.factor(i, j).unwrap_or(1.0 + search.weight);
-        for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
-            let (ni, nj) = (i as i64 + di, j as i64 + dj);
-            if ni < 0 || nj < 0 || ni >= w || nj >= h {
-                continue;
-            }
-            let (ni, nj) = (ni as usize, nj as usize);
-            let Some(there) = search.factor(ni, nj) else { continue };
-            // A diagonal move may not cut the corner of a forbidden cell.
-            if di != 0 && dj != 0 && (search.factor(ni, j).is_none() || search.factor(i, nj).is_none()) {
-                continue;
-            }
-            let len = if di != 0 && dj != 0 { std::f64::consts::SQRT_2 } else { 1.0 } * r;
-            out.push(((ni, nj), (len * 0.5 * (here + there) * UNIT) as u64));
-        }
+        search.moves((i, j), &mut out);
         out
     };
     let heuristic = |&(i, j): &(usize, usize)| {
@@ -211,12 +218,10 @@ fn plan_beyond(
 ) -> Result<Path, PlanError> {
     let map = search.map;
     let g = &map.geometry;
-    let r = g.resolution_m;
     if map.unknown_cost > cost::MAX_TRAVERSABLE {
         return Err(PlanError::GoalOutside(goal[0], goal[1]));
     }
     let unknown = 1.0 + search.weight * f64::from(map.unknown_cost) / f64::from(cost::MAX_TRAVERSABLE);
-    let (w, h) = (g.width as i64, g.height as i64);
     let to_goal = |i: usize, j: usize| {
         let c = g.centre(i, j);
         (c[0] - goal[0]).hypot(c[1] - goal[1])
@@ -226,7 +231,6 @@ fn plan_beyond(
         if (i, j) == BEYOND {
             return out;
         }
-        let here = search.factor(i, j).unwrap_or(1.0 + search.weight);
         // Only through an edge that faces the goal: the straight leg then leaves the map at once
         // (a ray leaving a rectangle never comes back), never recrossing known obstacles.
         let c = g.centre(i, j);
@@ -237,19 +241,7 @@ fn plan_beyond(
         if faces {
             out.push((BEYOND, (to_goal(i, j) * unknown * UNIT) as u64));
         }
-        for (di, dj) in [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)] {
-            let (ni, nj) = (i as i64 + di, j as i64 + dj);
-            if ni < 0 || nj < 0 || ni >= w || nj >= h {
-                continue;
-            }
-            let (ni, nj) = (ni as usize, nj as usize);
-            let Some(there) = search.factor(ni, nj) else { continue };
-            if di != 0 && dj != 0 && (search.factor(ni, j).is_none() || search.factor(i, nj).is_none()) {
-                continue;
-            }
-            let len = if di != 0 && dj != 0 { std::f64::consts::SQRT_2 } else { 1.0 } * r;
-            out.push(((ni, nj), (len * 0.5 * (here + there) * UNIT) as u64));
-        }
+        search.moves((i, j), &mut out);
         out
     };
     let heuristic =

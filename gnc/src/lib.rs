@@ -21,6 +21,7 @@ pub mod locomotion;
 pub mod navigation;
 pub mod navigator;
 pub mod odometry;
+pub mod params;
 pub mod path_planning;
 pub mod perception_fusion;
 pub mod perception_tof;

@@ -610,7 +610,7 @@ impl Module for Locomotion {
     }
 
     fn configure(&mut self, p: &LocomotionParams) -> Result<(), String> {
-        for (k, v) in [
+        crate::params::require_positive(&[
             ("speed", p.speed),
             ("max_yaw_rate", p.max_yaw_rate),
             ("accel", p.accel),
@@ -622,11 +622,7 @@ impl Module for Locomotion {
             ("cross_track_gain_i", p.cross_track_gain_i),
             ("slow_clearance_m", p.slow_clearance_m),
             ("min_speed", p.min_speed),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{k} must be positive, got {v}"));
-            }
-        }
+        ])?;
         if !(0.0..1.0).contains(&p.stall_rate_fraction) {
             return Err(format!("stall_rate_fraction must be in [0, 1), got {}", p.stall_rate_fraction));
         }

@@ -505,17 +505,13 @@ impl Module for CoordinatorNavigator {
     }
 
     fn configure(&mut self, p: &NavigatorParams) -> Result<(), String> {
-        for (k, v) in [
+        crate::params::require_positive(&[
             ("segment_m", p.segment_m),
             ("tolerance_m", p.tolerance_m),
             ("speed", p.speed),
             ("map_wait_s", p.map_wait_s),
             ("back_off_m", p.back_off_m),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{k} must be positive, got {v}"));
-            }
-        }
+        ])?;
         self.params = p.clone();
         Ok(())
     }

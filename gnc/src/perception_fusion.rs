@@ -271,17 +271,13 @@ impl Module for PerceptionDataFusion {
     }
 
     fn configure(&mut self, p: &PerceptionFusionParams) -> Result<(), String> {
-        for (k, v) in [
+        crate::params::require_positive(&[
             ("size_m", p.size_m),
             ("publish_hz", p.publish_hz),
             ("scan_pose_timeout_s", p.scan_pose_timeout_s),
             ("fusion.min_variance_m2", p.fusion.min_variance_m2),
             ("fusion.replace_sigmas", p.fusion.replace_sigmas),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{k} must be positive, got {v}"));
-            }
-        }
+        ])?;
         if [p.scan_settle_s, p.fusion.blind_radius_m, p.fusion.fill_sigma_per_m]
             .iter()
             .any(|v| v.is_nan() || *v < 0.0)

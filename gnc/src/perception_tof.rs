@@ -257,7 +257,7 @@ impl Module for PerceptionToF {
     }
 
     fn configure(&mut self, p: &PerceptionToFParams) -> Result<(), String> {
-        for (k, v) in [
+        crate::params::require_positive(&[
             ("resolution_m", p.resolution_m),
             ("size_m", p.size_m),
             ("history_s", p.history_s),
@@ -265,11 +265,7 @@ impl Module for PerceptionToF {
             ("filter.min_sigma_m", p.filter.min_sigma_m),
             ("filter.max_range_m", p.filter.max_range_m),
             ("filter.edge_jump_fraction", p.filter.edge_jump_fraction),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{k} must be positive, got {v}"));
-            }
-        }
+        ])?;
         if p.size_m / p.resolution_m > 1000.0 {
             return Err(format!(
                 "size_m / resolution_m = {} cells a side is too many (at most 1000)",

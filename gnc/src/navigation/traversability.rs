@@ -71,18 +71,14 @@ impl Default for TraversabilityParams {
 impl TraversabilityParams {
     /// Checks the parameters.
     pub fn validate(&self) -> Result<(), String> {
-        for (k, v) in [
+        crate::params::require_positive(&[
             ("max_slope_deg", self.max_slope_deg),
             ("max_step_m", self.max_step_m),
             ("max_roughness_m", self.max_roughness_m),
             ("max_turn_slope_deg", self.max_turn_slope_deg),
             ("plane_window_m", self.plane_window_m),
             ("step_window_m", self.step_window_m),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!("{k} must be positive, got {v}"));
-            }
-        }
+        ])?;
         if !(0.0..=1.0).contains(&self.min_known_fraction) {
             return Err(format!("min_known_fraction must be in [0, 1], got {}", self.min_known_fraction));
         }

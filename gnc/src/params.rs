@@ -1,0 +1,9 @@
+//! Checks shared by the modules' `configure`.
+
+/// Every named value is finite and positive; else the first that is not, named in the error.
+pub fn require_positive(values: &[(&str, f64)]) -> Result<(), String> {
+    match values.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        Some((k, v)) => Err(format!("{k} must be positive, got {v}")),
+        None => Ok(()),
+    }
+}

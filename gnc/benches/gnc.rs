@@ -6,10 +6,21 @@
 //!   around the rover filled. Target: under 5 ms.
 //! - `traversability_200x200` and `replan_200x200`: the navigation map of a 20 m x 20 m DEM with a
 //!   rock field, and a plan across it, corner to corner. Target for the replan: under 20 ms.
+//! - `visual_odometry_keyframe`: one 640 x 480 stereo frame that starts a keyframe (both images
+//!   rectified, FAST corners, stereo matching, triangulation); `visual_odometry_drive_11_frames`: a
+//!   drive of 11 frames (the first a keyframe; then the left image rectified, its pyramid, LK forward
+//!   and backward, PnP RANSAC, refinement, and the keyframes the drive brings); its throughput in
+//!   frames per second gives the average frame. Target: under 20 ms per
+//!   frame on one core: run with `RAYON_NUM_THREADS=1` (kornia's LK tracks points in parallel).
+
+#[path = "../tests/common/scene.rs"]
+mod scene;
 
 use divan::{Bencher, black_box};
 use framework::camera::{CameraModel, DepthImage};
 use framework::data::{ElevationMap, GridGeometry};
+use framework::time::Time;
+use gnc::localization::visual::{StereoOdometry, VisualParams};
 use gnc::navigation::{dem, fusion, planner, traversability};
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
 
@@ -120,4 +131,39 @@ fn replan_200x200(b: Bencher<'_, '_>) {
         traversability::navigation_map(&big_dem(), &traversability::TraversabilityParams::default());
     let p = planner::PlannerParams::default();
     b.bench_local(|| black_box(planner::plan(&nav, [-9.5, -8.0], [8.8, 9.6], 0.2, &p).expect("a path")));
+}
+
+/// Ten frames of a drive at 0.25 m/s and 0.1 rad/s seen at 10 Hz.
+fn drive_frames() -> (scene::PairRenderer, Vec<(framework::camera::GreyImage, framework::camera::GreyImage)>)
+{
+    let r = scene::PairRenderer::new(scene::loc_pair());
+    let frames = (0..=10)
+        .map(|i| {
+            let t = i as f64 * 0.1;
+            r.render(&scene::body(0.25 * t, 0.0, 0.1 * t), Time::from_secs_f64(t))
+        })
+        .collect();
+    (r, frames)
+}
+
+#[divan::bench(sample_count = 20, sample_size = 2)]
+fn visual_odometry_keyframe(b: Bencher<'_, '_>) {
+    let (r, frames) = drive_frames();
+    let mut vo = StereoOdometry::new(&r.cal, VisualParams::default());
+    b.bench_local(|| {
+        vo.reset();
+        black_box(vo.process(&frames[0].0, &frames[0].1))
+    });
+}
+
+#[divan::bench(sample_count = 10, sample_size = 1)]
+fn visual_odometry_drive_11_frames(b: Bencher<'_, '_>) {
+    let (r, frames) = drive_frames();
+    let mut vo = StereoOdometry::new(&r.cal, VisualParams::default());
+    b.counter(divan::counter::ItemsCount::new(frames.len())).bench_local(|| {
+        vo.reset();
+        for f in &frames {
+            black_box(vo.process(&f.0, &f.1));
+        }
+    });
 }

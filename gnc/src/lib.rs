@@ -17,6 +17,7 @@
 pub mod cameras;
 pub mod history;
 pub mod joints;
+pub mod localization;
 pub mod locomotion;
 pub mod navigation;
 pub mod navigator;

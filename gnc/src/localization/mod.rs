@@ -1,0 +1,8 @@
+//! Localization algorithms (seed 000, 8.3), apart from the module machinery so they can be tested
+//! and benchmarked alone: stereo rectification, corners and stereo matching, motion refinement,
+//! keyframe stereo visual odometry.
+
+pub mod features;
+pub mod motion;
+pub mod rectify;
+pub mod visual;

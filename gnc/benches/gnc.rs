@@ -10,7 +10,10 @@
 //!   rectified, FAST corners, stereo matching, triangulation); `visual_odometry_drive_11_frames`: a
 //!   drive of 11 frames (the first a keyframe; then the left image rectified, its pyramid, LK forward
 //!   and backward, PnP RANSAC, refinement, and the keyframes the drive brings); its throughput in
-//!   frames per second gives the average frame. Target: under 20 ms per
+//!   frames per second gives the average frame.
+//! - `pose_filter_step` (one prediction with its gravity correction) and
+//!   `pose_filter_late_relative` (a visual odometry measurement over the last 0.5 s arriving
+//!   0.1 s late: the filter rolls back, clones, re-runs 30 steps and updates). Target: under 50 us. Target: under 20 ms per
 //!   frame on one core: run with `RAYON_NUM_THREADS=1` (kornia's LK tracks points in parallel).
 
 #[path = "../tests/common/scene.rs"]
@@ -20,6 +23,7 @@ use divan::{Bencher, black_box};
 use framework::camera::{CameraModel, DepthImage};
 use framework::data::{ElevationMap, GridGeometry};
 use framework::time::Time;
+use gnc::localization::filter::{FilterParams, Increment, PoseFilter, RelativePose};
 use gnc::localization::visual::{StereoOdometry, VisualParams};
 use gnc::navigation::{dem, fusion, planner, traversability};
 use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
@@ -166,4 +170,52 @@ fn visual_odometry_drive_11_frames(b: Bencher<'_, '_>) {
             black_box(vo.process(&f.0, &f.1));
         }
     });
+}
+
+fn filter_increment(i: usize) -> Increment {
+    Increment {
+        stamp: Time::from_secs_f64(i as f64 * 0.02),
+        translation: Vector3::new(0.004, 0.0001, 0.0),
+        rotation: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.002),
+        translation_covariance: nalgebra::Matrix3::identity() * 1e-8,
+        rotation_covariance: nalgebra::Matrix3::identity() * 1e-8,
+        gravity: Some(Vector3::new(0.01, -0.02, 1.0).normalize()),
+    }
+}
+
+fn filter_with_history() -> PoseFilter {
+    let mut f = PoseFilter::new(
+        Time::ZERO,
+        Isometry3::identity(),
+        nalgebra::Matrix6::identity() * 1e-4,
+        FilterParams::default(),
+    );
+    for i in 1..=500 {
+        f.predict(filter_increment(i));
+    }
+    f
+}
+
+#[divan::bench(sample_count = 50, sample_size = 20)]
+fn pose_filter_step(b: Bencher<'_, '_>) {
+    let mut f = filter_with_history();
+    let mut i = 500;
+    b.bench_local(|| {
+        i += 1;
+        black_box(f.predict(filter_increment(i)))
+    });
+}
+
+#[divan::bench(sample_count = 50, sample_size = 20)]
+fn pose_filter_late_relative(b: Bencher<'_, '_>) {
+    let f = filter_with_history();
+    let (from, to) =
+        (f.state_at(Time::from_secs_f64(9.4)).unwrap(), f.state_at(Time::from_secs_f64(9.9)).unwrap());
+    let m = RelativePose {
+        from: from.stamp,
+        to: to.stamp,
+        delta: from.pose.inverse() * to.pose,
+        covariance: nalgebra::Matrix6::identity() * 1e-6,
+    };
+    b.with_inputs(|| f.clone()).bench_local_values(|mut f| black_box(f.relative(m.clone())));
 }

@@ -3,6 +3,7 @@
 //! keyframe stereo visual odometry.
 
 pub mod features;
+pub mod filter;
 pub mod motion;
 pub mod rectify;
 pub mod visual;

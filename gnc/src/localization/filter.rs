@@ -1,0 +1,586 @@
+//! The 6D pose filter of `LocalizationDataFusion`: an error-state extended Kalman filter of the
+//! body's pose in `map` that propagates with body-frame increments (wheel translation, gyro
+//! rotation), corrects roll and pitch with gravity, and applies relative pose measurements (visual
+//! odometry between two capture times) at the times they describe, however late they arrive.
+//!
+//! - State: position p and orientation R (`map` from `base_link`); error state δx = (δp, δθ) with
+//!   p_true = p + δp and R_true = Exp(δθ) R (world-frame, left perturbation). The covariance is over
+//!   δx: (x, y, z) in m, then small rotations about the `map` axes in rad, which for small tilts are
+//!   (roll, pitch, yaw) as `PoseEstimate` defines them.
+//! - Prediction: p ← p + R d, R ← R ΔR, with the increment's noise in the body frame.
+//! - Gravity: the accelerometer's unit specific force measures R^T e_z (valid when not accelerating
+//!   hard); H = [0, R^T [e_z]x].
+//! - Relative measurement (t_a, t_b, D): r = (R_a^T (p_b - p_a) - t_D, Log(R_D^T R_a^T R_b)), by
+//!   stochastic cloning: the state at t_a is cloned into an augmented state, the increments from
+//!   t_a to t_b re-propagated with it, and the update made at t_b.
+//! - Latency: every step is kept for `history_s` (its inputs and its posterior). A measurement
+//!   ending in the past rolls the filter back to t_a and re-runs every kept step since, so a late
+//!   measurement leaves the filter exactly as if it had come in time. Relative measurements must
+//!   chain (each starts no earlier than the previous ended), as keyframe odometry gives them.
+
+use framework::time::Time;
+use nalgebra::{
+    Isometry3, Matrix3, Matrix6, SMatrix, SVector, Translation3, UnitQuaternion, Vector3, Vector6,
+};
+use std::collections::VecDeque;
+use std::ops::AddAssign;
+
+/// Filter parameters.
+#[derive(Clone, Debug)]
+pub struct FilterParams {
+    /// How long steps are kept for late measurements, s.
+    pub history_s: f64,
+    /// Noise of the unit gravity direction from the accelerometer (1 sigma, about 1 rad = 57 deg).
+    pub gravity_sigma: f64,
+    /// Relative measurements whose squared Mahalanobis distance exceeds this are refused.
+    pub relative_gate: f64,
+}
+
+impl Default for FilterParams {
+    fn default() -> Self {
+        FilterParams { history_s: 10.0, gravity_sigma: 0.01, relative_gate: 100.0 }
+    }
+}
+
+/// One prediction step: what the body did since the previous step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Increment {
+    /// The time the step ends.
+    pub stamp: Time,
+    /// Displacement in the body frame at the step's start, m.
+    pub translation: Vector3<f64>,
+    /// Rotation over the step, body frame.
+    pub rotation: UnitQuaternion<f64>,
+    /// Covariance of the displacement, body frame, m^2.
+    pub translation_covariance: Matrix3<f64>,
+    /// Covariance of the rotation (right perturbation), rad^2.
+    pub rotation_covariance: Matrix3<f64>,
+    /// The accelerometer's unit specific force in the body frame (up when at rest) at the step's
+    /// end, when it may be taken as gravity.
+    pub gravity: Option<Vector3<f64>>,
+}
+
+/// A relative pose measurement: the body at `to` seen from the body at `from`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RelativePose {
+    /// Start time.
+    pub from: Time,
+    /// End time.
+    pub to: Time,
+    /// `body_from_from_body_to`.
+    pub delta: Isometry3<f64>,
+    /// Covariance of (translation in the `from` body frame, rotation as a right perturbation).
+    pub covariance: Matrix6<f64>,
+}
+
+/// Why a relative measurement was not applied.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum RelativeError {
+    /// It starts before the kept history.
+    #[error("starts {0:.3} s before the kept history")]
+    TooOld(f64),
+    /// It starts before the previous one ended.
+    #[error("overlaps the previous relative measurement")]
+    Overlaps,
+    /// It ends before it starts.
+    #[error("ends before it starts")]
+    Reversed,
+    /// It disagrees with the filter beyond the gate (squared Mahalanobis distance).
+    #[error("disagrees with the estimate (squared Mahalanobis distance {0:.1})")]
+    Gated(f64),
+}
+
+/// The filter's estimate at one time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct State {
+    /// Time of the estimate.
+    pub stamp: Time,
+    /// `map_from_base_link`.
+    pub pose: Isometry3<f64>,
+    /// Covariance of the error state (δp, δθ).
+    pub covariance: Matrix6<f64>,
+}
+
+#[derive(Clone, Debug)]
+struct Step {
+    input: Increment,
+    posterior: State,
+}
+
+/// The pose filter.
+#[derive(Clone, Debug)]
+pub struct PoseFilter {
+    params: FilterParams,
+    /// The state before the first kept step.
+    base: State,
+    steps: VecDeque<Step>,
+    /// Where the last relative measurement ended.
+    last_relative_end: Option<Time>,
+    /// Relative measurements ending after the newest step, waiting for it.
+    pending: Vec<RelativePose>,
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    v.cross_matrix()
+}
+
+type M12 = SMatrix<f64, 12, 12>;
+
+/// The state being re-run, with an optional clone of an earlier pose (stochastic cloning).
+struct Augmented {
+    pose: Isometry3<f64>,
+    clone: Option<Isometry3<f64>>,
+    /// Covariance of (δx, δx_clone); only the top-left 6x6 block without a clone.
+    p: M12,
+}
+
+impl Augmented {
+    fn new(s: &State) -> Augmented {
+        let mut p = M12::zeros();
+        p.fixed_view_mut::<6, 6>(0, 0).copy_from(&s.covariance);
+        Augmented { pose: s.pose, clone: None, p }
+    }
+
+    fn start_clone(&mut self) {
+        let pxx = self.p.fixed_view::<6, 6>(0, 0).into_owned();
+        self.p.fixed_view_mut::<6, 6>(0, 6).copy_from(&pxx);
+        self.p.fixed_view_mut::<6, 6>(6, 0).copy_from(&pxx);
+        self.p.fixed_view_mut::<6, 6>(6, 6).copy_from(&pxx);
+        self.clone = Some(self.pose);
+    }
+
+    fn drop_clone(&mut self) {
+        self.clone = None;
+        let pxx = self.p.fixed_view::<6, 6>(0, 0).into_owned();
+        self.p = M12::zeros();
+        self.p.fixed_view_mut::<6, 6>(0, 0).copy_from(&pxx);
+    }
+
+    fn state(&self, stamp: Time) -> State {
+        let mut c = self.p.fixed_view::<6, 6>(0, 0).into_owned();
+        c = (c + c.transpose()) * 0.5;
+        State { stamp, pose: self.pose, covariance: c }
+    }
+
+    fn predict(&mut self, inc: &Increment) {
+        let r = self.pose.rotation.to_rotation_matrix().into_inner();
+        let rd = r * inc.translation;
+        let rotation = self.pose.rotation * inc.rotation;
+        let r_next = rotation.to_rotation_matrix().into_inner();
+        // P <- F P F^T + Q with F = I except F[0..3, 3..6] = -[R d]x: rows, then columns.
+        let s = -skew(&rd);
+        let rows = s * self.p.fixed_rows::<3>(3);
+        self.p.fixed_rows_mut::<3>(0).add_assign(&rows);
+        let cols = self.p.fixed_columns::<3>(3) * s.transpose();
+        self.p.fixed_columns_mut::<3>(0).add_assign(&cols);
+        let mut q = self.p.fixed_view_mut::<3, 3>(0, 0);
+        q += r * inc.translation_covariance * r.transpose();
+        let mut q = self.p.fixed_view_mut::<3, 3>(3, 3);
+        q += r_next * inc.rotation_covariance * r_next.transpose();
+        self.pose = Isometry3::from_parts(Translation3::from(self.pose.translation.vector + rd), rotation);
+    }
+
+    /// A Kalman update with innovation `y` (measured minus predicted), Jacobian `h` of the predicted
+    /// measurement with respect to the error state, and noise `n`. Returns the squared Mahalanobis
+    /// distance; with a gate, refuses (and returns it) beyond the gate.
+    fn update<const M: usize>(
+        &mut self,
+        y: &SVector<f64, M>,
+        h: &SMatrix<f64, M, 12>,
+        n: &SMatrix<f64, M, M>,
+        gate: Option<f64>,
+    ) -> Result<f64, f64> {
+        let s = h * self.p * h.transpose() + n;
+        let Some(s_inv) = s.try_inverse() else { return Err(f64::INFINITY) };
+        let d2 = (y.transpose() * s_inv * y)[0];
+        if gate.is_some_and(|g| d2 > g) {
+            return Err(d2);
+        }
+        let k = self.p * h.transpose() * s_inv;
+        let dx = k * y;
+        // P - K S K^T (cheaper than Joseph's form at 12 states; kept symmetric).
+        self.p -= k * s * k.transpose();
+        self.p = (self.p + self.p.transpose()) * 0.5;
+        let apply = |pose: &mut Isometry3<f64>, d: SVector<f64, 6>| {
+            pose.translation.vector += Vector3::new(d[0], d[1], d[2]);
+            pose.rotation = UnitQuaternion::from_scaled_axis(Vector3::new(d[3], d[4], d[5])) * pose.rotation;
+        };
+        apply(&mut self.pose, dx.fixed_rows::<6>(0).into_owned());
+        if let Some(c) = &mut self.clone {
+            apply(c, dx.fixed_rows::<6>(6).into_owned());
+        }
+        Ok(d2)
+    }
+
+    fn gravity(&mut self, measured: &Vector3<f64>, sigma: f64) {
+        let Some(m) = measured.try_normalize(1e-9) else { return };
+        let rt = self.pose.rotation.to_rotation_matrix().into_inner().transpose();
+        let predicted = rt * Vector3::z();
+        let mut h = SMatrix::<f64, 3, 12>::zeros();
+        h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(rt * skew(&Vector3::z())));
+        let _ = self.update(&(m - predicted), &h, &(Matrix3::identity() * sigma * sigma), None);
+    }
+
+    fn relative(&mut self, m: &RelativePose, gate: f64) -> Result<f64, f64> {
+        let a = self.clone.expect("a clone for a relative measurement");
+        let b = self.pose;
+        let ra = a.rotation.to_rotation_matrix().into_inner();
+        let rb = b.rotation.to_rotation_matrix().into_inner();
+        let dp = b.translation.vector - a.translation.vector;
+        let r_p = ra.transpose() * dp - m.delta.translation.vector;
+        let e = m.delta.rotation.inverse() * a.rotation.inverse() * b.rotation;
+        let r_t = e.scaled_axis();
+        let mut y = Vector6::zeros();
+        y.fixed_rows_mut::<3>(0).copy_from(&-r_p);
+        y.fixed_rows_mut::<3>(3).copy_from(&-r_t);
+        let mut h = SMatrix::<f64, 6, 12>::zeros();
+        h.fixed_view_mut::<3, 3>(0, 0).copy_from(&ra.transpose());
+        h.fixed_view_mut::<3, 3>(0, 6).copy_from(&-ra.transpose());
+        h.fixed_view_mut::<3, 3>(0, 9).copy_from(&(ra.transpose() * skew(&dp)));
+        h.fixed_view_mut::<3, 3>(3, 3).copy_from(&rb.transpose());
+        h.fixed_view_mut::<3, 3>(3, 9).copy_from(&-rb.transpose());
+        self.update(&y, &h, &m.covariance, Some(gate))
+    }
+}
+
+impl PoseFilter {
+    /// A filter starting at `pose` with `covariance` at `stamp`.
+    pub fn new(
+        stamp: Time,
+        pose: Isometry3<f64>,
+        covariance: Matrix6<f64>,
+        params: FilterParams,
+    ) -> PoseFilter {
+        PoseFilter {
+            params,
+            base: State { stamp, pose, covariance },
+            steps: VecDeque::new(),
+            last_relative_end: None,
+            pending: Vec::new(),
+        }
+    }
+
+    /// The newest estimate.
+    pub fn state(&self) -> State {
+        self.steps.back().map_or(self.base, |s| s.posterior)
+    }
+
+    /// The estimate at the newest kept step no later than `t` (None before the history).
+    pub fn state_at(&self, t: Time) -> Option<State> {
+        if t < self.base.stamp {
+            return None;
+        }
+        let i = self.steps.partition_point(|s| s.input.stamp <= t);
+        Some(if i == 0 { self.base } else { self.steps[i - 1].posterior })
+    }
+
+    /// One prediction step (and its gravity correction). Relative measurements waiting for this
+    /// time are applied. Returns the outcomes of those.
+    pub fn predict(&mut self, inc: Increment) -> Vec<Result<f64, RelativeError>> {
+        let prev = self.state();
+        let mut a = Augmented::new(&prev);
+        a.predict(&inc);
+        if let Some(g) = &inc.gravity {
+            a.gravity(g, self.params.gravity_sigma);
+        }
+        let stamp = inc.stamp;
+        self.steps.push_back(Step { input: inc, posterior: a.state(stamp) });
+        // Forget what is older than the history (keeping the state before the first step).
+        while self.steps.len() > 1
+            && (stamp - self.steps[0].input.stamp).as_secs_f64() > self.params.history_s
+        {
+            let s = self.steps.pop_front().expect("a step");
+            self.base = s.posterior;
+        }
+        let (due, later): (Vec<_>, Vec<_>) =
+            std::mem::take(&mut self.pending).into_iter().partition(|m| m.to <= stamp);
+        self.pending = later;
+        due.into_iter().map(|m| self.relative(m)).collect()
+    }
+
+    /// Applies a relative measurement at the times it describes: now if its end is past, when the
+    /// filter gets there otherwise. Returns the squared Mahalanobis distance when applied now
+    /// (`Ok(NaN)` when deferred).
+    pub fn relative(&mut self, m: RelativePose) -> Result<f64, RelativeError> {
+        if m.to < m.from {
+            return Err(RelativeError::Reversed);
+        }
+        if self.last_relative_end.is_some_and(|end| m.from < end) {
+            return Err(RelativeError::Overlaps);
+        }
+        if m.from < self.base.stamp {
+            return Err(RelativeError::TooOld((self.base.stamp - m.from).as_secs_f64()));
+        }
+        if m.to > self.state().stamp {
+            self.pending.push(m);
+            return Ok(f64::NAN);
+        }
+        // The steps at or before each end (the base counts as index 0, step k as k + 1).
+        let ia = self.steps.partition_point(|s| s.input.stamp <= m.from);
+        let ib = self.steps.partition_point(|s| s.input.stamp <= m.to);
+        let start = if ia == 0 { self.base } else { self.steps[ia - 1].posterior };
+        let mut a = Augmented::new(&start);
+        a.start_clone();
+        let mut outcome = Ok(f64::NAN);
+        if ia == ib {
+            // Both ends fall between the same two steps: nothing moved between them in the filter.
+            outcome = a.relative(&m, self.params.relative_gate);
+            if outcome.is_ok() {
+                a.drop_clone();
+                self.rerun(ia, a);
+            }
+        } else {
+            for k in ia..self.steps.len() {
+                let step = &self.steps[k];
+                a.predict(&step.input);
+                if let Some(g) = &step.input.gravity {
+                    a.gravity(g, self.params.gravity_sigma);
+                }
+                if k + 1 == ib {
+                    // Refused, the re-run reproduces what the steps were.
+                    outcome = a.relative(&m, self.params.relative_gate);
+                    a.drop_clone();
+                }
+                if a.clone.is_none() {
+                    let stamp = self.steps[k].input.stamp;
+                    self.steps[k].posterior = a.state(stamp);
+                }
+            }
+        }
+        match outcome {
+            Ok(d2) => {
+                self.last_relative_end = Some(m.to);
+                Ok(d2)
+            }
+            Err(d2) => Err(RelativeError::Gated(d2)),
+        }
+    }
+
+    /// Re-runs the steps from index `from` on, starting from `a`, storing their posteriors.
+    fn rerun(&mut self, from: usize, mut a: Augmented) {
+        for k in from..self.steps.len() {
+            let step = &self.steps[k];
+            a.predict(&step.input);
+            if let Some(g) = &step.input.gravity {
+                a.gravity(g, self.params.gravity_sigma);
+            }
+            let stamp = step.input.stamp;
+            self.steps[k].posterior = a.state(stamp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic Gaussian numbers (LCG + Box-Muller).
+    struct Gauss(u64);
+    impl Gauss {
+        fn uniform(&mut self) -> f64 {
+            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        }
+        fn next(&mut self) -> f64 {
+            let (a, b) = (self.uniform(), self.uniform());
+            (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+        }
+        fn vec3(&mut self, sigma: f64) -> Vector3<f64> {
+            Vector3::new(self.next(), self.next(), self.next()) * sigma
+        }
+    }
+
+    const DT: f64 = 0.02;
+
+    /// A drive along a curve over gentle slopes: the true poses at 50 Hz.
+    fn truth(n: usize) -> Vec<Isometry3<f64>> {
+        (0..=n)
+            .map(|i| {
+                let t = i as f64 * DT;
+                let yaw = 0.2 * t;
+                let pitch = 0.1 * (0.3 * t).sin();
+                let roll = 0.05 * (0.2 * t).cos();
+                Isometry3::from_parts(
+                    Translation3::new(2.0 * (0.1 * t).sin() + 0.1 * t, 0.003 * t * t, 0.02 * t),
+                    UnitQuaternion::from_euler_angles(roll, pitch, yaw),
+                )
+            })
+            .collect()
+    }
+
+    fn stamp(i: usize) -> Time {
+        Time::from_secs_f64(i as f64 * DT)
+    }
+
+    /// The increments the sensors give between the true poses, with noise of `sd` (m per step) and
+    /// `sr` (rad per step); gravity from the true tilt with noise `sg`.
+    fn increments(poses: &[Isometry3<f64>], g: &mut Gauss, sd: f64, sr: f64, sg: f64) -> Vec<Increment> {
+        poses
+            .windows(2)
+            .enumerate()
+            .map(|(i, w)| {
+                let d = w[0].inverse() * w[1];
+                Increment {
+                    stamp: stamp(i + 1),
+                    translation: d.translation.vector + g.vec3(sd),
+                    rotation: d.rotation * UnitQuaternion::from_scaled_axis(g.vec3(sr)),
+                    translation_covariance: Matrix3::identity() * sd * sd,
+                    rotation_covariance: Matrix3::identity() * sr * sr,
+                    gravity: Some((w[1].rotation.inverse() * Vector3::z() + g.vec3(sg)).normalize()),
+                }
+            })
+            .collect()
+    }
+
+    /// Relative measurements every `every` steps, with noise of `sigma` (m and rad).
+    fn relatives(poses: &[Isometry3<f64>], every: usize, g: &mut Gauss, sigma: f64) -> Vec<RelativePose> {
+        (every..poses.len())
+            .step_by(every)
+            .map(|b| {
+                let a = b - every;
+                let d = poses[a].inverse() * poses[b];
+                let noisy = Isometry3::from_parts(
+                    Translation3::from(d.translation.vector + g.vec3(sigma)),
+                    d.rotation * UnitQuaternion::from_scaled_axis(g.vec3(sigma)),
+                );
+                RelativePose {
+                    from: stamp(a),
+                    to: stamp(b),
+                    delta: noisy,
+                    covariance: Matrix6::identity() * sigma * sigma,
+                }
+            })
+            .collect()
+    }
+
+    fn params() -> FilterParams {
+        FilterParams { gravity_sigma: 0.02, ..Default::default() }
+    }
+
+    /// Runs the filter, handing each relative measurement in `delay` steps after its end.
+    fn run(
+        poses: &[Isometry3<f64>],
+        inc: &[Increment],
+        rel: &[RelativePose],
+        delay: usize,
+    ) -> (PoseFilter, Vec<State>) {
+        let mut f = PoseFilter::new(stamp(0), poses[0], Matrix6::identity() * 1e-6, params());
+        let mut states = Vec::new();
+        for (i, step) in inc.iter().enumerate() {
+            for o in f.predict(step.clone()) {
+                o.expect("applied");
+            }
+            for m in rel.iter().filter(|m| m.to == stamp((i + 1).saturating_sub(delay)) && i + 1 >= delay) {
+                f.relative(m.clone()).expect("applied");
+            }
+            states.push(f.state());
+        }
+        (f, states)
+    }
+
+    #[test]
+    fn late_relative_measurements_give_the_same_result_as_timely_ones() {
+        let poses = truth(500);
+        let mut g = Gauss(7);
+        let inc = increments(&poses, &mut g, 0.002, 0.001, 0.01);
+        let rel = relatives(&poses, 10, &mut g, 0.002);
+        let (timely, _) = run(&poses, &inc, &rel, 0);
+        let (late, _) = run(&poses, &inc, &rel, 7);
+        // Measurements that end in the future wait for the filter to get there.
+        let mut early = PoseFilter::new(stamp(0), poses[0], Matrix6::identity() * 1e-6, params());
+        for (i, step) in inc.iter().enumerate() {
+            for m in rel.iter().filter(|m| m.from == stamp(i)) {
+                assert!(early.relative(m.clone()).expect("deferred").is_nan());
+            }
+            for o in early.predict(step.clone()) {
+                o.expect("applied");
+            }
+        }
+        // The last measurements of the late run are still to come: hand them in.
+        let (a, b) = (timely.state(), late.state());
+        let c = early.state();
+        assert_eq!(a.pose, c.pose);
+        assert_eq!(a.covariance, c.covariance);
+        // The late run misses the measurement that ended within the last `delay` steps.
+        let mut late = late;
+        for m in rel.iter().filter(|m| m.to > stamp(inc.len() - 7)) {
+            late.relative(m.clone()).expect("applied");
+        }
+        let b2 = late.state();
+        assert_ne!(b.pose, b2.pose);
+        assert_eq!(a.pose, b2.pose);
+        assert_eq!(a.covariance, b2.covariance);
+    }
+
+    #[test]
+    fn gravity_gives_the_tilt_on_a_static_slope() {
+        let tilt = UnitQuaternion::from_euler_angles(0.08, -0.15, 0.7);
+        let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 0.3), tilt);
+        let mut g = Gauss(3);
+        let start = Isometry3::from_parts(pose.translation, UnitQuaternion::from_euler_angles(0.0, 0.0, 0.7));
+        let mut cov = Matrix6::identity() * 1e-4;
+        cov[(3, 3)] = 0.05;
+        cov[(4, 4)] = 0.05;
+        let mut f = PoseFilter::new(stamp(0), start, cov, params());
+        for i in 1..=250 {
+            f.predict(Increment {
+                stamp: stamp(i),
+                translation: Vector3::zeros(),
+                rotation: UnitQuaternion::identity(),
+                translation_covariance: Matrix3::identity() * 1e-8,
+                rotation_covariance: Matrix3::identity() * 1e-8,
+                gravity: Some((tilt.inverse() * Vector3::z() + g.vec3(0.02)).normalize()),
+            });
+        }
+        let (r, p, y) = f.state().pose.rotation.euler_angles();
+        assert!((r - 0.08).abs().to_degrees() < 0.5, "roll {}", r.to_degrees());
+        assert!((p + 0.15).abs().to_degrees() < 0.5, "pitch {}", p.to_degrees());
+        assert!((y - 0.7).abs().to_degrees() < 0.5, "yaw {}", y.to_degrees());
+    }
+
+    /// The normalized estimation error squared of the final estimate, averaged over runs, stays
+    /// near its 6 degrees of freedom: the covariance describes the error.
+    #[test]
+    fn the_covariance_is_consistent_with_the_error() {
+        let poses = truth(400);
+        let mut nees = Vec::new();
+        for seed in 0..40 {
+            let mut g = Gauss(100 + seed);
+            let inc = increments(&poses, &mut g, 0.002, 0.0005, 0.01);
+            let rel = relatives(&poses, 10, &mut g, 0.003);
+            let (f, _) = run(&poses, &inc, &rel, 3);
+            let s = f.state();
+            let t = poses[inc.len()];
+            let dp = t.translation.vector - s.pose.translation.vector;
+            let dth = (t.rotation * s.pose.rotation.inverse()).scaled_axis();
+            let e = Vector6::new(dp.x, dp.y, dp.z, dth.x, dth.y, dth.z);
+            nees.push((e.transpose() * s.covariance.try_inverse().unwrap() * e)[0]);
+        }
+        let mean = nees.iter().sum::<f64>() / nees.len() as f64;
+        // For 40 runs of a 6-dof chi-square the mean lies in [4.4, 7.8] with 99 % probability.
+        assert!((4.0..8.5).contains(&mean), "mean NEES {mean:.2}");
+    }
+
+    #[test]
+    fn refusals_are_reported() {
+        let poses = truth(100);
+        let mut g = Gauss(1);
+        let inc = increments(&poses, &mut g, 0.001, 0.0005, 0.01);
+        let mut f = PoseFilter::new(stamp(0), poses[0], Matrix6::identity() * 1e-6, params());
+        for i in &inc {
+            f.predict(i.clone());
+        }
+        let m = |from, to, x| RelativePose {
+            from: stamp(from),
+            to: stamp(to),
+            delta: Isometry3::translation(x, 0.0, 0.0),
+            covariance: Matrix6::identity() * 1e-6,
+        };
+        assert_eq!(f.relative(m(50, 40, 0.0)), Err(RelativeError::Reversed));
+        assert!(matches!(f.relative(m(40, 50, 5.0)), Err(RelativeError::Gated(_))));
+        let d = poses[40].inverse() * poses[50];
+        let ok = RelativePose { delta: d, ..m(40, 50, 0.0) };
+        assert!(f.relative(ok).is_ok());
+        assert_eq!(f.relative(m(45, 60, 0.0)), Err(RelativeError::Overlaps));
+    }
+}

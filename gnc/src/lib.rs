@@ -14,14 +14,18 @@
 //! To come (see DESIGN.md): visual odometry and localization fusion, target and marker tracking,
 //! visual servoing, autonomy.
 
+pub mod body;
 pub mod cameras;
 pub mod history;
 pub mod joints;
 pub mod localization;
+pub mod localization_fusion;
+pub mod localization_inertial;
+pub mod localization_mechanical;
+pub mod localization_visual;
 pub mod locomotion;
 pub mod navigation;
 pub mod navigator;
-pub mod odometry;
 pub mod params;
 pub mod path_planning;
 pub mod perception_fusion;

@@ -503,7 +503,7 @@ impl Module for Locomotion {
     const KIND: ModuleKind = ModuleKind::Actuator;
 
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
-        self.pose = Some(d.reads("odometry/pose"));
+        self.pose = Some(d.reads(crate::localization_fusion::SLOT));
         self.out = Some(d.writes("locomotion/state"));
         // Scenarios switch contexts at runtime (e.g. Mission -> Debug for a fault injection).
         d.context_switchable();

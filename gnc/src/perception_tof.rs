@@ -17,7 +17,7 @@ use framework::camera::{CameraCalibration, TofFrame};
 use framework::data::{ElevationMap, GridGeometry, JointStates, PoseEstimate};
 use framework::mechanism::MechanismModel;
 use framework::prelude::*;
-use nalgebra::{Isometry3, Point3};
+use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
 /// PerceptionToF parameters.
@@ -57,7 +57,7 @@ struct TofInput {
 }
 
 /// A straight piece of the robot (between two joint origins), `base_link`.
-type Segment = (Point3<f64>, Point3<f64>);
+use crate::body::Segment;
 
 /// A joint group's states as the module follows them.
 struct JointInput {
@@ -134,23 +134,9 @@ impl PerceptionToF {
         Ok(q)
     }
 
-    /// The robot's link segments (between joint origins, below the root) in `base_link` for the
-    /// joint values `q`.
+    /// The robot's link segments in `base_link` for the joint values `q`.
     fn link_segments(&self, q: &[f64]) -> Result<Vec<Segment>, String> {
-        let poses = self.mechanism.link_poses(q).map_err(|e| e.to_string())?;
-        let root = self.mechanism.link(self.mechanism.root()).map_err(|e| e.to_string())?;
-        Ok(self
-            .mechanism
-            .joints()
-            .iter()
-            .filter(|j| j.parent != root)
-            .map(|j| {
-                (
-                    Point3::from(poses[j.parent].translation.vector),
-                    Point3::from(poses[j.child].translation.vector),
-                )
-            })
-            .collect())
+        crate::body::link_segments(&self.mechanism, q)
     }
 
     /// Pose of `cam`'s optical frame in `base_link` for joint values `q`.

@@ -2,7 +2,7 @@
 //!
 //! Scenario files and their loader ([`scenario`]), the runner that steps the twin and the module
 //! system in lockstep and plays a mission's ground plan ([`runner`]), the module system it runs
-//! ([`system`]), the scorer ([`score`]), the
+//! ([`system`]), the scorer ([`score`], [`localization_score`]), the
 //! run logger writing Rerun and MCAP files ([`logger`]), Monte Carlo sweeps with shards and merging
 //! ([`sweep`], [`report`]), file validation ([`check`]), the twin's fault injector ([`faults`]), the scripted operator ([`operator`]) and
 //! the framework demo ([`demo`]). The `rover-twin` binary is a thin CLI over these.
@@ -10,6 +10,7 @@
 pub mod check;
 pub mod demo;
 pub mod faults;
+pub mod localization_score;
 pub mod logger;
 pub mod operator;
 pub mod physics_bench;

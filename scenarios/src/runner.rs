@@ -6,6 +6,7 @@
 //! time `t`, the twin is stepped to `t`, so modules running at `t` read sensors stamped `t` and their
 //! commands act from `t` on.
 
+use crate::localization_score::LocalizationScorer;
 use crate::logger::RunLogger;
 use crate::scenario::{FidelityName, Loaded, OnFailure, Scenario};
 use crate::score::{CriterionResult, LogFiles, Metrics, PhaseResult, PhaseStatus, Score};
@@ -274,8 +275,8 @@ impl Sequencer {
 }
 
 /// Ground-truth metrics accumulated during the run.
-#[derive(Default)]
 struct Scorer {
+    localization: LocalizationScorer,
     last_sample: Option<Time>,
     last_xy: Option<(f64, f64)>,
     distance: f64,
@@ -290,6 +291,22 @@ struct Scorer {
 }
 
 impl Scorer {
+    fn new(localization: LocalizationScorer) -> Scorer {
+        Scorer {
+            localization,
+            last_sample: None,
+            last_xy: None,
+            distance: 0.0,
+            max_tilt: 0.0,
+            err_sq_sum: 0.0,
+            err_n: 0,
+            final_err: None,
+            anchor: None,
+            travel_after: 0.0,
+            track: Vec::new(),
+        }
+    }
+
     fn sample(&mut self, now: Time, base: &Isometry3<f64>, est: Option<&PoseEstimate>, after: Option<f64>) {
         let tilt = crate::score::tilt_deg(base);
         self.max_tilt = self.max_tilt.max(tilt);
@@ -379,6 +396,27 @@ fn check_criteria(
             format!("<= {lim} m"),
         );
     }
+    let source = |name: &str| m.localization.as_ref().and_then(|l| l.sources.get(name));
+    for (name, lim) in [("fused", c.max_fused_drift_percent), ("visual", c.max_visual_drift_percent)] {
+        if let Some(lim) = lim {
+            let v = source(name).map(|s| s.final_error_percent);
+            add(
+                format!("{name} localization drift"),
+                v.is_some_and(|v| v <= lim),
+                v.map(|v| format!("{v:.2} % of the distance")).unwrap_or_else(|| "no estimate".into()),
+                format!("<= {lim} %"),
+            );
+        }
+    }
+    if let Some(lim) = c.min_nees_fraction {
+        let v = m.localization.as_ref().and_then(|l| l.nees_within_95_fraction);
+        add(
+            "fused covariance consistent (NEES within its 95 % bound)".into(),
+            v.is_some_and(|v| v >= lim),
+            v.map(|v| format!("{:.1} % of the run", 100.0 * v)).unwrap_or_else(|| "no estimate".into()),
+            format!(">= {:.1} %", 100.0 * lim),
+        );
+    }
     if let Some(g) = &c.goal {
         let b = twin.base_pose().translation;
         let d = (b.x - g.x).hypot(b.y - g.y);
@@ -428,6 +466,7 @@ fn record(
     let t = twin.lock();
     let est = pose.and_then(|r| r.read());
     scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
+    scorer.localization.sample(now, &t.base_pose(), false);
     match logger.lock().as_mut().map(|l| l.tick(now, &t, core)) {
         Some(Err(e)) => Err(format!("logging failed: {e:#}")),
         _ => Ok(()),
@@ -484,8 +523,8 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let mut pending_events: Vec<_> = s.events.iter().collect();
     pending_events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
     let mut pending_events = std::collections::VecDeque::from(pending_events);
-    let pose_reader = ex.core().board.reader::<PoseEstimate>("odometry/pose").ok().flatten();
-    let mut scorer = Scorer::default();
+    let pose_reader = ex.core().board.reader::<PoseEstimate>(gnc::localization_fusion::SLOT).ok().flatten();
+    let mut scorer = Scorer::new(LocalizationScorer::new(&ex.core().board));
     let limit = Time::from_secs_f64(s.run.time_limit_s);
     let settle = Time::from_secs_f64(s.run.settle_s);
     let after = s.criteria.max_travel_after.as_ref().map(|t| t.after_s);
@@ -585,6 +624,8 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let est = pose_reader.as_ref().and_then(|r| r.read());
     scorer.last_sample = None;
     scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
+    scorer.localization.sample(now, &t.base_pose(), true);
+    let localization = scorer.localization.finish(scorer.distance);
     let metrics = Metrics {
         distance_m: scorer.distance,
         final_position_error_m: scorer.final_err,
@@ -595,6 +636,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         grasp_position_error_m: t.grasp_truth().map(|g| g.position_error_m),
         grasp_angle_error_deg: t.grasp_truth().map(|g| g.angle_error_deg),
         max_tilt_deg: scorer.max_tilt,
+        localization: (!localization.sources.is_empty()).then_some(localization),
         final_state: final_state.to_string(),
         isolated_modules: ex
             .core()

@@ -308,6 +308,15 @@ pub struct Criteria {
     /// Largest horizontal error of the final pose estimate, m.
     #[serde(default)]
     pub max_final_position_error_m: Option<f64>,
+    /// Largest final horizontal error of the fused localization, % of the distance driven.
+    #[serde(default)]
+    pub max_fused_drift_percent: Option<f64>,
+    /// Largest final horizontal error of visual odometry alone, % of the distance driven.
+    #[serde(default)]
+    pub max_visual_drift_percent: Option<f64>,
+    /// Smallest share of the run where the fused pose's NEES is inside its 95 % bound (0-1).
+    #[serde(default)]
+    pub min_nees_fraction: Option<f64>,
     /// Where the rover (truth) must end.
     #[serde(default)]
     pub goal: Option<Goal>,

@@ -78,6 +78,10 @@ pub struct Metrics {
     pub max_tilt_deg: f64,
     /// The system's lifecycle state at the end.
     pub final_state: String,
+    /// Each localization source's error against truth, and the fused covariance's consistency
+    /// (absent when no localization source ran).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub localization: Option<crate::localization_score::LocalizationMetrics>,
     /// Modules isolated by the watchdog, with the reason.
     pub isolated_modules: BTreeMap<String, String>,
     /// Wall-clock CPU time spent in each module's cycles, s (wall-clock: varies between runs).

@@ -9,7 +9,6 @@ use framework::hal::DeviceMap;
 use framework::{ConfigSource, SystemBuilder};
 use gnc::joints::JointGroupModule;
 use gnc::locomotion::Locomotion;
-use gnc::odometry::Odometry;
 use std::path::{Path, PathBuf};
 use twin::devices::{DryRunDeviceMap, SharedTwin};
 use twin::{Fidelity, StartPose, Twin};
@@ -21,14 +20,18 @@ pub fn module_config_dir() -> PathBuf {
 
 /// Modules of the system a scenario runs, in registration order.
 /// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders); the
-/// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate.
+/// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate; visual
+/// odometry only with the cameras and a localization stereo rate.
 pub const MODULES: &[&str] = &[
-    "odometry",
+    "localization_mechanical",
+    "localization_inertial",
     "locomotion",
     "arm",
     "ptu",
     "gripper",
     "cameras",
+    "localization_visual",
+    "localization_fusion",
     "perception_tof",
     "perception_fusion",
     "traversability",
@@ -42,7 +45,7 @@ const NAVIGATION: &[&str] =
     &["perception_tof", "perception_fusion", "traversability", "path_planning", "navigator"];
 
 /// The slot of the pose estimate the GNC steers and maps with.
-const POSE_SLOT: &str = "odometry/pose";
+const POSE_SLOT: &str = gnc::localization_fusion::SLOT;
 
 /// Builds a module's configuration: its default file with the scenario's `[modules.<name>]` merged
 /// over it and the run's purpose (Debug/Mission) applied.
@@ -88,25 +91,42 @@ pub(crate) fn build_system(
     b.trace_messages(log_messages);
     let map = DryRunDeviceMap::with_sensors(twin.clone(), b.resources().clone(), seed, sensor_config(loaded));
     let model = map.locomotor()?.model().clone();
-    let mut odo_extra = toml::Table::new();
-    let mut params = toml::Table::new();
     // What the operator knows of the start: base_link's pose as surveyed, off the truth by the
-    // scenario's uncertainty (drawn from the run's seed).
+    // scenario's uncertainty (drawn from the run's seed). Each localization module is told it.
     let known = known_start(&twin.lock().base_pose(), &s.rover, seed);
-    params.insert("initial_pose".into(), toml::Value::Array(known.iter().map(|v| (*v).into()).collect()));
-    params.insert(
-        "initial_sigma".into(),
-        toml::Value::Array(vec![s.rover.known_sigma_m.into(), s.rover.known_sigma_deg.into()]),
-    );
-    odo_extra.insert("params".into(), toml::Value::Table(params));
+    let start_params = |name: &str| -> toml::Table {
+        let mut params = toml::Table::new();
+        let pose = toml::Value::Array(known.iter().map(|v| (*v).into()).collect());
+        let sigma = toml::Value::Array(vec![s.rover.known_sigma_m.into(), s.rover.known_sigma_deg.into()]);
+        match name {
+            "localization_mechanical" | "localization_fusion" => {
+                params.insert("initial_pose".into(), pose);
+                params.insert("initial_sigma".into(), sigma);
+            }
+            "localization_visual" => {
+                params.insert("initial_pose".into(), pose);
+            }
+            "localization_inertial" => {
+                params.insert("initial_yaw_deg".into(), known[3].into());
+                params.insert("initial_yaw_sigma_deg".into(), s.rover.known_sigma_deg.into());
+            }
+            _ => return toml::Table::new(),
+        }
+        let mut extra = toml::Table::new();
+        extra.insert("params".into(), toml::Value::Table(params));
+        extra
+    };
     let p = &loaded.path;
     let cameras = cameras_enabled(s);
     for name in MODULES {
-        if (*name == "cameras" && !cameras) || (NAVIGATION.contains(name) && !navigation_enabled(s)) {
+        if (*name == "cameras" && !cameras)
+            || (NAVIGATION.contains(name) && !navigation_enabled(s))
+            || (*name == "localization_visual" && !visual_enabled(s))
+        {
             continue;
         }
-        let extra = if *name == "odometry" { odo_extra.clone() } else { Default::default() };
-        add_module(&mut b, name, &map, twin, model.clone(), module_config(name, s, p, extra)?)?;
+        let config = module_config(name, s, p, start_params(name))?;
+        add_module(&mut b, name, &map, twin, model.clone(), config, visual_enabled(s))?;
     }
     if s.operator.select_target && cameras {
         let truth = map.stereo_belief("head_stereo")?.left;
@@ -169,16 +189,28 @@ fn cameras_enabled(s: &Scenario) -> bool {
     ["head_stereo_hz", "loc_stereo_hz", "tof_hz"].iter().any(|k| rate(k).is_none_or(|r| r > 0.0))
 }
 
-/// The navigation chain runs when the cameras do and the ToF cameras have a rate.
-fn navigation_enabled(s: &Scenario) -> bool {
+/// The cameras run and the scenario's `key` rate of the cameras (absent: the default, on) is
+/// positive.
+fn camera_rate_on(s: &Scenario, key: &str) -> bool {
     if !cameras_enabled(s) {
         return false;
     }
-    let tof = s.modules.get("cameras").and_then(|t| t.get("params")).and_then(|p| p.get("tof_hz"));
-    tof.and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).is_none_or(|r| r > 0.0)
+    let rate = s.modules.get("cameras").and_then(|t| t.get("params")).and_then(|p| p.get(key));
+    rate.and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64))).is_none_or(|r| r > 0.0)
 }
 
-/// Registers module `name` of the runner's system, with its devices from `map`.
+/// The navigation chain runs when the cameras do and the ToF cameras have a rate.
+fn navigation_enabled(s: &Scenario) -> bool {
+    camera_rate_on(s, "tof_hz")
+}
+
+/// Visual odometry runs when the cameras do and the localization pair has a rate.
+fn visual_enabled(s: &Scenario) -> bool {
+    camera_rate_on(s, "loc_stereo_hz")
+}
+
+/// Registers module `name` of the runner's system, with its devices from `map` (`visual`: the
+/// system runs visual odometry, which the data fusion then reads).
 fn add_module(
     b: &mut SystemBuilder,
     name: &str,
@@ -186,9 +218,33 @@ fn add_module(
     twin: &SharedTwin,
     model: framework::hal::LocomotorModel,
     config: ConfigSource,
+    visual: bool,
 ) -> Result<()> {
     match name {
-        "odometry" => b.add(name, Odometry::new(map.encoders()?, map.imu()?, model), config),
+        "localization_mechanical" => b.add(
+            name,
+            gnc::localization_mechanical::LocalizationMechanical::new(map.encoders()?, model),
+            config,
+        ),
+        "localization_inertial" => b.add(
+            name,
+            gnc::localization_inertial::LocalizationInertial::new(map.imu()?, map.encoders()?),
+            config,
+        ),
+        "localization_visual" => b.add(
+            name,
+            gnc::localization_visual::LocalizationVisual::new(
+                map.stereo_camera("loc_stereo")?.calibration().clone(),
+                "cameras/loc_stereo",
+                map.mechanism()?,
+                &["ptu/joints", "arm/joints"],
+            ),
+            config,
+        ),
+        "localization_fusion" => {
+            let visual = visual.then_some(gnc::localization_visual::SLOT);
+            b.add(name, gnc::localization_fusion::LocalizationDataFusion::new(visual), config)
+        }
         "locomotion" => b.add(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
         "arm" | "ptu" | "gripper" => b.add(name, JointGroupModule::new(map.joint_group(name)?), config),
         faults::NAME => b.add(name, TwinFaults::new(twin.clone()), config),
@@ -252,6 +308,6 @@ pub fn check_module_config(name: &str, path: &Path) -> std::result::Result<(), V
     let mut b = SystemBuilder::new();
     let map = DryRunDeviceMap::new(twin.clone(), b.resources().clone(), 1);
     let model = map.locomotor().map_err(|e| fail(e.into()))?.model().clone();
-    add_module(&mut b, name, &map, &twin, model, ConfigSource::file(path)).map_err(fail)?;
+    add_module(&mut b, name, &map, &twin, model, ConfigSource::file(path), false).map_err(fail)?;
     if b.problems().is_empty() { Ok(()) } else { Err(b.problems().to_vec()) }
 }

@@ -115,5 +115,7 @@ pub struct NavigationState {
     pub failures: u32,
 }
 
+mod localization;
 mod maps;
+pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};

@@ -1,17 +1,21 @@
-//! Features of a rectified stereo pair: FAST corners spread over the image by bucketing, and their
-//! disparities by block matching along the same row of the right image.
+//! Features of a rectified stereo pair: Shi-Tomasi corners ("good features to track": the smaller
+//! eigenvalue of the gradient structure tensor over a window, which pixel noise alone keeps small)
+//! spread over the image by bucketing, and their disparities by block matching along the same row of
+//! the right image. (FAST, tried first, needs sharp intensity steps; rendered and real regolith is
+//! smooth at the pixel scale and FAST's corners there were mostly noise.)
 //!
 //! Coordinates here are pixel indices (the centre of pixel (i, j) at (i, j)), as the LK tracker uses.
 
 use framework::camera::GreyImage;
-use kornia_image::{Image, ImageSize};
-use kornia_imgproc::features::fast_detect_rows_u8_serial;
 
 /// Detection and matching parameters.
 #[derive(Clone, Debug)]
 pub struct FeatureParams {
-    /// FAST intensity threshold, grey levels.
-    pub fast_threshold: f64,
+    /// Smallest corner response kept: the structure tensor's smaller eigenvalue per window pixel,
+    /// (grey levels per pixel)^2. Pixel noise of sigma n gives about n^2 / 2.
+    pub min_corner_response: f64,
+    /// Half size of the structure tensor's window (a (2r+1)^2 window).
+    pub corner_radius: usize,
     /// Bucket size, pixels: features are taken strongest first within each bucket.
     pub bucket_px: usize,
     /// Features kept per bucket at most.
@@ -26,8 +30,8 @@ pub struct FeatureParams {
     pub min_disparity_px: f64,
     /// Disparity search range, pixels.
     pub max_disparity_px: f64,
-    /// A match is unique when its cost is below this fraction of the best cost at a disparity
-    /// more than one pixel away.
+    /// A match is unique when its cost is below this fraction of the next best local minimum of
+    /// the cost curve more than two pixels away.
     pub uniqueness: f64,
     /// Mean absolute grey-level difference above which a match is refused.
     pub max_cost: f64,
@@ -36,7 +40,8 @@ pub struct FeatureParams {
 impl Default for FeatureParams {
     fn default() -> Self {
         FeatureParams {
-            fast_threshold: 12.0,
+            min_corner_response: 4.0,
+            corner_radius: 3,
             bucket_px: 48,
             per_bucket: 2,
             min_distance_px: 8.0,
@@ -61,15 +66,90 @@ pub struct StereoFeature {
     pub disparity: f64,
 }
 
-/// FAST corners of `image`, at most `per_bucket` per bucket (strongest first) and `min_distance_px`
-/// apart, away from the border and from pixels `valid` marks false.
+/// The Shi-Tomasi response of every pixel: the smaller eigenvalue of the structure tensor of
+/// central-difference gradients summed over a (2r+1)^2 window, divided by the window's area.
+pub fn corner_response(image: &GreyImage, r: usize) -> Vec<f32> {
+    let (w, h) = (image.width as usize, image.height as usize);
+    let g = &image.data;
+    let (mut xx, mut yy, mut xy) = (vec![0f32; w * h], vec![0f32; w * h], vec![0f32; w * h]);
+    for y in 1..h.saturating_sub(1) {
+        for x in 1..w - 1 {
+            let i = y * w + x;
+            let gx = (g[i + 1] as f32 - g[i - 1] as f32) * 0.5;
+            let gy = (g[i + w] as f32 - g[i - w] as f32) * 0.5;
+            xx[i] = gx * gx;
+            yy[i] = gy * gy;
+            xy[i] = gx * gy;
+        }
+    }
+    let area = ((2 * r + 1) * (2 * r + 1)) as f32;
+    let (sxx, syy, sxy) = (box_sum(&xx, w, h, r), box_sum(&yy, w, h, r), box_sum(&xy, w, h, r));
+    sxx.iter()
+        .zip(&syy)
+        .zip(&sxy)
+        .map(|((a, c), b)| {
+            let (a, b, c) = (a / area, b / area, c / area);
+            0.5 * (a + c - ((a - c) * (a - c) + 4.0 * b * b).sqrt())
+        })
+        .collect()
+}
+
+/// Sums over the (2r+1)^2 window around each pixel (separable running sums; 0 near the border).
+fn box_sum(v: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    let mut rows = vec![0f32; w * h];
+    for y in 0..h {
+        let line = &v[y * w..(y + 1) * w];
+        let mut acc: f32 = line[..(2 * r + 1).min(w)].iter().sum();
+        for x in r..w.saturating_sub(r) {
+            rows[y * w + x] = acc;
+            if x + r + 1 < w {
+                acc += line[x + r + 1] - line[x - r];
+            }
+        }
+    }
+    let mut out = vec![0f32; w * h];
+    for x in 0..w {
+        let mut acc: f32 = (0..(2 * r + 1).min(h)).map(|y| rows[y * w + x]).sum();
+        for y in r..h.saturating_sub(r) {
+            out[y * w + x] = acc;
+            if y + r + 1 < h {
+                acc += rows[(y + r + 1) * w + x] - rows[(y - r) * w + x];
+            }
+        }
+    }
+    out
+}
+
+/// Corners of `image` (local maxima of the Shi-Tomasi response above `min_corner_response`), at
+/// most `per_bucket` per bucket (strongest first) and `min_distance_px` apart, away from the border
+/// and from pixels `valid` marks false.
 pub fn detect(image: &GreyImage, valid: &[bool], p: &FeatureParams) -> Vec<(usize, usize)> {
     let (w, h) = (image.width as usize, image.height as usize);
-    let Ok(img) = Image::<u8, 1>::new(ImageSize { width: w, height: h }, image.data.clone()) else {
+    let border = p.border_px.max(p.corner_radius + 2);
+    if w <= 2 * border || h <= 2 * border {
         return Vec::new();
-    };
-    let border = p.border_px.max(3);
-    let mut corners = fast_detect_rows_u8_serial(&img, (p.fast_threshold / 255.0) as f32, 9, border, 0..h);
+    }
+    let resp = corner_response(image, p.corner_radius);
+    let min = p.min_corner_response as f32;
+    let mut corners = Vec::new();
+    for y in border..h - border {
+        for x in border..w - border {
+            let c = resp[y * w + x];
+            if c < min {
+                continue;
+            }
+            let peak = (y - 1..=y + 1).all(|yy| {
+                (x - 1..=x + 1).all(|xx| {
+                    (yy == y && xx == x)
+                        || resp[yy * w + xx] < c
+                        || (resp[yy * w + xx] == c && (yy, xx) > (y, x))
+                })
+            });
+            if peak {
+                corners.push(([y, x], c));
+            }
+        }
+    }
     // Strongest first, ties in raster order: deterministic.
     corners.sort_by(|a, b| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0)));
     let (bw, bh) = (w.div_ceil(p.bucket_px), h.div_ceil(p.bucket_px));
@@ -160,12 +240,11 @@ pub fn match_disparity(
         *cost = sad;
     }
     let (best_d, &best) = costs.iter().enumerate().skip(d_min).min_by_key(|&(d, c)| (*c, d))?;
-    let second = costs
-        .iter()
-        .enumerate()
-        .skip(d_min)
-        .filter(|&(d, _)| d.abs_diff(best_d) > 1)
-        .map(|(_, &c)| c)
+    // The runner-up is the best other local minimum of the cost curve: on smooth texture the
+    // minimum is broad, and its own flanks are no rival.
+    let second = (d_min + 1..d_max)
+        .filter(|&d| d.abs_diff(best_d) > 2 && costs[d] <= costs[d - 1] && costs[d] <= costs[d + 1])
+        .map(|d| costs[d])
         .min()
         .unwrap_or(i32::MAX);
     let mean_cost = best as f64 / (n * n) as f64;
@@ -250,6 +329,8 @@ mod tests {
         }
         let f = detect(&l, &valid, &p);
         assert!(!f.is_empty());
+        let resp = corner_response(&l, p.corner_radius);
+        assert!(f.iter().all(|&(x, y)| resp[y * l.width as usize + x] >= p.min_corner_response as f32));
         assert!(f.iter().all(|&(x, _)| x >= 40 + p.border_px));
         for (i, a) in f.iter().enumerate() {
             for b in &f[i + 1..] {

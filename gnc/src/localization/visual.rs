@@ -16,7 +16,7 @@
 //! Tracking is lost when too few corners track or too few agree on a motion; the frame then starts a
 //! new keyframe and the interval is reported as a gap, never guessed.
 
-use super::features::{FeatureParams, stereo_features};
+use super::features::{FeatureParams, StereoFeature, detect, match_disparity};
 use super::motion::{Correspondence, Intrinsics, Motion, RefineParams, refine};
 use super::rectify::Rectification;
 use framework::camera::{GreyImage, StereoCalibration};
@@ -125,7 +125,18 @@ struct Pyramid {
 impl Pyramid {
     fn new(image: &GreyImage, extra_levels: usize) -> Option<Pyramid> {
         let size = ImageSize { width: image.width as usize, height: image.height as usize };
-        let base = Image::<f32, 1>::new(size, image.data.iter().map(|&g| g as f32).collect()).ok()?;
+        // Normalized to a fixed mean and contrast: auto-exposure changes the gain between frames,
+        // and LK assumes the brightness of a patch constant.
+        let n = image.data.len().max(1) as f64;
+        let mean = image.data.iter().map(|&g| g as f64).sum::<f64>() / n;
+        let var = image.data.iter().map(|&g| (g as f64 - mean).powi(2)).sum::<f64>() / n;
+        let gain = (40.0 / var.sqrt().max(1.0)) as f32;
+        let (mean, offset) = (mean as f32, 128.0f32);
+        let base = Image::<f32, 1>::new(
+            size,
+            image.data.iter().map(|&g| (g as f32 - mean) * gain + offset).collect(),
+        )
+        .ok()?;
         let mut levels = vec![base];
         for _ in 0..extra_levels {
             let src = levels.last()?;
@@ -180,6 +191,8 @@ pub struct StereoOdometry {
     previous: Option<Pyramid>,
     /// The previous frame's motion from the keyframe (the next frame's starting guess).
     last_motion: Isometry3<f64>,
+    /// The last keyframe's corners: detected, matched in the right image, kept.
+    funnel: [usize; 3],
 }
 
 impl StereoOdometry {
@@ -196,7 +209,14 @@ impl StereoOdometry {
             tracks: Vec::new(),
             previous: None,
             last_motion: Isometry3::identity(),
+            funnel: [0; 3],
         }
+    }
+
+    /// The last keyframe's corners: detected, matched in the right image, kept (in range and off
+    /// the robot).
+    pub fn keyframe_funnel(&self) -> [usize; 3] {
+        self.funnel
     }
 
     /// The rectification in use (the rectified left camera's pose on its mount).
@@ -213,13 +233,25 @@ impl StereoOdometry {
 
     /// Processes one stereo frame (raw images, as the cameras deliver them).
     pub fn process(&mut self, left: &GreyImage, right: &GreyImage) -> VisualFrame {
+        self.process_with(left, right, &|_| true)
+    }
+
+    /// Processes one stereo frame, keeping in a new keyframe only the points `keep` accepts (points
+    /// in the rectified left camera frame): the caller's self filter, which knows where the robot's
+    /// own body and arm are.
+    pub fn process_with(
+        &mut self,
+        left: &GreyImage,
+        right: &GreyImage,
+        keep: &dyn Fn(&Point3<f64>) -> bool,
+    ) -> VisualFrame {
         let stamp = left.stamp;
         let rect_left = self.rect.left(left);
         let Some(mut current) = Pyramid::new(&rect_left, self.params.lk_levels) else {
             return self.lost(stamp, "image pyramid failed".into(), 0);
         };
         let (Some(key), Some(mut prev)) = (self.keyframe.take(), self.previous.take()) else {
-            let n = self.start_keyframe(stamp, &rect_left, right, current);
+            let n = self.start_keyframe(&rect_left, right, current, keep);
             return VisualFrame {
                 stamp,
                 status: VisualStatus::Initialized,
@@ -238,7 +270,7 @@ impl StereoOdometry {
             forward.as_ref().and_then(|(f, _)| lk(&mut current, &mut prev, f, self.params.lk_levels));
         let (Some((fwd, fs)), Some((bwd, bs))) = (forward, backward) else {
             self.keyframe = Some(key);
-            return self.restart(stamp, "LK tracking failed".into(), &rect_left, right, current, 0);
+            return self.restart("LK tracking failed".into(), &rect_left, right, current, 0, keep);
         };
         let (w, h) = (rect_left.width as usize, rect_left.height as usize);
         let valid = |p: &[f32; 2]| {
@@ -264,12 +296,12 @@ impl StereoOdometry {
         if tracked < self.params.min_inliers {
             self.keyframe = Some(key);
             return self.restart(
-                stamp,
                 format!("{tracked} corners tracked"),
                 &rect_left,
                 right,
                 current,
                 tracked,
+                keep,
             );
         }
         let obs: Vec<Correspondence> = tracks
@@ -285,7 +317,7 @@ impl StereoOdometry {
             Ok(m) => m,
             Err(why) => {
                 self.keyframe = Some(key);
-                return self.restart(stamp, why, &rect_left, right, current, tracked);
+                return self.restart(why, &rect_left, right, current, tracked, keep);
             }
         };
         let inliers = motion.inliers.iter().filter(|i| **i).count();
@@ -301,7 +333,7 @@ impl StereoOdometry {
         let keyframe_stamp = key.stamp;
         let mut keyframe_features = 0;
         if new_keyframe {
-            keyframe_features = self.start_keyframe(stamp, &rect_left, right, current);
+            keyframe_features = self.start_keyframe(&rect_left, right, current, keep);
         } else {
             // Keep only the inliers as live tracks.
             self.tracks =
@@ -375,17 +407,26 @@ impl StereoOdometry {
     /// Makes this frame the keyframe; returns its corner count.
     fn start_keyframe(
         &mut self,
-        stamp: Time,
         rect_left: &GreyImage,
         right: &GreyImage,
         current: Pyramid,
+        keep: &dyn Fn(&Point3<f64>) -> bool,
     ) -> usize {
         let rect_right = self.rect.right(right);
-        let feats = stereo_features(rect_left, &rect_right, &self.rect.valid, &self.params.features);
+        let corners = detect(rect_left, &self.rect.valid, &self.params.features);
+        let feats: Vec<_> =
+            corners
+                .iter()
+                .filter_map(|&(x, y)| {
+                    match_disparity(rect_left, &rect_right, x, y, &self.params.features)
+                        .map(|d| StereoFeature { u: x as f64, v: y as f64, disparity: d })
+                })
+                .collect();
+        self.funnel = [corners.len(), feats.len(), 0];
         let b = self.rect.model.baseline;
         let k = self.k;
         let (su, sd) = (self.params.refine.pixel_sigma, self.params.disparity_sigma_px);
-        let mut key = Keyframe { stamp, points: Vec::new(), covariances: Vec::new() };
+        let mut key = Keyframe { stamp: rect_left.stamp, points: Vec::new(), covariances: Vec::new() };
         self.tracks.clear();
         for f in feats {
             let z = k.fx * b / f.disparity;
@@ -395,6 +436,9 @@ impl StereoOdometry {
             let s = b / f.disparity;
             let (du, dv) = (f.u - k.cx, f.v - k.cy);
             let x = Vector3::new(s * du, s * dv * k.fx / k.fy, s * k.fx);
+            if !keep(&Point3::from(x)) {
+                continue;
+            }
             // d(x)/d(u, v, d).
             let j = Matrix3::new(
                 s,
@@ -413,6 +457,7 @@ impl StereoOdometry {
             key.covariances.push(cov);
         }
         let n = key.points.len();
+        self.funnel[2] = n;
         self.keyframe = Some(key);
         self.previous = Some(current);
         self.last_motion = Isometry3::identity();
@@ -421,15 +466,16 @@ impl StereoOdometry {
 
     fn restart(
         &mut self,
-        stamp: Time,
         why: String,
         rect_left: &GreyImage,
         right: &GreyImage,
         current: Pyramid,
         tracked: usize,
+        keep: &dyn Fn(&Point3<f64>) -> bool,
     ) -> VisualFrame {
+        let stamp = rect_left.stamp;
         let keyframe_stamp = self.keyframe.as_ref().map_or(stamp, |k| k.stamp);
-        let n = self.start_keyframe(stamp, rect_left, right, current);
+        let n = self.start_keyframe(rect_left, right, current, keep);
         VisualFrame {
             stamp,
             status: VisualStatus::Lost(why),

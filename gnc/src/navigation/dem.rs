@@ -124,14 +124,7 @@ impl LocalDem {
                     continue;
                 }
                 let p = model.unproject(&Point2::new(u as f64 + 0.5, v as f64 + 0.5), z);
-                let pb = base_from_optical * p;
-                if (b[0]..=b[1]).contains(&pb.x)
-                    && (b[2]..=b[3]).contains(&pb.y)
-                    && (b[4]..=b[5]).contains(&pb.z)
-                {
-                    continue;
-                }
-                if links.iter().any(|(a, c)| segment_distance(&pb, a, c) < filter.self_radius_m) {
+                if crate::body::on_body(&(base_from_optical * p), b, filter.self_radius_m, links) {
                     continue;
                 }
                 let pm = map_from_optical * p;

@@ -1,7 +1,7 @@
 //! A ray-cast stereo scene for visual odometry tests and benchmarks: the rover's localization pair
-//! (0.2 m baseline, 80 degrees, barrel distortion, 0.5 m ahead of `base_link` and pitched 0.5 rad
-//! down, as in `assets/rover/rover.urdf`) over textured ground with a few boulders, sky above the
-//! horizon. The texture is multi-scale value noise, so corners exist at every distance; nothing
+//! (0.2 m baseline, 80 degrees, barrel distortion, on the body's front face 0.5 m ahead of
+//! `base_link` and under the arm, pitched 0.5 rad down, as in `assets/rover/rover.urdf`) over
+//! textured ground with a few boulders, sky above the horizon. The texture is multi-scale value noise, so corners exist at every distance; nothing
 //! repeats.
 
 #![allow(dead_code)]
@@ -23,7 +23,7 @@ pub fn loc_pair() -> StereoCalibration {
         Vector3::x(),
     ]));
     let mount = Isometry3::from_parts(
-        Translation3::new(0.5, 0.1, 0.09),
+        Translation3::new(0.5, 0.1, -0.05),
         UnitQuaternion::from_euler_angles(0.0, 0.5, 0.0) * UnitQuaternion::from_rotation_matrix(&optical),
     );
     StereoCalibration {

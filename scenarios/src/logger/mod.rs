@@ -26,6 +26,7 @@ use base64::Engine;
 use framework::camera::TofFrame;
 use framework::data::{
     ElevationMap, JointStates, LocomotionState, NavigationMap, PoseEstimate, StereoImages, TargetSelection,
+    VisualOdometry,
 };
 use framework::system::Core;
 use framework::{Duration, Time};
@@ -94,6 +95,7 @@ enum Known {
     Navigation(Time, std::sync::Arc<framework::Stamped<NavigationMap>>),
     /// A path with the ground height under each point.
     Path(Time, framework::data::Path, Vec<f64>),
+    Visual(std::sync::Arc<framework::Stamped<VisualOdometry>>),
     Other,
 }
 
@@ -105,7 +107,8 @@ struct Writer {
     rrd_path: PathBuf,
     mcap_path: PathBuf,
     truth_track: Vec<[f32; 3]>,
-    est_track: Vec<[f32; 3]>,
+    /// Each pose estimate's track, by slot.
+    est_track: BTreeMap<String, Vec<[f32; 3]>>,
     next_track: Time,
     last_stats: BTreeMap<String, (u64, i64)>,
 }
@@ -156,7 +159,7 @@ impl RunLogger {
             rrd_path,
             mcap_path,
             truth_track: Vec::new(),
-            est_track: Vec::new(),
+            est_track: BTreeMap::new(),
             next_track: Time::ZERO,
             last_stats: BTreeMap::new(),
         };
@@ -322,6 +325,10 @@ impl RunLogger {
             {
                 let z = s.value.points.iter().map(|q| twin.world().ground_height(q[0], q[1])).collect();
                 Known::Path(s.stamp, s.value.clone(), z)
+            } else if let Some(s) =
+                any.downcast_ref::<framework::blackboard::SlotCell<VisualOdometry>>().and_then(|c| c.latest())
+            {
+                Known::Visual(s)
             } else {
                 Known::Other
             };
@@ -678,6 +685,7 @@ impl Writer {
                 Known::Path(stamp, p, z) => {
                     maps::path(self.rrd.as_ref(), self.mcap.as_mut(), &r.name, *stamp, p, z)?
                 }
+                Known::Visual(v) => self.visual_odometry(&r.name, &v.value)?,
                 Known::Other => {}
             }
             // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.
@@ -697,6 +705,29 @@ impl Writer {
                     json,
                 )?;
             }
+        }
+        Ok(())
+    }
+
+    /// A visual odometry frame in Rerun: its counts and reprojection error as plots, the inliers as
+    /// points in the rectified left image's coordinates, a loss as a text log. (The MCAP gets the
+    /// frame as its slot's JSON record.)
+    fn visual_odometry(&mut self, slot: &str, v: &VisualOdometry) -> Result<()> {
+        let Some(rec) = &self.rrd else { return Ok(()) };
+        rec.log(format!("plots/{slot}/inliers"), &rerun::Scalars::single(v.inliers as f64))?;
+        rec.log(format!("plots/{slot}/tracked"), &rerun::Scalars::single(v.tracked as f64))?;
+        if v.rmse_px.is_finite() {
+            rec.log(format!("plots/{slot}/rmse_px"), &rerun::Scalars::single(v.rmse_px))?;
+        }
+        rec.log(
+            format!("{slot}/inliers"),
+            &rerun::Points2D::new(v.inlier_pixels.iter().map(|p| [p[0], p[1]])).with_radii([2.0_f32]),
+        )?;
+        if let Some(why) = &v.reason {
+            rec.log(
+                format!("{slot}/events"),
+                &rerun::TextLog::new(format!("lost: {why}")).with_level(rerun::TextLogLevel::WARN),
+            )?;
         }
         Ok(())
     }
@@ -734,18 +765,18 @@ impl Writer {
                 &rerun::Scalars::single(yaw_err.to_degrees()),
             )?;
             let p = e.pose.translation;
-            if self
-                .est_track
+            let track = self.est_track.entry(slot.to_string()).or_default();
+            if track
                 .last()
                 .is_none_or(|l| ((l[0] - p.x as f32).powi(2) + (l[1] - p.y as f32).powi(2)).sqrt() > 0.25)
             {
-                extend_track(
-                    rec,
-                    "world/estimate/track",
-                    &mut self.est_track,
-                    [p.x, p.y, p.z],
-                    [60, 140, 255],
-                )?;
+                // Each source its own colour: the fused estimate blue, the wheels orange, vision green.
+                let color = match slot {
+                    s if s == gnc::localization_mechanical::SLOT => [255, 150, 40],
+                    s if s == gnc::localization_visual::POSE_SLOT => [60, 200, 90],
+                    _ => [60, 140, 255],
+                };
+                extend_track(rec, &format!("{base}/track"), track, [p.x, p.y, p.z], color)?;
             }
         }
         if let Some(m) = &mut self.mcap {

@@ -290,7 +290,34 @@ fn regolith_texture(albedo: f64, seed: u64) -> std::sync::Arc<Vec<u8>> {
     let base_cycles = frequency * tau * r;
     let octaves = ((n as f64 / 2.0 / base_cycles).log2().floor() as usize + 1).max(1);
     let fbm =
-        Fbm::<Perlin>::new(seed as u32).set_octaves(octaves).set_frequency(frequency).set_persistence(0.6);
+        Fbm::<Perlin>::new(seed as u32).set_octaves(octaves).set_frequency(frequency).set_persistence(0.7);
+    // Pebbles and grains: discs of 4 to 16 mm, darker or lighter than the ground around them, as
+    // in rover images of regolith (what visual odometry and trackers find corners on at close
+    // range; the fractal field alone is smooth at the centimetre scale). Drawn on a torus too.
+    let mut shade = vec![0f32; n * n];
+    let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ 0x7065_6262_6c65);
+    let pebbles = n * n / 150;
+    for _ in 0..pebbles {
+        let (cx, cy): (f64, f64) = (
+            rand::Rng::random_range(&mut rng, 0.0..n as f64),
+            rand::Rng::random_range(&mut rng, 0.0..n as f64),
+        );
+        let radius: f64 = rand::Rng::random_range(&mut rng, 0.5..2.0);
+        let contrast: f32 = rand::Rng::random_range(&mut rng, -0.45..0.35);
+        let reach = radius.ceil() as i64 + 1;
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
+                let (x, y) = (cx.floor() as i64 + dx, cy.floor() as i64 + dy);
+                let d = ((x as f64 + 0.5 - cx).powi(2) + (y as f64 + 0.5 - cy).powi(2)).sqrt();
+                // Anti-aliased edge: full inside, fading over one texel.
+                let cover = (radius + 0.5 - d).clamp(0.0, 1.0) as f32;
+                if cover > 0.0 {
+                    let k = (y.rem_euclid(n as i64) as usize) * n + x.rem_euclid(n as i64) as usize;
+                    shade[k] = shade[k] * (1.0 - cover) + contrast * cover;
+                }
+            }
+        }
+    }
     let rows: Vec<Vec<u8>> = super::map_items((0..n).collect(), |v| {
         let mut rng =
             rand_pcg::Pcg64Mcg::seed_from_u64(seed ^ (v as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
@@ -299,8 +326,8 @@ fn regolith_texture(albedo: f64, seed: u64) -> std::sync::Arc<Vec<u8>> {
         for u in 0..n {
             let a = u as f64 / n as f64 * tau;
             let x = fbm.get([r * a.cos(), r * a.sin(), r * b.cos(), r * b.sin()]);
-            let grain: f64 = rand::Rng::random_range(&mut rng, -0.06..0.06);
-            let g = (albedo * (1.0 + 0.9 * x + grain)).clamp(0.02, 1.0);
+            let grain: f64 = rand::Rng::random_range(&mut rng, -0.1..0.1);
+            let g = (albedo * (1.0 + 0.9 * x + grain) * (1.0 + f64::from(shade[v * n + u]))).clamp(0.02, 1.0);
             let c = (g * 255.0) as u8;
             row.extend([c, c, c, 255]);
         }

@@ -1,0 +1,307 @@
+//! `LocalizationDataFusion` (seed 000, 8.3; seed 004): the rover's 6D pose from the three
+//! localization sources, with its covariance and its time.
+//!
+//! Each new wheel odometry reading (`localization/mechanical`) is one prediction step of the
+//! [`PoseFilter`]: the wheels' body-frame displacement since the previous reading, the gyro's
+//! rotation over the same interval (`localization/inertial`, or the wheels' heading change with its
+//! much larger noise while the IMU is silent), and the accelerometer's gravity direction for roll
+//! and pitch. Each closed visual odometry keyframe (`localization/visual`) is a relative pose
+//! measurement applied at its images' capture times, however late it arrives. The estimate is
+//! published as `localization/pose` in `map`, stamped with the data's time.
+//!
+//! The wheels' noise here is the fusion's own model of slip (per metre, along, across and up), not
+//! the wheel odometry's: it is what lets vision correct a slipping drive.
+
+use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativePose};
+use crate::params::require_positive;
+use framework::data::{AttitudeEstimate, PoseEstimate, VisualOdometry};
+use framework::hal::BodyTwist;
+use framework::prelude::*;
+use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+/// The slot of the fused pose.
+pub const SLOT: &str = "localization/pose";
+
+/// Fusion parameters.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FusionParams {
+    /// Start pose known to the operator: x, y, z (m) and yaw (degrees) in `map`.
+    pub initial_pose: [f64; 4],
+    /// Standard deviations of the start pose: position (m) and yaw (degrees).
+    pub initial_sigma: [f64; 2],
+    /// Slip noise of the wheel displacement, m per m travelled (1 sigma): along, across, up.
+    pub wheel_sigma_per_m: [f64; 3],
+    /// Heading noise per radian turned when the heading comes from the wheels, rad/rad.
+    pub wheel_yaw_sigma_per_rad: f64,
+    /// Noise of the gravity direction (1 sigma), rad.
+    pub gravity_sigma: f64,
+    /// How long the filter keeps its steps for late measurements, s.
+    pub history_s: f64,
+    /// Visual measurements beyond this squared Mahalanobis distance are refused.
+    pub visual_gate: f64,
+    /// Use visual odometry (false: wheels and IMU only).
+    pub use_visual: bool,
+    /// An IMU whose estimate does not advance for this long is silent: heading from the wheels, s.
+    pub silent_after_s: f64,
+}
+
+impl Default for FusionParams {
+    fn default() -> Self {
+        FusionParams {
+            initial_pose: [0.0; 4],
+            initial_sigma: [0.02, 0.5],
+            wheel_sigma_per_m: [0.05, 0.05, 0.05],
+            wheel_yaw_sigma_per_rad: 0.15,
+            gravity_sigma: 0.02,
+            history_s: 10.0,
+            visual_gate: 100.0,
+            use_visual: true,
+            silent_after_s: 0.2,
+        }
+    }
+}
+
+/// Counts of what the fusion did with the visual measurements.
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct FusionCounts {
+    /// Relative measurements applied.
+    pub applied: u64,
+    /// Refused (too old, overlapping, beyond the gate).
+    pub refused: u64,
+}
+
+/// The data fusion module.
+pub struct LocalizationDataFusion {
+    params: FusionParams,
+    visual_slot: Option<String>,
+    mechanical: Option<Reader<PoseEstimate>>,
+    inertial: Option<Reader<AttitudeEstimate>>,
+    visual: Option<Reader<VisualOdometry>>,
+    out: Option<Writer<PoseEstimate>>,
+    filter: Option<PoseFilter>,
+    last_mech: Option<(Time, Isometry3<f64>)>,
+    last_gyro: Option<(Time, UnitQuaternion<f64>)>,
+    last_visual_seq: u64,
+    imu_silent: bool,
+    counts: FusionCounts,
+    velocity: BodyTwist,
+}
+
+impl LocalizationDataFusion {
+    /// The fusion of wheel odometry, the inertial attitude and, when the system has it, visual
+    /// odometry (`visual_slot`, usually `localization/visual`).
+    pub fn new(visual_slot: Option<&str>) -> Self {
+        LocalizationDataFusion {
+            params: FusionParams::default(),
+            visual_slot: visual_slot.map(str::to_string),
+            mechanical: None,
+            inertial: None,
+            visual: None,
+            out: None,
+            filter: None,
+            last_mech: None,
+            last_gyro: None,
+            last_visual_seq: 0,
+            imu_silent: false,
+            counts: FusionCounts::default(),
+            velocity: BodyTwist::default(),
+        }
+    }
+
+    fn start(&mut self, stamp: Time, att: Option<&AttitudeEstimate>) -> PoseFilter {
+        let p = &self.params;
+        let [x, y, z, yaw] = p.initial_pose;
+        let [sp, sy] = p.initial_sigma;
+        // Tilt from the inertial estimate when there is one; the heading is the operator's.
+        let (roll, pitch) = att.map_or((0.0, 0.0), |a| {
+            let (r, p, _) = a.attitude.euler_angles();
+            (r, p)
+        });
+        let tilt_var = att.map_or(0.05f64.powi(2), |a| a.covariance[(0, 0)].max(a.covariance[(1, 1)]));
+        let pose = Isometry3::from_parts(
+            Translation3::new(x, y, z),
+            UnitQuaternion::from_euler_angles(roll, pitch, yaw.to_radians()),
+        );
+        let mut cov = Matrix6::zeros();
+        for i in 0..3 {
+            cov[(i, i)] = sp * sp;
+        }
+        cov[(3, 3)] = tilt_var;
+        cov[(4, 4)] = tilt_var;
+        cov[(5, 5)] = sy.to_radians().powi(2);
+        let fp = FilterParams {
+            history_s: p.history_s,
+            gravity_sigma: p.gravity_sigma,
+            relative_gate: p.visual_gate,
+        };
+        PoseFilter::new(stamp, pose, cov, fp)
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        let now = ctx.now();
+        let mech = self.mechanical.as_ref().and_then(|r| ctx.read(r));
+        let att = self.inertial.as_ref().and_then(|r| ctx.read(r));
+        let Some(mech) = mech else { return Ok(()) };
+        if self.filter.is_none() {
+            self.filter = Some(self.start(mech.stamp, att.as_ref().map(|a| &a.value)));
+            self.last_mech = Some((mech.stamp, mech.value.pose));
+            self.last_gyro = att.as_ref().map(|a| (a.stamp, a.value.gyro_attitude));
+            self.publish(ctx);
+            return Ok(());
+        }
+        let p = self.params.clone();
+        // The IMU is silent when its estimate stops advancing.
+        let fresh_att = att.as_ref().filter(|a| self.last_gyro.is_none_or(|(t, _)| a.stamp > t));
+        let imu_silent = fresh_att.is_none()
+            && self.last_gyro.is_none_or(|(t, _)| (now - t).as_secs_f64() >= p.silent_after_s);
+        if imu_silent != self.imu_silent {
+            self.imu_silent = imu_silent;
+            ctx.note(if imu_silent {
+                "IMU silent: heading from the wheels"
+            } else {
+                "IMU back: heading from the gyro"
+            });
+        }
+        let (last_t, last_pose) = self.last_mech.expect("set with the filter");
+        if mech.stamp > last_t {
+            let d = last_pose.inverse() * mech.value.pose;
+            let ds = d.translation.vector.norm();
+            let translation = d.translation.vector;
+            let [sa, sc, su] = p.wheel_sigma_per_m.map(|s| (s * ds).powi(2));
+            let translation_covariance = Matrix3::from_diagonal(&Vector3::new(sa, sc, su));
+            let (rotation, rotation_covariance, gravity) = match (fresh_att, self.last_gyro) {
+                (Some(a), Some((t0, g0))) if !imu_silent => {
+                    let dt = (a.stamp - t0).as_secs_f64().max(0.0);
+                    self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
+                    let var = a.value.gyro_noise.powi(2) * dt;
+                    (g0.inverse() * a.value.gyro_attitude, Matrix3::identity() * var, a.value.gravity)
+                }
+                _ if !imu_silent => {
+                    // No new gyro sample yet: the next one carries this step's rotation.
+                    (UnitQuaternion::identity(), Matrix3::identity() * 1e-12, None)
+                }
+                _ => {
+                    // Heading from the wheels; tilt unknown to them: a small random walk.
+                    let dyaw = d.rotation.euler_angles().2;
+                    let var = (p.wheel_yaw_sigma_per_rad * dyaw).powi(2);
+                    if let Some(a) = fresh_att {
+                        self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
+                    }
+                    let mut c = Matrix3::identity() * 1e-6 * ds;
+                    c[(2, 2)] += var;
+                    (d.rotation, c, None)
+                }
+            };
+            let inc = Increment {
+                stamp: mech.stamp,
+                translation,
+                rotation,
+                translation_covariance,
+                rotation_covariance,
+                gravity,
+            };
+            let filter = self.filter.as_mut().expect("started");
+            for outcome in filter.predict(inc) {
+                self.count(ctx, outcome.map(|_| ()));
+            }
+            self.last_mech = Some((mech.stamp, mech.value.pose));
+            let w = att.as_ref().map_or(mech.value.velocity.omega, |a| a.value.angular_rate.z);
+            self.velocity = BodyTwist { v: mech.value.velocity.v, omega: w };
+        }
+        if p.use_visual
+            && let Some(v) = self.visual.as_ref().and_then(|r| ctx.read(r))
+            && v.seq != self.last_visual_seq
+        {
+            self.last_visual_seq = v.seq;
+            if let (true, Some(delta)) = (v.value.keyframe_closed, v.value.delta) {
+                let m = RelativePose {
+                    from: v.value.keyframe_stamp,
+                    to: v.value.stamp,
+                    delta,
+                    covariance: v.value.covariance,
+                };
+                let r = self.filter.as_mut().expect("started").relative(m);
+                self.count(ctx, r.map(|_| ()));
+            }
+        }
+        self.publish(ctx);
+        Ok(())
+    }
+
+    fn count(&mut self, ctx: &mut Ctx<'_>, r: Result<(), crate::localization::filter::RelativeError>) {
+        match r {
+            Ok(()) => self.counts.applied += 1,
+            Err(e) => {
+                self.counts.refused += 1;
+                // Every refusal is worth knowing about, but not at 10 Hz forever.
+                if self.counts.refused <= 20 || self.counts.refused.is_power_of_two() {
+                    ctx.note(format!(
+                        "visual odometry measurement refused ({} so far): {e}",
+                        self.counts.refused
+                    ));
+                }
+            }
+        }
+    }
+
+    fn publish(&self, ctx: &mut Ctx<'_>) {
+        let (Some(f), Some(w)) = (&self.filter, &self.out) else { return };
+        let s = f.state();
+        let est = PoseEstimate {
+            frame: "map".into(),
+            child: "base_link".into(),
+            pose: s.pose,
+            covariance: s.covariance,
+            velocity: self.velocity,
+        };
+        ctx.write_stamped(w, est, s.stamp);
+    }
+}
+
+impl Module for LocalizationDataFusion {
+    type Params = FusionParams;
+    const KIND: ModuleKind = ModuleKind::Resource;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.mechanical = Some(d.reads(crate::localization_mechanical::SLOT));
+        self.inertial = Some(d.reads(crate::localization_inertial::SLOT));
+        if let Some(slot) = &self.visual_slot {
+            self.visual = Some(d.reads(slot));
+        }
+        self.out = Some(d.writes(SLOT));
+        d.context_switchable();
+        d.state("fusing", |m, ctx| m.cycle(ctx));
+        d.command("reset", |m, _ctx, pose: [f64; 4]| {
+            if pose.iter().any(|v| !v.is_finite()) {
+                return Outcome::reject("reset needs a finite [x, y, z, yaw_deg]");
+            }
+            m.params.initial_pose = pose;
+            m.filter = None;
+            Outcome::done()
+        });
+        d.command("stats", |m, _ctx, _: ()| {
+            Outcome::Completed(serde_json::to_value(&m.counts).unwrap_or_default())
+        });
+    }
+
+    fn configure(&mut self, p: &FusionParams) -> Result<(), String> {
+        if p.initial_pose.iter().chain(&p.initial_sigma).any(|v| !v.is_finite()) {
+            return Err("initial_pose and initial_sigma must be finite".into());
+        }
+        require_positive(&[
+            ("wheel_sigma_per_m[0]", p.wheel_sigma_per_m[0]),
+            ("wheel_sigma_per_m[1]", p.wheel_sigma_per_m[1]),
+            ("wheel_sigma_per_m[2]", p.wheel_sigma_per_m[2]),
+            ("wheel_yaw_sigma_per_rad", p.wheel_yaw_sigma_per_rad),
+            ("gravity_sigma", p.gravity_sigma),
+            ("history_s", p.history_s),
+            ("visual_gate", p.visual_gate),
+            ("silent_after_s", p.silent_after_s),
+        ])?;
+        self.params = p.clone();
+        self.filter = None;
+        Ok(())
+    }
+}

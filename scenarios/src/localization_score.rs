@@ -1,0 +1,181 @@
+//! The localization part of a run's score: each pose source's error against the truth at the time
+//! the estimate describes (its blackboard stamp: the data's capture time, not the time it was read),
+//! and how well the fused covariance describes the fused error.
+//!
+//! Sources: `fused` (`localization/pose`, what the GNC steers with), `wheels`
+//! (`localization/mechanical`) and `visual` (`localization/visual_pose`, vision alone). The
+//! normalized estimation error squared (NEES) of the fused 6D pose, e^T P^-1 e over (x, y, z, and
+//! the rotation error about the `map` axes), is inside its 95 % bound when below the chi-square
+//! quantile of 6 degrees of freedom.
+
+use framework::data::{PoseEstimate, VisualOdometry, VisualOdometryStatus};
+use framework::time::Time;
+use framework::{BlackBoard, Reader};
+use nalgebra::{Isometry3, Vector6};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, VecDeque};
+
+/// The 95 % quantile of the chi-square distribution with 6 degrees of freedom.
+pub const CHI2_6DOF_95: f64 = 12.592;
+
+/// The pose sources scored: (name, slot).
+pub const SOURCES: [(&str, &str); 3] = [
+    ("fused", gnc::localization_fusion::SLOT),
+    ("wheels", gnc::localization_mechanical::SLOT),
+    ("visual", gnc::localization_visual::POSE_SLOT),
+];
+
+/// How long truth is kept to compare late estimates with, s.
+const TRUTH_HISTORY_S: f64 = 3.0;
+
+/// One source's errors (horizontal position, heading), sampled at 10 Hz.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SourceScore {
+    /// Horizontal error of the last estimate, m.
+    pub final_error_m: f64,
+    /// That error as a percentage of the distance driven (truth).
+    pub final_error_percent: f64,
+    /// Root-mean-square horizontal error over the run, m.
+    pub rms_error_m: f64,
+    /// Largest horizontal error, m.
+    pub max_error_m: f64,
+    /// Heading error of the last estimate, degrees.
+    pub final_yaw_error_deg: f64,
+}
+
+/// The localization metrics of a run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LocalizationMetrics {
+    /// Each source's errors, by name (`fused`, `wheels`, `visual`), where the source ran.
+    pub sources: BTreeMap<String, SourceScore>,
+    /// Share of the fused estimates whose NEES is inside its 95 % bound.
+    pub nees_within_95_fraction: Option<f64>,
+    /// Mean NEES of the fused estimate (6 for a consistent filter).
+    pub nees_mean: Option<f64>,
+    /// Visual odometry frames processed, and those where tracking was lost.
+    pub visual_frames: u64,
+    /// See `visual_frames`.
+    pub visual_lost: u64,
+}
+
+#[derive(Default)]
+struct Acc {
+    sq_sum: f64,
+    n: u64,
+    max: f64,
+    last: Option<(f64, f64)>,
+}
+
+/// Samples the sources as the run goes.
+pub struct LocalizationScorer {
+    sources: Vec<(&'static str, Reader<PoseEstimate>, Acc)>,
+    visual: Option<Reader<VisualOdometry>>,
+    truth: VecDeque<(Time, Isometry3<f64>)>,
+    last_sample: Option<Time>,
+    nees: Vec<f64>,
+    visual_seq: u64,
+    visual_frames: u64,
+    visual_lost: u64,
+}
+
+impl LocalizationScorer {
+    /// A scorer of the sources the system's blackboard has.
+    pub fn new(board: &BlackBoard) -> LocalizationScorer {
+        let sources = SOURCES
+            .iter()
+            .filter_map(|(name, slot)| {
+                board.reader::<PoseEstimate>(slot).ok().flatten().map(|r| (*name, r, Acc::default()))
+            })
+            .collect();
+        let visual = board.reader::<VisualOdometry>(gnc::localization_visual::SLOT).ok().flatten();
+        LocalizationScorer {
+            sources,
+            visual,
+            truth: VecDeque::new(),
+            last_sample: None,
+            nees: Vec::new(),
+            visual_seq: 0,
+            visual_frames: 0,
+            visual_lost: 0,
+        }
+    }
+
+    fn truth_at(&self, t: Time) -> Option<&Isometry3<f64>> {
+        let i = self.truth.partition_point(|(s, _)| *s <= t);
+        (i > 0).then(|| &self.truth[i - 1].1)
+    }
+
+    /// Records the truth at `now` and, at 10 Hz (or when `force`), compares the estimates.
+    pub fn sample(&mut self, now: Time, base: &Isometry3<f64>, force: bool) {
+        self.truth.push_back((now, *base));
+        while self.truth.front().is_some_and(|(t, _)| (now - *t).as_secs_f64() > TRUTH_HISTORY_S) {
+            self.truth.pop_front();
+        }
+        if let Some(v) = self.visual.as_ref().and_then(|r| r.read())
+            && v.seq != self.visual_seq
+        {
+            self.visual_seq = v.seq;
+            self.visual_frames += 1;
+            self.visual_lost += u64::from(v.value.status == VisualOdometryStatus::Lost);
+        }
+        if !force && self.last_sample.is_some_and(|t| (now - t).as_secs_f64() < 0.1 - 1e-9) {
+            return;
+        }
+        self.last_sample = Some(now);
+        for k in 0..self.sources.len() {
+            let Some(e) = self.sources[k].1.read() else { continue };
+            let Some(truth) = self.truth_at(e.stamp).copied() else { continue };
+            let p = e.value.pose.translation.vector;
+            let q = truth.translation.vector;
+            let err = (p.x - q.x).hypot(p.y - q.y);
+            let yaw = framework::angle::wrap(e.value.yaw() - truth.rotation.euler_angles().2);
+            let acc = &mut self.sources[k].2;
+            acc.sq_sum += err * err;
+            acc.n += 1;
+            acc.max = acc.max.max(err);
+            acc.last = Some((err, yaw.to_degrees()));
+            if self.sources[k].0 == "fused" {
+                let dp = q - p;
+                let dth = (truth.rotation * e.value.pose.rotation.inverse()).scaled_axis();
+                let v = Vector6::new(dp.x, dp.y, dp.z, dth.x, dth.y, dth.z);
+                if let Some(inv) = e.value.covariance.try_inverse() {
+                    self.nees.push((v.transpose() * inv * v)[0]);
+                }
+            }
+        }
+    }
+
+    /// The metrics, with `distance_m` the distance driven.
+    pub fn finish(&self, distance_m: f64) -> LocalizationMetrics {
+        let sources = self
+            .sources
+            .iter()
+            .filter_map(|(name, _, a)| {
+                let (err, yaw) = a.last?;
+                Some((
+                    name.to_string(),
+                    SourceScore {
+                        final_error_m: err,
+                        final_error_percent: if distance_m > 0.0 {
+                            100.0 * err / distance_m
+                        } else {
+                            f64::NAN
+                        },
+                        rms_error_m: (a.sq_sum / a.n as f64).sqrt(),
+                        max_error_m: a.max,
+                        final_yaw_error_deg: yaw,
+                    },
+                ))
+            })
+            .collect();
+        let n = self.nees.len() as f64;
+        LocalizationMetrics {
+            sources,
+            nees_within_95_fraction: (n > 0.0)
+                .then(|| self.nees.iter().filter(|v| **v <= CHI2_6DOF_95).count() as f64 / n),
+            nees_mean: (n > 0.0).then(|| self.nees.iter().sum::<f64>() / n),
+            visual_frames: self.visual_frames,
+            visual_lost: self.visual_lost,
+        }
+    }
+}

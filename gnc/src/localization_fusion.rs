@@ -33,13 +33,21 @@ pub struct FusionParams {
     pub initial_sigma: [f64; 2],
     /// Slip noise of the wheel displacement, m per m travelled (1 sigma): along, across, up.
     pub wheel_sigma_per_m: [f64; 3],
+    /// Noise of the wheel displacement per radian turned, m/rad (1 sigma, along and across): a
+    /// skid-steer turn scrubs, and where it turns about depends on the ground. Without it, vision's
+    /// view of a turn's sideways motion would be taken for a heading error.
+    pub wheel_sigma_per_rad: f64,
     /// Heading noise per radian turned when the heading comes from the wheels, rad/rad.
     pub wheel_yaw_sigma_per_rad: f64,
     /// Noise of the gravity direction (1 sigma), rad.
     pub gravity_sigma: f64,
+    /// Random walk of roll and pitch, rad/sqrt(s) (gravity cannot pin the tilt below the
+    /// accelerometer's bias).
+    pub tilt_random_walk: f64,
     /// How long the filter keeps its steps for late measurements, s.
     pub history_s: f64,
-    /// Visual measurements beyond this squared Mahalanobis distance are refused.
+    /// Visual measurements whose rotation is beyond this squared Mahalanobis distance from the
+    /// gyro's are refused (their translation is never gated: the wheels slip).
     pub visual_gate: f64,
     /// Use visual odometry (false: wheels and IMU only).
     pub use_visual: bool,
@@ -52,11 +60,13 @@ impl Default for FusionParams {
         FusionParams {
             initial_pose: [0.0; 4],
             initial_sigma: [0.02, 0.5],
-            wheel_sigma_per_m: [0.05, 0.05, 0.05],
+            wheel_sigma_per_m: [0.2, 0.2, 0.2],
+            wheel_sigma_per_rad: 0.1,
             wheel_yaw_sigma_per_rad: 0.15,
             gravity_sigma: 0.02,
+            tilt_random_walk: 0.003,
             history_s: 10.0,
-            visual_gate: 100.0,
+            visual_gate: 50.0,
             use_visual: true,
             silent_after_s: 0.2,
         }
@@ -135,6 +145,7 @@ impl LocalizationDataFusion {
             history_s: p.history_s,
             gravity_sigma: p.gravity_sigma,
             relative_gate: p.visual_gate,
+            tilt_random_walk: p.tilt_random_walk,
         };
         PoseFilter::new(stamp, pose, cov, fp)
     }
@@ -169,8 +180,9 @@ impl LocalizationDataFusion {
             let d = last_pose.inverse() * mech.value.pose;
             let ds = d.translation.vector.norm();
             let translation = d.translation.vector;
+            let turn = (p.wheel_sigma_per_rad * d.rotation.angle()).powi(2);
             let [sa, sc, su] = p.wheel_sigma_per_m.map(|s| (s * ds).powi(2));
-            let translation_covariance = Matrix3::from_diagonal(&Vector3::new(sa, sc, su));
+            let translation_covariance = Matrix3::from_diagonal(&Vector3::new(sa + turn, sc + turn, su));
             let (rotation, rotation_covariance, gravity) = match (fresh_att, self.last_gyro) {
                 (Some(a), Some((t0, g0))) if !imu_silent => {
                     let dt = (a.stamp - t0).as_secs_f64().max(0.0);
@@ -294,8 +306,10 @@ impl Module for LocalizationDataFusion {
             ("wheel_sigma_per_m[0]", p.wheel_sigma_per_m[0]),
             ("wheel_sigma_per_m[1]", p.wheel_sigma_per_m[1]),
             ("wheel_sigma_per_m[2]", p.wheel_sigma_per_m[2]),
+            ("wheel_sigma_per_rad", p.wheel_sigma_per_rad),
             ("wheel_yaw_sigma_per_rad", p.wheel_yaw_sigma_per_rad),
             ("gravity_sigma", p.gravity_sigma),
+            ("tilt_random_walk", p.tilt_random_walk),
             ("history_s", p.history_s),
             ("visual_gate", p.visual_gate),
             ("silent_after_s", p.silent_after_s),

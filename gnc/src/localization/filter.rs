@@ -32,13 +32,17 @@ pub struct FilterParams {
     pub history_s: f64,
     /// Noise of the unit gravity direction from the accelerometer (1 sigma, about 1 rad = 57 deg).
     pub gravity_sigma: f64,
-    /// Relative measurements whose squared Mahalanobis distance exceeds this are refused.
+    /// Relative measurements whose rotation's squared Mahalanobis distance exceeds this are
+    /// refused.
     pub relative_gate: f64,
+    /// Random walk of roll and pitch (about the `map` x and y axes), rad/sqrt(s): keeps the tilt
+    /// from converging below what gravity can tell (an accelerometer's bias is no white noise).
+    pub tilt_random_walk: f64,
 }
 
 impl Default for FilterParams {
     fn default() -> Self {
-        FilterParams { history_s: 10.0, gravity_sigma: 0.01, relative_gate: 100.0 }
+        FilterParams { history_s: 10.0, gravity_sigma: 0.01, relative_gate: 50.0, tilt_random_walk: 0.003 }
     }
 }
 
@@ -162,7 +166,8 @@ impl Augmented {
         State { stamp, pose: self.pose, covariance: c }
     }
 
-    fn predict(&mut self, inc: &Increment) {
+    /// One step of `dt` seconds with increment `inc`; `tilt_walk` as [`FilterParams`] says.
+    fn predict(&mut self, inc: &Increment, dt: f64, tilt_walk: f64) {
         let r = self.pose.rotation.to_rotation_matrix().into_inner();
         let rd = r * inc.translation;
         let rotation = self.pose.rotation * inc.rotation;
@@ -177,24 +182,34 @@ impl Augmented {
         q += r * inc.translation_covariance * r.transpose();
         let mut q = self.p.fixed_view_mut::<3, 3>(3, 3);
         q += r_next * inc.rotation_covariance * r_next.transpose();
+        let walk = tilt_walk * tilt_walk * dt.max(0.0);
+        self.p[(3, 3)] += walk;
+        self.p[(4, 4)] += walk;
         self.pose = Isometry3::from_parts(Translation3::from(self.pose.translation.vector + rd), rotation);
     }
 
     /// A Kalman update with innovation `y` (measured minus predicted), Jacobian `h` of the predicted
     /// measurement with respect to the error state, and noise `n`. Returns the squared Mahalanobis
-    /// distance; with a gate, refuses (and returns it) beyond the gate.
+    /// distance; with a gate `(from, gate)`, refuses (and returns it) when the distance of the
+    /// innovation's rows from `from` on exceeds the gate.
     fn update<const M: usize>(
         &mut self,
         y: &SVector<f64, M>,
         h: &SMatrix<f64, M, 12>,
         n: &SMatrix<f64, M, M>,
-        gate: Option<f64>,
+        gate: Option<(usize, f64)>,
     ) -> Result<f64, f64> {
         let s = h * self.p * h.transpose() + n;
         let Some(s_inv) = s.try_inverse() else { return Err(f64::INFINITY) };
         let d2 = (y.transpose() * s_inv * y)[0];
-        if gate.is_some_and(|g| d2 > g) {
-            return Err(d2);
+        if let Some((from, g)) = gate {
+            let k = M - from;
+            let sub = s.view((from, from), (k, k)).into_owned();
+            let ys = y.rows(from, k).into_owned();
+            let gd2 = sub.try_inverse().map_or(f64::INFINITY, |inv| (ys.transpose() * inv * &ys)[0]);
+            if gd2 > g {
+                return Err(gd2);
+            }
         }
         let k = self.p * h.transpose() * s_inv;
         let dx = k * y;
@@ -239,7 +254,10 @@ impl Augmented {
         h.fixed_view_mut::<3, 3>(0, 9).copy_from(&(ra.transpose() * skew(&dp)));
         h.fixed_view_mut::<3, 3>(3, 3).copy_from(&rb.transpose());
         h.fixed_view_mut::<3, 3>(3, 9).copy_from(&-rb.transpose());
-        self.update(&y, &h, &m.covariance, Some(gate))
+        // Gated on the rotation only: the gyro that predicted it is reliable, while the wheels that
+        // predicted the translation slip by more than any Gaussian says (a spinning wheel, a
+        // stall) exactly when vision matters most.
+        self.update(&y, &h, &m.covariance, Some((3, gate)))
     }
 }
 
@@ -279,7 +297,7 @@ impl PoseFilter {
     pub fn predict(&mut self, inc: Increment) -> Vec<Result<f64, RelativeError>> {
         let prev = self.state();
         let mut a = Augmented::new(&prev);
-        a.predict(&inc);
+        a.predict(&inc, (inc.stamp - prev.stamp).as_secs_f64(), self.params.tilt_random_walk);
         if let Some(g) = &inc.gravity {
             a.gravity(g, self.params.gravity_sigma);
         }
@@ -332,7 +350,8 @@ impl PoseFilter {
         } else {
             for k in ia..self.steps.len() {
                 let step = &self.steps[k];
-                a.predict(&step.input);
+                let dt = (step.input.stamp - self.step_start(k)).as_secs_f64();
+                a.predict(&step.input, dt, self.params.tilt_random_walk);
                 if let Some(g) = &step.input.gravity {
                     a.gravity(g, self.params.gravity_sigma);
                 }
@@ -356,11 +375,17 @@ impl PoseFilter {
         }
     }
 
+    /// When step `k` starts: the previous step's time (or the base's).
+    fn step_start(&self, k: usize) -> Time {
+        if k == 0 { self.base.stamp } else { self.steps[k - 1].input.stamp }
+    }
+
     /// Re-runs the steps from index `from` on, starting from `a`, storing their posteriors.
     fn rerun(&mut self, from: usize, mut a: Augmented) {
         for k in from..self.steps.len() {
             let step = &self.steps[k];
-            a.predict(&step.input);
+            let dt = (step.input.stamp - self.step_start(k)).as_secs_f64();
+            a.predict(&step.input, dt, self.params.tilt_random_walk);
             if let Some(g) = &step.input.gravity {
                 a.gravity(g, self.params.gravity_sigma);
             }
@@ -577,10 +602,56 @@ mod tests {
             covariance: Matrix6::identity() * 1e-6,
         };
         assert_eq!(f.relative(m(50, 40, 0.0)), Err(RelativeError::Reversed));
-        assert!(matches!(f.relative(m(40, 50, 5.0)), Err(RelativeError::Gated(_))));
+        // A translation that disagrees with the wheels is taken (they slip); a rotation that
+        // disagrees with the gyro is refused.
+        let turned = RelativePose {
+            delta: poses[40].inverse() * poses[50] * Isometry3::rotation(Vector3::new(0.0, 0.0, 0.3)),
+            ..m(40, 50, 0.0)
+        };
+        assert!(matches!(f.relative(turned), Err(RelativeError::Gated(_))));
         let d = poses[40].inverse() * poses[50];
         let ok = RelativePose { delta: d, ..m(40, 50, 0.0) };
         assert!(f.relative(ok).is_ok());
         assert_eq!(f.relative(m(45, 60, 0.0)), Err(RelativeError::Overlaps));
+    }
+}
+
+#[cfg(test)]
+mod turn_tests {
+    use super::*;
+
+    /// A turn in place at 15 deg/s with perfect increments and perfect relative measurements whose
+    /// stamps fall between the steps: the filter must not add rotation of its own.
+    #[test]
+    fn perfect_measurements_between_steps_add_no_rotation() {
+        let rate = 15f64.to_radians();
+        let pose = |t: f64| Isometry3::from_parts(Translation3::new(0.0, 0.0, 0.0), UnitQuaternion::from_euler_angles(0.0, 0.0, rate * t));
+        let mut f = PoseFilter::new(Time::ZERO, pose(0.0), Matrix6::identity() * 1e-6, FilterParams::default());
+        let mut last_to = 0.007;
+        for i in 1..=500 {
+            let t = i as f64 * 0.02;
+            f.predict(Increment {
+                stamp: Time::from_secs_f64(t),
+                translation: Vector3::zeros(),
+                rotation: UnitQuaternion::from_euler_angles(0.0, 0.0, rate * 0.02),
+                translation_covariance: Matrix3::identity() * 1e-10,
+                rotation_covariance: Matrix3::identity() * 1e-8,
+                gravity: Some(Vector3::z()),
+            });
+            if t - last_to >= 0.7 {
+                let to = t - 0.013;
+                let m = RelativePose {
+                    from: Time::from_secs_f64(last_to),
+                    to: Time::from_secs_f64(to),
+                    delta: pose(last_to).inverse() * pose(to),
+                    covariance: Matrix6::identity() * 1e-6,
+                };
+                f.relative(m).expect("applied");
+                last_to = to;
+            }
+        }
+        let yaw = f.state().pose.rotation.euler_angles().2;
+        let truth = pose(10.0).rotation.euler_angles().2;
+        assert!((yaw - truth).abs().to_degrees() < 0.001, "{} vs {}", yaw.to_degrees(), truth.to_degrees());
     }
 }

@@ -32,7 +32,7 @@ import rerun.experimental as rrx  # noqa: E402
 reader = rrx.RrdReader(str(run / "run.rrd"))
 chunks = reader.stream().to_chunks()
 paths = {str(c.entity_path) for c in chunks}
-for e in ["/world/terrain", "/world/truth/base_link", "/world/estimate/odometry_pose", "/logs/events", "/score"]:
+for e in ["/world/terrain", "/world/truth/base_link", "/world/estimate/localization_pose", "/logs/events", "/score"]:
     assert e in paths, f"{e} not in the recording ({sorted(paths)[:20]}...)"
 assert any(b.kind == "blueprint" for b in reader.blueprints()), "no blueprint in the recording"
 print(f"rrd ok: {len(chunks)} chunks, {len(paths)} entities, with a blueprint")

@@ -179,6 +179,7 @@ fn filter_increment(i: usize) -> Increment {
         rotation: UnitQuaternion::from_euler_angles(0.0, 0.0, 0.002),
         translation_covariance: nalgebra::Matrix3::identity() * 1e-8,
         rotation_covariance: nalgebra::Matrix3::identity() * 1e-8,
+        gyro_dt: 0.02,
         gravity: Some(Vector3::new(0.01, -0.02, 1.0).normalize()),
     }
 }

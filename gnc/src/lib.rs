@@ -6,13 +6,15 @@
 //! The HAL-level modules that scenarios command through message passing —
 //! [`locomotion::Locomotion`] (body motion, `goto`, `follow_path`, stall detection),
 //! [`joints::JointGroupModule`] (arm, pan-tilt unit, gripper), [`cameras::Cameras`] (stereo and ToF
-//! frames on the blackboard) — [`odometry::Odometry`] (wheel-inertial dead reckoning), and the
+//! frames on the blackboard) — the localization modules of seed 000, 8.3
+//! ([`localization_mechanical::LocalizationMechanical`], [`localization_inertial::LocalizationInertial`],
+//! [`localization_visual::LocalizationVisual`], [`localization_fusion::LocalizationDataFusion`], over
+//! the algorithms of [`localization`]), and the
 //! navigation chain of seed 000, 8.2: [`perception_tof::PerceptionToF`],
 //! [`perception_fusion::PerceptionDataFusion`], [`traversability::Traversability`],
 //! [`path_planning::PathPlanning`] and [`navigator::CoordinatorNavigator`], over the algorithms of
 //! [`navigation`].
-//! To come (see DESIGN.md): visual odometry and localization fusion, target and marker tracking,
-//! visual servoing, autonomy.
+//! To come (see DESIGN.md): target and marker tracking, visual servoing, autonomy.
 
 pub mod body;
 pub mod cameras;

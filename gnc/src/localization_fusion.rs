@@ -44,6 +44,11 @@ pub struct FusionParams {
     /// Random walk of roll and pitch, rad/sqrt(s) (gravity cannot pin the tilt below the
     /// accelerometer's bias).
     pub tilt_random_walk: f64,
+    /// Uncertainty of the gyro bias the inertial module did not learn (1 sigma), rad/s: the
+    /// filter estimates it from vision's rotations.
+    pub gyro_bias_sigma: f64,
+    /// Random walk of the gyro bias, rad/s/sqrt(s).
+    pub gyro_bias_walk: f64,
     /// How long the filter keeps its steps for late measurements, s.
     pub history_s: f64,
     /// Visual measurements whose rotation is beyond this squared Mahalanobis distance from the
@@ -65,6 +70,8 @@ impl Default for FusionParams {
             wheel_yaw_sigma_per_rad: 0.15,
             gravity_sigma: 0.02,
             tilt_random_walk: 0.003,
+            gyro_bias_sigma: 0.001,
+            gyro_bias_walk: 2e-5,
             history_s: 10.0,
             visual_gate: 50.0,
             use_visual: true,
@@ -146,6 +153,8 @@ impl LocalizationDataFusion {
             gravity_sigma: p.gravity_sigma,
             relative_gate: p.visual_gate,
             tilt_random_walk: p.tilt_random_walk,
+            gyro_bias_sigma: p.gyro_bias_sigma,
+            gyro_bias_walk: p.gyro_bias_walk,
         };
         PoseFilter::new(stamp, pose, cov, fp)
     }
@@ -183,16 +192,16 @@ impl LocalizationDataFusion {
             let turn = (p.wheel_sigma_per_rad * d.rotation.angle()).powi(2);
             let [sa, sc, su] = p.wheel_sigma_per_m.map(|s| (s * ds).powi(2));
             let translation_covariance = Matrix3::from_diagonal(&Vector3::new(sa + turn, sc + turn, su));
-            let (rotation, rotation_covariance, gravity) = match (fresh_att, self.last_gyro) {
+            let (rotation, rotation_covariance, gravity, gyro_dt) = match (fresh_att, self.last_gyro) {
                 (Some(a), Some((t0, g0))) if !imu_silent => {
                     let dt = (a.stamp - t0).as_secs_f64().max(0.0);
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
                     let var = a.value.gyro_noise.powi(2) * dt;
-                    (g0.inverse() * a.value.gyro_attitude, Matrix3::identity() * var, a.value.gravity)
+                    (g0.inverse() * a.value.gyro_attitude, Matrix3::identity() * var, a.value.gravity, dt)
                 }
                 _ if !imu_silent => {
                     // No new gyro sample yet: the next one carries this step's rotation.
-                    (UnitQuaternion::identity(), Matrix3::identity() * 1e-12, None)
+                    (UnitQuaternion::identity(), Matrix3::identity() * 1e-12, None, 0.0)
                 }
                 _ => {
                     // Heading from the wheels; tilt unknown to them: a small random walk.
@@ -203,7 +212,7 @@ impl LocalizationDataFusion {
                     }
                     let mut c = Matrix3::identity() * 1e-6 * ds;
                     c[(2, 2)] += var;
-                    (d.rotation, c, None)
+                    (d.rotation, c, None, 0.0)
                 }
             };
             let inc = Increment {
@@ -212,6 +221,7 @@ impl LocalizationDataFusion {
                 rotation,
                 translation_covariance,
                 rotation_covariance,
+                gyro_dt,
                 gravity,
             };
             let filter = self.filter.as_mut().expect("started");
@@ -310,6 +320,8 @@ impl Module for LocalizationDataFusion {
             ("wheel_yaw_sigma_per_rad", p.wheel_yaw_sigma_per_rad),
             ("gravity_sigma", p.gravity_sigma),
             ("tilt_random_walk", p.tilt_random_walk),
+            ("gyro_bias_sigma", p.gyro_bias_sigma),
+            ("gyro_bias_walk", p.gyro_bias_walk),
             ("history_s", p.history_s),
             ("visual_gate", p.visual_gate),
             ("silent_after_s", p.silent_after_s),

@@ -1,7 +1,7 @@
 //! `LocalizationVisual` (seed 000, 8.3): stereo visual odometry on the localization camera pair.
 //!
 //! Each stereo frame on the blackboard (`cameras/loc_stereo`) goes through
-//! [`StereoOdometry`](crate::localization::visual::StereoOdometry) with the believed calibration;
+//! [`StereoOdometry`] with the believed calibration;
 //! the camera's motion becomes the body's through the believed mounting. Every frame is published
 //! as `localization/visual` ([`VisualOdometry`]: the body's motion since the keyframe with its
 //! covariance and the images' capture times, and whether the keyframe closed); a lost track is a
@@ -69,6 +69,10 @@ pub struct VisualModuleParams {
     /// Relative scale uncertainty of a measured translation (calibration error of the baseline and
     /// focal length), 1 sigma; added to the covariance along the translation.
     pub scale_sigma: f64,
+    /// Rotation noise added to every measurement, degrees (1 sigma per axis): what the refinement's
+    /// covariance misses (the calibration's small rotation errors bias every keyframe the same
+    /// way, measured at a few hundredths of a degree per keyframe on the Mars yard).
+    pub rotation_sigma_deg: f64,
     /// The rover's body as a box in `base_link`: [x_min, x_max, y_min, y_max, z_min, z_max], m.
     pub body_box: [f64; 6],
     /// Points within this of the robot's link segments are on the robot, m.
@@ -95,6 +99,7 @@ impl Default for VisualModuleParams {
             keyframe_max_interval_s: v.keyframe_max_interval_s,
             covariance_scale: 1.0,
             scale_sigma: 0.01,
+            rotation_sigma_deg: 0.1,
             body_box: [-0.75, 0.75, -0.6, 0.6, -0.3, 1.6],
             self_radius_m: 0.2,
         }
@@ -203,6 +208,8 @@ impl LocalizationVisual {
                 let t = d.translation.vector;
                 let mut tt = c.fixed_view_mut::<3, 3>(0, 0);
                 tt += t * t.transpose() * self.params.scale_sigma.powi(2);
+                let mut rr = c.fixed_view_mut::<3, 3>(3, 3);
+                rr += nalgebra::Matrix3::identity() * self.params.rotation_sigma_deg.to_radians().powi(2);
                 (Some(d), c)
             }
             None => (None, Matrix6::zeros()),
@@ -325,6 +332,9 @@ impl Module for LocalizationVisual {
         }
         if p.min_inliers < 4 {
             return Err(format!("min_inliers must be at least 4, got {}", p.min_inliers));
+        }
+        if !(p.rotation_sigma_deg.is_finite() && p.rotation_sigma_deg >= 0.0) {
+            return Err(format!("rotation_sigma_deg must be >= 0, got {}", p.rotation_sigma_deg));
         }
         if !(p.scale_sigma.is_finite() && p.scale_sigma >= 0.0) {
             return Err(format!("scale_sigma must be >= 0, got {}", p.scale_sigma));

@@ -102,6 +102,9 @@ pub struct LocalizationDataFusion {
     last_gyro: Option<(Time, UnitQuaternion<f64>)>,
     last_visual_seq: u64,
     imu_silent: bool,
+    /// The gyro's integrated attitude must be re-anchored on its next sample (after a silence, or
+    /// when the filter started without one): the first sample after a gap integrates the gap.
+    gyro_resync: bool,
     counts: FusionCounts,
     velocity: BodyTwist,
 }
@@ -122,6 +125,7 @@ impl LocalizationDataFusion {
             last_gyro: None,
             last_visual_seq: 0,
             imu_silent: false,
+            gyro_resync: false,
             counts: FusionCounts::default(),
             velocity: BodyTwist::default(),
         }
@@ -192,27 +196,34 @@ impl LocalizationDataFusion {
             let turn = (p.wheel_sigma_per_rad * d.rotation.angle()).powi(2);
             let [sa, sc, su] = p.wheel_sigma_per_m.map(|s| (s * ds).powi(2));
             let translation_covariance = Matrix3::from_diagonal(&Vector3::new(sa + turn, sc + turn, su));
+            // Heading from the wheels (the IMU silent, or its next sample to be re-anchored on);
+            // tilt unknown to them: a small random walk.
+            let wheel_rotation = || {
+                let dyaw = d.rotation.euler_angles().2;
+                let mut c = Matrix3::identity() * 1e-6 * ds;
+                c[(2, 2)] += (p.wheel_yaw_sigma_per_rad * dyaw).powi(2);
+                (d.rotation, c, None, 0.0)
+            };
+            let resync = self.gyro_resync || self.last_gyro.is_none();
             let (rotation, rotation_covariance, gravity, gyro_dt) = match (fresh_att, self.last_gyro) {
-                (Some(a), Some((t0, g0))) if !imu_silent => {
+                (Some(a), Some((t0, g0))) if !resync => {
                     let dt = (a.stamp - t0).as_secs_f64().max(0.0);
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
                     let var = a.value.gyro_noise.powi(2) * dt;
                     (g0.inverse() * a.value.gyro_attitude, Matrix3::identity() * var, a.value.gravity, dt)
+                }
+                (Some(a), _) => {
+                    self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
+                    self.gyro_resync = false;
+                    wheel_rotation()
                 }
                 _ if !imu_silent => {
                     // No new gyro sample yet: the next one carries this step's rotation.
                     (UnitQuaternion::identity(), Matrix3::identity() * 1e-12, None, 0.0)
                 }
                 _ => {
-                    // Heading from the wheels; tilt unknown to them: a small random walk.
-                    let dyaw = d.rotation.euler_angles().2;
-                    let var = (p.wheel_yaw_sigma_per_rad * dyaw).powi(2);
-                    if let Some(a) = fresh_att {
-                        self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
-                    }
-                    let mut c = Matrix3::identity() * 1e-6 * ds;
-                    c[(2, 2)] += var;
-                    (d.rotation, c, None, 0.0)
+                    self.gyro_resync = true;
+                    wheel_rotation()
                 }
             };
             let inc = Increment {
@@ -226,10 +237,10 @@ impl LocalizationDataFusion {
             };
             let filter = self.filter.as_mut().expect("started");
             for outcome in filter.predict(inc) {
-                self.count(ctx, outcome.map(|_| ()));
+                self.count(ctx, outcome);
             }
             self.last_mech = Some((mech.stamp, mech.value.pose));
-            let w = att.as_ref().map_or(mech.value.velocity.omega, |a| a.value.angular_rate.z);
+            let w = fresh_att.map_or(mech.value.velocity.omega, |a| a.value.angular_rate.z);
             self.velocity = BodyTwist { v: mech.value.velocity.v, omega: w };
         }
         if p.use_visual
@@ -245,16 +256,19 @@ impl LocalizationDataFusion {
                     covariance: v.value.covariance,
                 };
                 let r = self.filter.as_mut().expect("started").relative(m);
-                self.count(ctx, r.map(|_| ()));
+                self.count(ctx, r);
             }
         }
         self.publish(ctx);
         Ok(())
     }
 
-    fn count(&mut self, ctx: &mut Ctx<'_>, r: Result<(), crate::localization::filter::RelativeError>) {
+    /// Counts an applied (`Ok` with its distance) or refused measurement; `Ok(NaN)` is one deferred
+    /// until the filter reaches its end, counted then.
+    fn count(&mut self, ctx: &mut Ctx<'_>, r: Result<f64, crate::localization::filter::RelativeError>) {
         match r {
-            Ok(()) => self.counts.applied += 1,
+            Ok(d2) if d2.is_nan() => {}
+            Ok(_) => self.counts.applied += 1,
             Err(e) => {
                 self.counts.refused += 1;
                 // Every refusal is worth knowing about, but not at 10 Hz forever.

@@ -182,7 +182,9 @@ impl LocalizationInertial {
         let mut force = Vector3::zeros();
         let mut gravity_ok = true;
         for sample in &samples {
-            let dt = (sample.stamp - s.last.stamp).as_secs_f64().max(0.0);
+            // After a gap the first sample stands for no more than a silence's worth of motion
+            // (its rate over the whole gap would be a guess; the fusion re-anchors on it anyway).
+            let dt = (sample.stamp - s.last.stamp).as_secs_f64().clamp(0.0, p.silent_after_s);
             let innovation = sample.angular_rate - s.bias;
             // The gate holds only once the estimate has converged (a few time constants of the
             // learning): before, a large true bias would be gated out for good.

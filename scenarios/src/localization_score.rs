@@ -60,6 +60,8 @@ pub struct LocalizationMetrics {
 
 #[derive(Default)]
 struct Acc {
+    /// The sequence number last scored (a source that stops publishing is not scored again).
+    seq: u64,
     sq_sum: f64,
     n: u64,
     max: f64,
@@ -124,6 +126,10 @@ impl LocalizationScorer {
         self.last_sample = Some(now);
         for k in 0..self.sources.len() {
             let Some(e) = self.sources[k].1.read() else { continue };
+            if e.seq == self.sources[k].2.seq && !force {
+                continue;
+            }
+            self.sources[k].2.seq = e.seq;
             let Some(truth) = self.truth_at(e.stamp).copied() else { continue };
             let p = e.value.pose.translation.vector;
             let q = truth.translation.vector;

@@ -399,7 +399,7 @@ fn check_criteria(
     let source = |name: &str| m.localization.as_ref().and_then(|l| l.sources.get(name));
     for (name, lim) in [("fused", c.max_fused_drift_percent), ("visual", c.max_visual_drift_percent)] {
         if let Some(lim) = lim {
-            let v = source(name).map(|s| s.final_error_percent);
+            let v = source(name).map(|s| s.drift_percent);
             add(
                 format!("{name} localization drift"),
                 v.is_some_and(|v| v <= lim),

@@ -308,10 +308,11 @@ pub struct Criteria {
     /// Largest horizontal error of the final pose estimate, m.
     #[serde(default)]
     pub max_final_position_error_m: Option<f64>,
-    /// Largest final horizontal error of the fused localization, % of the distance driven.
+    /// Largest drift of the fused localization (the error of its motion since its first estimate),
+    /// % of the distance driven.
     #[serde(default)]
     pub max_fused_drift_percent: Option<f64>,
-    /// Largest final horizontal error of visual odometry alone, % of the distance driven.
+    /// Largest drift of visual odometry alone, % of the distance driven.
     #[serde(default)]
     pub max_visual_drift_percent: Option<f64>,
     /// Smallest share of the run where the fused pose's NEES is inside its 95 % bound (0-1).

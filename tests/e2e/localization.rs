@@ -34,9 +34,9 @@ fn score(out: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
 }
 
-/// A source's final error as a percentage of the distance driven.
+/// A source's drift as a percentage of the distance driven.
 fn drift(s: &serde_json::Value, source: &str) -> f64 {
-    s["metrics"]["localization"]["sources"][source]["final_error_percent"].as_f64().unwrap()
+    s["metrics"]["localization"]["sources"][source]["drift_percent"].as_f64().unwrap()
 }
 
 #[test]

@@ -310,8 +310,8 @@ impl Module for LocalizationDataFusion {
         d.context_switchable();
         d.state("fusing", |m, ctx| m.cycle(ctx));
         d.command("reset", |m, _ctx, pose: [f64; 4]| {
-            if pose.iter().any(|v| !v.is_finite()) {
-                return Outcome::reject("reset needs a finite [x, y, z, yaw_deg]");
+            if let Err(e) = crate::params::require_finite("reset's [x, y, z, yaw_deg]", &pose) {
+                return Outcome::reject(e);
             }
             m.params.initial_pose = pose;
             m.filter = None;
@@ -323,9 +323,8 @@ impl Module for LocalizationDataFusion {
     }
 
     fn configure(&mut self, p: &FusionParams) -> Result<(), String> {
-        if p.initial_pose.iter().chain(&p.initial_sigma).any(|v| !v.is_finite()) {
-            return Err("initial_pose and initial_sigma must be finite".into());
-        }
+        let start: Vec<f64> = p.initial_pose.iter().chain(&p.initial_sigma).copied().collect();
+        crate::params::require_finite("initial_pose and initial_sigma", &start)?;
         require_positive(&[
             ("wheel_sigma_per_m[0]", p.wheel_sigma_per_m[0]),
             ("wheel_sigma_per_m[1]", p.wheel_sigma_per_m[1]),

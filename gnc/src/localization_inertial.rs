@@ -246,9 +246,10 @@ impl Module for LocalizationInertial {
     }
 
     fn configure(&mut self, p: &InertialParams) -> Result<(), String> {
-        if !(p.initial_yaw_deg.is_finite() && p.initial_yaw_sigma_deg.is_finite()) {
-            return Err("initial_yaw_deg and initial_yaw_sigma_deg must be finite".into());
-        }
+        crate::params::require_finite(
+            "initial_yaw_deg and initial_yaw_sigma_deg",
+            &[p.initial_yaw_deg, p.initial_yaw_sigma_deg],
+        )?;
         if !(0.0..=1.0).contains(&p.bias_gain) {
             return Err(format!("bias_gain must be in [0, 1], got {}", p.bias_gain));
         }

@@ -182,8 +182,8 @@ impl Module for LocalizationMechanical {
         d.context_switchable();
         d.state("estimating", |m, ctx| m.cycle(ctx));
         d.command("reset", |m, _ctx, pose: [f64; 4]| {
-            if pose.iter().any(|v| !v.is_finite()) {
-                return Outcome::reject("reset needs a finite [x, y, z, yaw_deg]");
+            if let Err(e) = crate::params::require_finite("reset's [x, y, z, yaw_deg]", &pose) {
+                return Outcome::reject(e);
             }
             m.params.initial_pose = pose;
             m.state = None;
@@ -192,9 +192,8 @@ impl Module for LocalizationMechanical {
     }
 
     fn configure(&mut self, p: &MechanicalParams) -> Result<(), String> {
-        if p.initial_pose.iter().chain(&p.initial_sigma).any(|v| !v.is_finite()) {
-            return Err("initial_pose and initial_sigma must be finite".into());
-        }
+        let start: Vec<f64> = p.initial_pose.iter().chain(&p.initial_sigma).copied().collect();
+        crate::params::require_finite("initial_pose and initial_sigma", &start)?;
         if p.turn_center_x_m.is_nan() || p.turn_center_x_m.abs() >= 2.0 {
             return Err(format!(
                 "turn_center_x_m must be within 2 m of base_link, got {}",

@@ -303,9 +303,7 @@ impl Module for LocalizationVisual {
     }
 
     fn configure(&mut self, p: &VisualModuleParams) -> Result<(), String> {
-        if p.initial_pose.iter().any(|v| !v.is_finite()) {
-            return Err("initial_pose must be finite".into());
-        }
+        crate::params::require_finite("initial_pose", &p.initial_pose)?;
         require_positive(&[
             ("min_corner_response", p.min_corner_response),
             ("bucket_px", p.bucket_px as f64),

@@ -7,3 +7,8 @@ pub fn require_positive(values: &[(&str, f64)]) -> Result<(), String> {
         None => Ok(()),
     }
 }
+
+/// Every value is finite; else "`what` must be finite".
+pub fn require_finite(what: &str, values: &[f64]) -> Result<(), String> {
+    if values.iter().all(|v| v.is_finite()) { Ok(()) } else { Err(format!("{what} must be finite")) }
+}

@@ -260,23 +260,26 @@ pub fn match_disparity(
     Some(best_d as f64 + offset)
 }
 
-/// The corners of the left image of a rectified pair with their disparities.
+/// The corners of the left image of a rectified pair with their disparities, and how many corners
+/// were detected before matching.
 pub fn stereo_features(
     left: &GreyImage,
     right: &GreyImage,
     valid: &[bool],
     p: &FeatureParams,
-) -> Vec<StereoFeature> {
-    detect(left, valid, p)
-        .into_iter()
-        .filter_map(|(x, y)| {
+) -> (Vec<StereoFeature>, usize) {
+    let corners = detect(left, valid, p);
+    let feats = corners
+        .iter()
+        .filter_map(|&(x, y)| {
             match_disparity(left, right, x, y, p).map(|d| StereoFeature {
                 u: x as f64,
                 v: y as f64,
                 disparity: d,
             })
         })
-        .collect()
+        .collect();
+    (feats, corners.len())
 }
 
 #[cfg(test)]
@@ -307,7 +310,7 @@ mod tests {
         let (l, r) = pair(37);
         let p = FeatureParams { max_disparity_px: 80.0, ..Default::default() };
         let valid = vec![true; (l.width * l.height) as usize];
-        let feats = stereo_features(&l, &r, &valid, &p);
+        let (feats, _) = stereo_features(&l, &r, &valid, &p);
         let candidates = detect(&l, &valid, &p);
         assert!(candidates.len() > 50, "{} corners", candidates.len());
         let right_ones = feats.iter().filter(|f| f.u >= 80.0).collect::<Vec<_>>();

@@ -200,6 +200,14 @@ impl Augmented {
         State { stamp, pose: self.pose, covariance, gyro_bias: self.bias, full }
     }
 
+    /// One filter step: the prediction over `dt` seconds with `inc`, then its gravity correction.
+    fn advance(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
+        self.predict(inc, dt, p);
+        if let Some(g) = &inc.gravity {
+            self.gravity(g, p.gravity_sigma);
+        }
+    }
+
     /// One step of `dt` seconds with increment `inc`.
     fn predict(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
         let r = self.pose.rotation.to_rotation_matrix().into_inner();
@@ -357,10 +365,7 @@ impl PoseFilter {
     pub fn predict(&mut self, inc: Increment) -> Vec<Result<f64, RelativeError>> {
         let prev = self.state();
         let mut a = Augmented::new(&prev);
-        a.predict(&inc, (inc.stamp - prev.stamp).as_secs_f64(), &self.params);
-        if let Some(g) = &inc.gravity {
-            a.gravity(g, self.params.gravity_sigma);
-        }
+        a.advance(&inc, (inc.stamp - prev.stamp).as_secs_f64(), &self.params);
         let stamp = inc.stamp;
         self.steps.push_back(Step { input: inc, posterior: a.state(stamp) });
         // Forget what is older than the history (keeping the state before the first step).
@@ -399,34 +404,19 @@ impl PoseFilter {
         let start = if ia == 0 { self.base } else { self.steps[ia - 1].posterior };
         let mut a = Augmented::new(&start);
         a.start_clone();
-        let mut outcome = Ok(f64::NAN);
-        if ia == ib {
-            // Both ends fall between the same two steps: nothing moved between them in the filter.
-            outcome = a.relative(&m, self.params.relative_gate);
-            if outcome.is_ok() {
-                a.drop_clone();
-                self.rerun(ia, a);
-            }
-        } else {
-            for k in ia..self.steps.len() {
-                let step = &self.steps[k];
-                let dt = (step.input.stamp - self.step_start(k)).as_secs_f64();
-                a.predict(&step.input, dt, &self.params);
-                if let Some(g) = &step.input.gravity {
-                    a.gravity(g, self.params.gravity_sigma);
-                }
-                if k + 1 == ib {
-                    // Refused, the re-run reproduces what the steps were.
-                    outcome = a.relative(&m, self.params.relative_gate);
-                    a.drop_clone();
-                }
-                if a.clone.is_none() {
-                    let stamp = self.steps[k].input.stamp;
-                    self.steps[k].posterior = a.state(stamp);
-                    // Go on from the stored (symmetrized) state, as an in-order step would.
-                    a = Augmented::new(&self.steps[k].posterior);
-                }
-            }
+        for k in ia..ib {
+            a.advance(&self.steps[k].input, self.step_dt(k), &self.params);
+        }
+        // Refused, a re-run reproduces what the steps were.
+        let outcome = a.relative(&m, self.params.relative_gate);
+        a.drop_clone();
+        if ia < ib {
+            self.store(ib - 1, &a);
+            a = Augmented::new(&self.steps[ib - 1].posterior);
+            self.rerun(ib, a);
+        } else if outcome.is_ok() {
+            // Both ends fall between the same two steps: the update lands on the state before.
+            self.rerun(ib, a);
         }
         match outcome {
             Ok(d2) => {
@@ -437,22 +427,23 @@ impl PoseFilter {
         }
     }
 
-    /// When step `k` starts: the previous step's time (or the base's).
-    fn step_start(&self, k: usize) -> Time {
-        if k == 0 { self.base.stamp } else { self.steps[k - 1].input.stamp }
+    /// How long step `k` lasts: from the previous step's time (or the base's) to its own.
+    fn step_dt(&self, k: usize) -> f64 {
+        let start = if k == 0 { self.base.stamp } else { self.steps[k - 1].input.stamp };
+        (self.steps[k].input.stamp - start).as_secs_f64()
     }
 
-    /// Re-runs the steps from index `from` on, starting from `a`, storing their posteriors.
+    /// Stores `a` (without a clone) as step `k`'s posterior.
+    fn store(&mut self, k: usize, a: &Augmented) {
+        self.steps[k].posterior = a.state(self.steps[k].input.stamp);
+    }
+
+    /// Re-runs the steps from index `from` on, starting from `a`, storing their posteriors (and
+    /// going on from each stored, symmetrized state, as an in-order step would).
     fn rerun(&mut self, from: usize, mut a: Augmented) {
         for k in from..self.steps.len() {
-            let step = &self.steps[k];
-            let dt = (step.input.stamp - self.step_start(k)).as_secs_f64();
-            a.predict(&step.input, dt, &self.params);
-            if let Some(g) = &step.input.gravity {
-                a.gravity(g, self.params.gravity_sigma);
-            }
-            let stamp = step.input.stamp;
-            self.steps[k].posterior = a.state(stamp);
+            a.advance(&self.steps[k].input, self.step_dt(k), &self.params);
+            self.store(k, &a);
             a = Augmented::new(&self.steps[k].posterior);
         }
     }

@@ -16,7 +16,7 @@
 //! Tracking is lost when too few corners track or too few agree on a motion; the frame then starts a
 //! new keyframe and the interval is reported as a gap, never guessed.
 
-use super::features::{FeatureParams, StereoFeature, detect, match_disparity};
+use super::features::{FeatureParams, stereo_features};
 use super::motion::{Correspondence, Intrinsics, Motion, RefineParams, refine};
 use super::rectify::Rectification;
 use framework::camera::{GreyImage, StereoCalibration};
@@ -413,16 +413,9 @@ impl StereoOdometry {
         keep: &dyn Fn(&Point3<f64>) -> bool,
     ) -> usize {
         let rect_right = self.rect.right(right);
-        let corners = detect(rect_left, &self.rect.valid, &self.params.features);
-        let feats: Vec<_> =
-            corners
-                .iter()
-                .filter_map(|&(x, y)| {
-                    match_disparity(rect_left, &rect_right, x, y, &self.params.features)
-                        .map(|d| StereoFeature { u: x as f64, v: y as f64, disparity: d })
-                })
-                .collect();
-        self.funnel = [corners.len(), feats.len(), 0];
+        let (feats, corners) =
+            stereo_features(rect_left, &rect_right, &self.rect.valid, &self.params.features);
+        self.funnel = [corners, feats.len(), 0];
         let b = self.rect.model.baseline;
         let k = self.k;
         let (su, sd) = (self.params.refine.pixel_sigma, self.params.disparity_sigma_px);

@@ -32,4 +32,7 @@ pub mod params;
 pub mod path_planning;
 pub mod perception_fusion;
 pub mod perception_tof;
+pub mod placement;
+pub mod tracking;
+pub mod tracking_marker;
 pub mod traversability;

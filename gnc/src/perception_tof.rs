@@ -11,13 +11,12 @@
 //! A frame that cannot be placed (no pose or joint state at its stamp) is skipped and counted; the
 //! module keeps running.
 
-use crate::history::{History, joints_at, pose_at};
 use crate::navigation::dem::{DemFilter, LocalDem};
+use crate::placement::Placement;
 use framework::camera::{CameraCalibration, TofFrame};
-use framework::data::{ElevationMap, GridGeometry, JointStates, PoseEstimate};
+use framework::data::{ElevationMap, GridGeometry};
 use framework::mechanism::MechanismModel;
 use framework::prelude::*;
-use nalgebra::Isometry3;
 use serde::{Deserialize, Serialize};
 
 /// PerceptionToF parameters.
@@ -56,26 +55,13 @@ struct TofInput {
     last_seq: u64,
 }
 
-/// A straight piece of the robot (between two joint origins), `base_link`.
 use crate::body::Segment;
-
-/// A joint group's states as the module follows them.
-struct JointInput {
-    slot: String,
-    reader: Option<Reader<JointStates>>,
-    values: History<Vec<f64>>,
-    names: Vec<String>,
-}
 
 /// The PerceptionToF module.
 pub struct PerceptionToF {
     cameras: Vec<TofInput>,
-    mechanism: MechanismModel,
-    pose_slot: String,
-    pose: Option<Reader<PoseEstimate>>,
-    joints: Vec<JointInput>,
+    placement: Placement,
     out: Option<Writer<ElevationMap>>,
-    poses: History<PoseEstimate>,
     params: PerceptionToFParams,
     /// Frames placed and skipped since the start.
     placed: u64,
@@ -99,65 +85,21 @@ impl PerceptionToF {
                 .into_iter()
                 .map(|(device, calibration)| TofInput { device, calibration, frames: None, last_seq: 0 })
                 .collect(),
-            mechanism,
-            pose_slot: pose_slot.to_string(),
-            pose: None,
-            joints: joints_slots
-                .iter()
-                .map(|s| JointInput {
-                    slot: s.to_string(),
-                    reader: None,
-                    values: History::new(p.history_s),
-                    names: Vec::new(),
-                })
-                .collect(),
+            placement: Placement::new(mechanism, pose_slot, joints_slots, p.history_s),
             out: None,
-            poses: History::new(p.history_s),
             params: p,
             placed: 0,
             skipped: 0,
         }
     }
 
-    /// The mechanism's joint values at `stamp`, from the joint histories.
-    fn joints_at(&self, stamp: Time) -> Result<Vec<f64>, String> {
-        let mut q = vec![0.0; self.mechanism.dof_count()];
-        for group in &self.joints {
-            let known = joints_at(&group.values, stamp, self.params.max_extrapolation_s)
-                .ok_or_else(|| format!("no '{}' joint states at {stamp}", group.slot))?;
-            for (d, name) in self.mechanism.dof_names().iter().enumerate() {
-                if let Some(k) = group.names.iter().position(|n| n == name) {
-                    q[d] = known[k];
-                }
-            }
-        }
-        Ok(q)
-    }
-
     /// The robot's link segments in `base_link` for the joint values `q`.
     fn link_segments(&self, q: &[f64]) -> Result<Vec<Segment>, String> {
-        crate::body::link_segments(&self.mechanism, q)
-    }
-
-    /// Pose of `cam`'s optical frame in `base_link` for joint values `q`.
-    fn base_from_optical(&self, cam: &CameraCalibration, q: &[f64]) -> Result<Isometry3<f64>, String> {
-        let root = self.mechanism.root().to_string();
-        let base_from_mount = self.mechanism.transform(&root, &cam.mount, q).map_err(|e| e.to_string())?;
-        Ok(base_from_mount * cam.mount_from_optical)
+        crate::body::link_segments(self.placement.mechanism(), q)
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
-        if let Some(p) = self.pose.as_ref().and_then(|r| ctx.read(r)) {
-            self.poses.push(p.stamp, p.value.clone());
-        }
-        for group in &mut self.joints {
-            if let Some(j) = group.reader.as_ref().and_then(|r| ctx.read(r)) {
-                if group.names.is_empty() {
-                    group.names = j.value.joints.iter().map(|s| s.name.clone()).collect();
-                }
-                group.values.push(j.stamp, j.value.joints.iter().map(|s| s.position).collect());
-            }
-        }
+        self.placement.update(ctx);
         // The frames that arrived since the last cycle.
         let mut fresh = Vec::new();
         for (k, cam) in self.cameras.iter_mut().enumerate() {
@@ -174,12 +116,11 @@ impl PerceptionToF {
         for (k, frame) in &fresh {
             let stamp = frame.value.depth.stamp;
             let cam = &self.cameras[*k];
-            let placement = pose_at(&self.poses, stamp, self.params.max_extrapolation_s)
-                .ok_or_else(|| format!("no '{}' pose at {stamp}", self.pose_slot))
-                .and_then(|pose| {
-                    let q = self.joints_at(stamp)?;
-                    Ok((pose, self.base_from_optical(&cam.calibration, &q)?, self.link_segments(&q)?))
-                });
+            let placement = self.placement.pose_at(stamp).and_then(|pose| {
+                let q = self.placement.joints_at(stamp)?;
+                let base_from_optical = self.placement.base_from_optical(&cam.calibration, &q)?;
+                Ok((pose, base_from_optical, self.link_segments(&q)?))
+            });
             match placement {
                 Ok((pose, base_from_optical, links)) => {
                     placed.push((*k, frame, pose, base_from_optical, links))
@@ -230,10 +171,7 @@ impl Module for PerceptionToF {
         for cam in &mut self.cameras {
             cam.frames = Some(d.reads(&format!("cameras/{}", cam.device)));
         }
-        self.pose = Some(d.reads(&self.pose_slot));
-        for group in &mut self.joints {
-            group.reader = Some(d.reads(&group.slot));
-        }
+        self.placement.declare(d);
         self.out = Some(d.writes("perception/local_dem"));
         d.context_switchable();
         d.state("mapping", |m, ctx| m.cycle(ctx));
@@ -261,10 +199,7 @@ impl Module for PerceptionToF {
         if p.max_extrapolation_s.is_nan() || p.max_extrapolation_s < 0.0 {
             return Err("max_extrapolation_s must be >= 0".into());
         }
-        self.poses = History::new(p.history_s);
-        for group in &mut self.joints {
-            group.values = History::new(p.history_s);
-        }
+        self.placement.configure(p.history_s, p.max_extrapolation_s);
         self.params = p.clone();
         Ok(())
     }

@@ -117,5 +117,7 @@ pub struct NavigationState {
 
 mod localization;
 mod maps;
+mod tracking;
 pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};
+pub use tracking::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses};

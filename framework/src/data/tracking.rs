@@ -1,0 +1,79 @@
+//! Vision products (seed 000, 8.1 and 8.4): fiducial markers seen in an image and the object poses
+//! they give.
+
+use crate::time::Time;
+use nalgebra::{Isometry3, Matrix6};
+use serde::{Deserialize, Serialize};
+
+/// One fiducial marker found in an image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MarkerObservation {
+    /// The marker's id (tag36h11).
+    pub id: u32,
+    /// The object kind whose table carries this id in the object database; None for an unknown id.
+    pub object: Option<String>,
+    /// The corners in raw (distorted) image coordinates, pixels, in the order of the marker frame's
+    /// corners (-s, +s), (+s, +s), (+s, -s), (-s, -s): top-left, top-right, bottom-right,
+    /// bottom-left of the tag as printed.
+    pub corners: [[f64; 2]; 4],
+    /// The decoder's decision margin (higher: more confident).
+    pub decision_margin: f64,
+    /// Pose of the marker frame in the camera's optical frame from this marker alone, when its
+    /// size is known (its id is in the database).
+    pub camera_from_marker: Option<Isometry3<f64>>,
+    /// Root-mean-square reprojection error of that pose, pixels (NaN without one).
+    pub rmse_px: f64,
+}
+
+/// The markers found in one image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MarkerDetections {
+    /// The camera device.
+    pub camera: String,
+    /// The image's optical frame.
+    pub frame: String,
+    /// The image's capture time.
+    pub stamp: Time,
+    /// Image size, pixels (width, height).
+    pub size: [u32; 2],
+    /// What was found.
+    pub markers: Vec<MarkerObservation>,
+}
+
+/// An object's pose from its marker table.
+///
+/// Covariances are over (x, y, z, roll, pitch, yaw) of the object frame in the named frame, m^2
+/// and rad^2, small rotations about that frame's axes (as [`super::PoseEstimate`]'s).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObjectPose {
+    /// The object kind (the database's name: `canister`, `marker_table`).
+    pub object: String,
+    /// The markers of its table used in this estimate.
+    pub markers: Vec<u32>,
+    /// Capture time of the image the pose was measured in.
+    pub stamp: Time,
+    /// Pose of the object frame in `base_link` at `stamp`: what the arm needs, free of the
+    /// localization's uncertainty.
+    pub base_from_object: Isometry3<f64>,
+    /// Its covariance (image noise, through the believed calibration).
+    pub base_covariance: Matrix6<f64>,
+    /// Pose of the object frame in `map`, through the rover's pose estimate at `stamp`.
+    pub map_from_object: Isometry3<f64>,
+    /// Its covariance, the pose estimate's included.
+    pub map_covariance: Matrix6<f64>,
+    /// Root-mean-square reprojection error of the table's corners, pixels.
+    pub rmse_px: f64,
+    /// Consecutive images in which the object was measured (1: first sight after a gap).
+    pub seen_frames: u32,
+}
+
+/// The objects whose poses the markers in one image gave.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ObjectPoses {
+    /// The camera device.
+    pub camera: String,
+    /// The image's capture time.
+    pub stamp: Time,
+    /// One pose per object seen.
+    pub objects: Vec<ObjectPose>,
+}

@@ -1,0 +1,311 @@
+//! Fiducial markers (seed 000, 8.4): AprilTag 36h11 detection (kornia-apriltag) and the 6-DoF pose
+//! of a marker, or of a whole marker table, from its corners.
+//!
+//! A marker's pose starts from kornia-3d's planar pose of its four corners (both of its solutions
+//! when there are two), then every estimate, one marker's or a table's, is refined by weighted
+//! Gauss-Newton on the reprojection error of all the corners it has (corners undistorted through
+//! the believed camera model), which also gives its covariance. A table's corners are not coplanar
+//! when markers on several faces are seen (the canister), which removes the planar ambiguity that
+//! a single small marker suffers from.
+
+use crate::localization::motion::{Correspondence, Intrinsics, RefineParams, refine};
+use framework::camera::{CameraModel, GreyImage};
+use kornia_3d::camera::PinholeCamera;
+use kornia_3d::pose::estimate_planar_pose;
+use kornia_algebra::{Vec2F64, Vec3F64};
+use kornia_apriltag::family::TagFamilyKind;
+use kornia_apriltag::{AprilTagDecoder, DecodeTagsConfig};
+use kornia_image::{Image, ImageSize};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix6, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
+
+/// One decoded marker.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Detected {
+    /// Marker id.
+    pub id: u32,
+    /// Corners in raw image coordinates (pixel centres at +0.5), in [`marker_corners`]' order.
+    pub corners: [Point2<f64>; 4],
+    /// The decoder's decision margin.
+    pub decision_margin: f64,
+    /// Bits corrected.
+    pub hamming: u32,
+}
+
+/// The corners of a square marker of edge `size`, in its own frame (x right, y up as printed), in
+/// the order [`Detected::corners`] holds them: top-left, top-right, bottom-right, bottom-left.
+pub fn marker_corners(size: f64) -> [Point3<f64>; 4] {
+    let s = size / 2.0;
+    [Point3::new(-s, s, 0.0), Point3::new(s, s, 0.0), Point3::new(s, -s, 0.0), Point3::new(-s, -s, 0.0)]
+}
+
+/// The tag36h11 detector for images of one size.
+pub struct MarkerDetector {
+    decoder: AprilTagDecoder,
+    size: ImageSize,
+}
+
+impl MarkerDetector {
+    /// A detector for `width` x `height` images.
+    pub fn new(width: u32, height: u32) -> Result<Self, String> {
+        let size = ImageSize { width: width as usize, height: height as usize };
+        let mut config = DecodeTagsConfig::new(vec![TagFamilyKind::Tag36H11]).map_err(|e| e.to_string())?;
+        // Full resolution: the canister's markers are 10-20 pixels wide at 1.5-3 m, too small for
+        // the default decimation by 2.
+        config.min_tag_width *= config.downscale_factor;
+        config.downscale_factor = 1;
+        let decoder = AprilTagDecoder::new(config, size).map_err(|e| e.to_string())?;
+        Ok(MarkerDetector { decoder, size })
+    }
+
+    /// The markers in `img`, at most `max_hamming` bits corrected, sorted by id.
+    pub fn detect(&mut self, img: &GreyImage, max_hamming: u32) -> Result<Vec<Detected>, String> {
+        if (img.width as usize, img.height as usize) != (self.size.width, self.size.height) {
+            return Err(format!(
+                "a {}x{} image for a detector of {}x{}",
+                img.width, img.height, self.size.width, self.size.height
+            ));
+        }
+        let image = Image::<u8, 1>::new(self.size, img.data.clone()).map_err(|e| e.to_string())?;
+        let found = self.decoder.decode(&image).map_err(|e| e.to_string())?;
+        let mut out: Vec<Detected> = found
+            .iter()
+            .filter(|d| u32::from(d.hamming) <= max_hamming)
+            .map(|d| {
+                // kornia's order is [TR, BR, BL, TL] in the image (y down) of the upright tag; its
+                // coordinates put a pixel's centre at +0.5, as framework::camera does (the rendered
+                // test pins this down).
+                let c =
+                    |k: usize| Point2::new(f64::from(d.quad.corners[k].x), f64::from(d.quad.corners[k].y));
+                Detected {
+                    id: u32::from(d.id),
+                    corners: [c(3), c(0), c(1), c(2)],
+                    decision_margin: f64::from(d.decision_margin),
+                    hamming: u32::from(d.hamming),
+                }
+            })
+            .collect();
+        out.sort_by_key(|d| d.id);
+        // A tag decoded twice (both borders) keeps its most confident reading.
+        out.dedup_by(|b, a| {
+            if a.id == b.id && b.decision_margin > a.decision_margin {
+                std::mem::swap(a, b);
+            }
+            a.id == b.id
+        });
+        Ok(out)
+    }
+}
+
+/// A pose fitted to marker corners.
+#[derive(Clone, Debug)]
+pub struct PoseFit {
+    /// Pose of the object (or marker) frame in the camera's optical frame.
+    pub camera_from_object: Isometry3<f64>,
+    /// Covariance of (x, y, z, roll, pitch, yaw) of that pose in the optical frame (see
+    /// [`position_rotation_covariance`]).
+    pub covariance: Matrix6<f64>,
+    /// Root-mean-square reprojection error, pixels.
+    pub rmse_px: f64,
+    /// Which corners the fit kept.
+    pub inliers: Vec<bool>,
+}
+
+/// Corner observations of one object: its points (object frame) and where the raw image shows them.
+#[derive(Clone, Debug, Default)]
+pub struct Corners {
+    /// Object-frame points, m.
+    pub points: Vec<Point3<f64>>,
+    /// Raw image coordinates, pixels.
+    pub pixels: Vec<Point2<f64>>,
+}
+
+impl Corners {
+    /// Adds a marker at `object_from_marker` of edge `size` seen at `detected`.
+    pub fn add(&mut self, object_from_marker: &Isometry3<f64>, size: f64, detected: &Detected) {
+        for (p, uv) in marker_corners(size).iter().zip(&detected.corners) {
+            self.points.push(object_from_marker * p);
+            self.pixels.push(*uv);
+        }
+    }
+}
+
+/// The undistorted pinhole of `model`, and a raw pixel's image through it.
+fn ideal(model: &CameraModel, uv: &Point2<f64>) -> Point2<f64> {
+    let k = &model.pinhole;
+    let n = model.ray(uv);
+    Point2::new(k.fx * n.x + k.cx, k.fy * n.y + k.cy)
+}
+
+fn intrinsics(model: &CameraModel) -> Intrinsics {
+    let k = &model.pinhole;
+    Intrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy }
+}
+
+/// Refines `initial` over `corners` seen by `model` (corner noise `sigma_px`).
+pub fn fit(
+    model: &CameraModel,
+    corners: &Corners,
+    initial: &Isometry3<f64>,
+    sigma_px: f64,
+) -> Option<PoseFit> {
+    let k = intrinsics(model);
+    let obs: Vec<Correspondence> = corners
+        .points
+        .iter()
+        .zip(&corners.pixels)
+        .map(|(p, uv)| Correspondence { point: *p, covariance: Matrix3::zeros(), pixel: ideal(model, uv) })
+        .collect();
+    let params = RefineParams { pixel_sigma: sigma_px, huber: 3.0, outlier_sigma: 6.0, iterations: 20 };
+    let m = refine(&k, &obs, initial, &vec![true; obs.len()], &params)?;
+    Some(PoseFit {
+        camera_from_object: m.pose,
+        covariance: position_rotation_covariance(&m.pose, &m.covariance),
+        rmse_px: m.rmse_px,
+        inliers: m.inliers,
+    })
+}
+
+/// The pose of one marker of edge `size` from its corners alone: kornia-3d's planar pose (each of
+/// its solutions), refined; the better refined solution. None when no solution puts the marker in
+/// front of the camera.
+pub fn marker_pose(model: &CameraModel, detected: &Detected, size: f64, sigma_px: f64) -> Option<PoseFit> {
+    let k = &model.pinhole;
+    let camera = PinholeCamera { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, ..PinholeCamera::IDENTITY };
+    let object = marker_corners(size);
+    let object_pts = object.map(|p| Vec3F64::new(p.x, p.y, p.z));
+    let image_pts = detected.corners.map(|uv| {
+        let p = ideal(model, &uv);
+        Vec2F64::new(p.x, p.y)
+    });
+    let pair = estimate_planar_pose(&object_pts, &image_pts, &camera, 50).ok()?;
+    let mut corners = Corners::default();
+    corners.add(&Isometry3::identity(), size, detected);
+    std::iter::once(pair.best)
+        .chain(pair.second)
+        .filter(|s| s.error.is_finite())
+        .filter_map(|s| {
+            let m = s.pose.rotation.to_cols_array();
+            let r = Matrix3::from_column_slice(&m);
+            let rot = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix(&r));
+            let t = Translation3::new(s.pose.translation.x, s.pose.translation.y, s.pose.translation.z);
+            let initial = Isometry3::from_parts(t, rot);
+            (initial.translation.vector.z > 0.0).then(|| fit(model, &corners, &initial, sigma_px)).flatten()
+        })
+        .filter(|f| f.camera_from_object.translation.vector.z > 0.0)
+        .min_by(|a, b| a.rmse_px.total_cmp(&b.rmse_px))
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+/// The covariance of (x, y, z, roll, pitch, yaw) of `pose` (position and small rotations about
+/// the reference frame's axes) from the covariance of a left perturbation ξ = (ρ, φ) of it
+/// (T ← Exp(ξ) T, whose translation part moves the position by ρ + φ × t).
+pub fn position_rotation_covariance(pose: &Isometry3<f64>, left: &Matrix6<f64>) -> Matrix6<f64> {
+    let mut j = Matrix6::identity();
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&pose.translation.vector));
+    j * left * j.transpose()
+}
+
+/// The pose `a * b` and its covariance (both in [`position_rotation_covariance`]'s convention),
+/// from the covariances of `a` (in its reference frame) and `b` (in `a`'s child frame),
+/// independent.
+pub fn compose_covariance(
+    a: &Isometry3<f64>,
+    a_cov: &Matrix6<f64>,
+    b: &Isometry3<f64>,
+    b_cov: &Matrix6<f64>,
+) -> (Isometry3<f64>, Matrix6<f64>) {
+    let r = a.rotation.to_rotation_matrix().into_inner();
+    // Position a.t + R b.t: moved by a's rotation about a's origin, and by b's own errors turned.
+    let mut ja = Matrix6::identity();
+    ja.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&(r * b.translation.vector)));
+    let mut jb = Matrix6::zeros();
+    jb.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
+    jb.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);
+    (a * b, ja * a_cov * ja.transpose() + jb * b_cov * jb.transpose())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn camera() -> CameraModel {
+        let mut m = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "cam");
+        m.distortion.k1 = -0.02;
+        m
+    }
+
+    /// A marker seen by `model` at `pose`, its corners projected exactly.
+    fn seen(model: &CameraModel, pose: &Isometry3<f64>, size: f64) -> Detected {
+        let c = marker_corners(size).map(|p| model.project(&(pose * p)).unwrap());
+        Detected { id: 1, corners: c, decision_margin: 100.0, hamming: 0 }
+    }
+
+    fn angle_deg(a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+        a.rotation.angle_to(&b.rotation).to_degrees()
+    }
+
+    #[test]
+    fn exact_corners_give_the_exact_pose_through_distortion() {
+        let model = camera();
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.2, -0.1, 1.5),
+            UnitQuaternion::from_euler_angles(2.6, 0.3, 0.2),
+        );
+        let fit = marker_pose(&model, &seen(&model, &pose, 0.072), 0.072, 0.2).unwrap();
+        assert!((fit.camera_from_object.translation.vector - pose.translation.vector).norm() < 1e-6);
+        assert!(angle_deg(&fit.camera_from_object, &pose) < 1e-4);
+        assert!(fit.rmse_px < 1e-6);
+    }
+
+    #[test]
+    fn a_table_of_markers_on_two_faces_is_fitted_from_all_its_corners() {
+        let model = camera();
+        // Two faces of a box 0.1 m wide, at 45 degrees to the camera.
+        let faces = [
+            Isometry3::from_parts(
+                Translation3::new(0.05, 0.0, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 1.5708, 0.0),
+            ),
+            Isometry3::from_parts(
+                Translation3::new(0.0, 0.0, -0.05),
+                UnitQuaternion::from_euler_angles(0.0, 3.1416, 0.0),
+            ),
+        ];
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.1, 0.05, 1.2),
+            UnitQuaternion::from_euler_angles(0.1, 0.785, 0.05),
+        );
+        let mut corners = Corners::default();
+        for f in &faces {
+            let d = seen(&model, &(pose * f), 0.07);
+            corners.add(f, 0.07, &d);
+        }
+        let start = Isometry3::from_parts(
+            Translation3::from(pose.translation.vector + Vector3::new(0.02, -0.01, 0.05)),
+            pose.rotation * UnitQuaternion::from_euler_angles(0.05, -0.04, 0.03),
+        );
+        let fit = fit(&model, &corners, &start, 0.2).unwrap();
+        assert!((fit.camera_from_object.translation.vector - pose.translation.vector).norm() < 1e-6);
+        assert!(angle_deg(&fit.camera_from_object, &pose) < 1e-4);
+    }
+
+    #[test]
+    fn composed_covariance_adds_the_lever_arm_of_the_first_rotation() {
+        // a: 1 rad^2 of yaw alone; b: 2 m ahead along x, exact. The composition's y varies by
+        // 2 m per rad of yaw.
+        let a = Isometry3::identity();
+        let mut a_cov = Matrix6::zeros();
+        a_cov[(5, 5)] = 1.0;
+        let b = Isometry3::translation(2.0, 0.0, 0.0);
+        let (_, c) = compose_covariance(&a, &a_cov, &b, &Matrix6::zeros());
+        assert!(
+            (c[(1, 1)] - 4.0).abs() < 1e-12 && c[(0, 0)].abs() < 1e-12 && (c[(5, 5)] - 1.0).abs() < 1e-12
+        );
+    }
+}

@@ -1,0 +1,4 @@
+//! Vision algorithms of seed 000, 8.1 and 8.4, free of the framework's module machinery: fiducial
+//! markers and the poses they give ([`markers`]).
+
+pub mod markers;

@@ -1,0 +1,311 @@
+//! `TrackingMarker` (seed 000, 8.4): fiducial markers in the head camera's images, and the poses of
+//! the objects that carry them.
+//!
+//! Every new image of the camera (the left image of a stereo slot) is searched for tag36h11
+//! markers ([`MarkerDetector`]); each marker whose id the object database knows gets its own pose
+//! from its four corners and the believed camera model, and every object with markers in view gets
+//! one pose from all of its visible markers' corners at once (several tables are tracked at once).
+//! The object's pose is placed in `base_link` through the believed mechanism and the pan-tilt
+//! joints at the image's capture time, and in `map` through the rover's pose estimate then, each
+//! with its covariance. Published: `tracking/markers` ([`MarkerDetections`], every image) and
+//! `tracking/objects` ([`ObjectPoses`], every image with an object in view); both stamped with the
+//! image's capture time.
+
+use crate::placement::Placement;
+use crate::tracking::markers::{
+    Corners, Detected, MarkerDetector, PoseFit, compose_covariance, fit, marker_pose,
+};
+use framework::camera::CameraCalibration;
+use framework::data::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, StereoImages};
+use framework::mechanism::MechanismModel;
+use framework::objects::{MarkerSlot, ObjectDatabase};
+use framework::prelude::*;
+use nalgebra::{Isometry3, Matrix6};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// The slot of the markers found in each image.
+pub const MARKERS_SLOT: &str = "tracking/markers";
+/// The slot of the object poses.
+pub const OBJECTS_SLOT: &str = "tracking/objects";
+
+/// TrackingMarker parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackingMarkerParams {
+    /// Corner position noise (1 sigma), pixels.
+    pub corner_sigma_px: f64,
+    /// Markers decoded with more bits corrected are ignored.
+    pub max_hamming: u32,
+    /// Markers with a smaller decision margin are ignored.
+    pub min_decision_margin: f64,
+    /// Object poses whose corners' reprojection error exceeds this are not published, pixels.
+    pub max_rmse_px: f64,
+    /// How long the pose and joint histories reach back, s (more than the camera's latency).
+    pub history_s: f64,
+    /// How far past the newest pose or joint sample an image may be placed, s.
+    pub max_extrapolation_s: f64,
+    /// An object unseen for longer than this starts a new track when seen again, s.
+    pub lost_after_s: f64,
+}
+
+impl Default for TrackingMarkerParams {
+    fn default() -> Self {
+        TrackingMarkerParams {
+            corner_sigma_px: 0.3,
+            max_hamming: 1,
+            min_decision_margin: 15.0,
+            max_rmse_px: 2.0,
+            history_s: 2.0,
+            max_extrapolation_s: 0.15,
+            lost_after_s: 2.0,
+        }
+    }
+}
+
+/// What the module remembers of an object between images.
+#[derive(Clone, Debug)]
+struct Track {
+    last_seen: Time,
+    seen_frames: u32,
+}
+
+/// The TrackingMarker module.
+pub struct TrackingMarker {
+    device: String,
+    calibration: CameraCalibration,
+    db: ObjectDatabase,
+    placement: Placement,
+    params: TrackingMarkerParams,
+    detector: Option<MarkerDetector>,
+    images: Option<Reader<StereoImages>>,
+    markers_out: Option<Writer<MarkerDetections>>,
+    objects_out: Option<Writer<ObjectPoses>>,
+    last_seq: u64,
+    tracks: BTreeMap<String, Track>,
+    unplaced_noted: bool,
+}
+
+/// One object's estimate from one image: its fit and the markers it used.
+pub struct ObjectFit {
+    /// The object kind.
+    pub object: String,
+    /// The markers used.
+    pub markers: Vec<u32>,
+    /// The fit.
+    pub fit: PoseFit,
+}
+
+/// The object database's slot for a marker id: (object kind, slot).
+fn lookup(db: &ObjectDatabase, id: u32) -> Option<(&str, &MarkerSlot)> {
+    db.objects.iter().find_map(|o| o.markers.iter().find(|m| m.id == id).map(|m| (o.kind.as_str(), m)))
+}
+
+/// Each marker's own pose (when the database knows its size) and each object's pose from all its
+/// markers in `found`, seen by the camera `model`: what the module does with one image.
+pub fn measure(
+    db: &ObjectDatabase,
+    model: &framework::camera::CameraModel,
+    found: &[Detected],
+    sigma_px: f64,
+) -> (Vec<MarkerObservation>, Vec<ObjectFit>) {
+    let mut observations = Vec::new();
+    let mut per_object: BTreeMap<&str, Vec<(&Detected, &MarkerSlot, Option<PoseFit>)>> = BTreeMap::new();
+    for d in found {
+        let known = lookup(db, d.id);
+        let own = known.and_then(|(_, slot)| marker_pose(model, d, slot.size_m, sigma_px));
+        observations.push(MarkerObservation {
+            id: d.id,
+            object: known.map(|(kind, _)| kind.to_string()),
+            corners: d.corners.map(|c| [c.x, c.y]),
+            decision_margin: d.decision_margin,
+            camera_from_marker: own.as_ref().map(|f| f.camera_from_object),
+            rmse_px: own.as_ref().map_or(f64::NAN, |f| f.rmse_px),
+        });
+        if let Some((kind, slot)) = known {
+            per_object.entry(kind).or_default().push((d, slot, own));
+        }
+    }
+    let mut fits = Vec::new();
+    for (kind, seen) in per_object {
+        // Start from the marker whose own pose is best determined (the largest in the image).
+        let start = seen
+            .iter()
+            .filter_map(|(_, slot, own)| own.as_ref().map(|f| (f, slot)))
+            .min_by(|(a, _), (b, _)| {
+                let trace = |f: &PoseFit| f.covariance.fixed_view::<3, 3>(3, 3).trace();
+                trace(a).total_cmp(&trace(b))
+            })
+            .map(|(f, slot)| f.camera_from_object * slot.pose().inverse());
+        let Some(start) = start else { continue };
+        let mut corners = Corners::default();
+        for (d, slot, _) in &seen {
+            corners.add(&slot.pose(), slot.size_m, d);
+        }
+        if let Some(f) = fit(model, &corners, &start, sigma_px) {
+            let markers = seen
+                .iter()
+                .enumerate()
+                .filter(|(k, _)| f.inliers[4 * k..4 * k + 4].iter().any(|i| *i))
+                .map(|(_, (d, _, _))| d.id)
+                .collect();
+            fits.push(ObjectFit { object: kind.to_string(), markers, fit: f });
+        }
+    }
+    (observations, fits)
+}
+
+impl TrackingMarker {
+    /// Marker tracking on the left images of stereo slot `cameras/<device>`, whose left camera has
+    /// the believed `calibration`, for the objects of `db`; placed on the robot of the believed
+    /// `mechanism` with the rover's pose from `pose_slot` and joints from `joints_slots`.
+    pub fn new(
+        device: &str,
+        calibration: CameraCalibration,
+        db: ObjectDatabase,
+        mechanism: MechanismModel,
+        pose_slot: &str,
+        joints_slots: &[&str],
+    ) -> Self {
+        let p = TrackingMarkerParams::default();
+        TrackingMarker {
+            device: device.to_string(),
+            calibration,
+            db,
+            placement: Placement::new(mechanism, pose_slot, joints_slots, p.history_s),
+            params: p,
+            detector: None,
+            images: None,
+            markers_out: None,
+            objects_out: None,
+            last_seq: 0,
+            tracks: BTreeMap::new(),
+            unplaced_noted: false,
+        }
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        self.placement.update(ctx);
+        let Some(frame) = self.images.as_ref().and_then(|r| ctx.read(r)) else { return Ok(()) };
+        if frame.seq == self.last_seq {
+            return Ok(());
+        }
+        self.last_seq = frame.seq;
+        let img = &frame.value.left;
+        let stamp = img.stamp;
+        let p = &self.params;
+        let detector = match &mut self.detector {
+            Some(d) => d,
+            None => self.detector.insert(MarkerDetector::new(img.width, img.height)?),
+        };
+        let found: Vec<Detected> = detector
+            .detect(img, p.max_hamming)?
+            .into_iter()
+            .filter(|d| d.decision_margin >= p.min_decision_margin)
+            .collect();
+        let model = &self.calibration.model;
+        let (observations, fits) = measure(&self.db, model, &found, p.corner_sigma_px);
+        if let Some(w) = &self.markers_out {
+            let out = MarkerDetections {
+                camera: self.device.clone(),
+                frame: img.frame.clone(),
+                stamp,
+                size: [img.width, img.height],
+                markers: observations,
+            };
+            ctx.write_stamped(w, out, stamp);
+        }
+        let fits: Vec<ObjectFit> = fits.into_iter().filter(|f| f.fit.rmse_px <= p.max_rmse_px).collect();
+        if fits.is_empty() {
+            return Ok(());
+        }
+        let (pose, base_from_optical) = match self.placement.camera_at(&self.calibration, stamp) {
+            Ok(placed) => placed,
+            Err(why) => {
+                if !self.unplaced_noted {
+                    ctx.note(format!("objects seen but not placed: {why}"));
+                    self.unplaced_noted = true;
+                }
+                return Ok(());
+            }
+        };
+        let mut objects = Vec::new();
+        for f in fits {
+            let (base_from_object, base_covariance) = compose_covariance(
+                &base_from_optical,
+                &Matrix6::zeros(),
+                &f.fit.camera_from_object,
+                &f.fit.covariance,
+            );
+            let (map_from_object, map_covariance) =
+                compose_covariance(&pose.pose, &pose.covariance, &base_from_object, &base_covariance);
+            let lost_after = Duration::from_secs_f64(p.lost_after_s);
+            let track =
+                self.tracks.entry(f.object.clone()).or_insert(Track { last_seen: stamp, seen_frames: 0 });
+            if stamp - track.last_seen > lost_after {
+                track.seen_frames = 0;
+            }
+            if track.seen_frames == 0 {
+                ctx.note(format!("{} seen by its markers {:?}", f.object, f.markers));
+            }
+            track.seen_frames += 1;
+            track.last_seen = stamp;
+            objects.push(ObjectPose {
+                object: f.object,
+                markers: f.markers,
+                stamp,
+                base_from_object,
+                base_covariance,
+                map_from_object,
+                map_covariance,
+                rmse_px: f.fit.rmse_px,
+                seen_frames: track.seen_frames,
+            });
+        }
+        if let Some(w) = &self.objects_out {
+            ctx.write_stamped(w, ObjectPoses { camera: self.device.clone(), stamp, objects }, stamp);
+        }
+        Ok(())
+    }
+
+    /// Pose of the camera's optical frame in `base_link` as the module believes it at `q`.
+    pub fn base_from_optical(&self, q: &[f64]) -> Result<Isometry3<f64>, String> {
+        self.placement.base_from_optical(&self.calibration, q)
+    }
+}
+
+impl Module for TrackingMarker {
+    type Params = TrackingMarkerParams;
+    const KIND: ModuleKind = ModuleKind::Resource;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.images = Some(d.reads(&format!("cameras/{}", self.device)));
+        self.placement.declare(d);
+        self.markers_out = Some(d.writes(MARKERS_SLOT));
+        self.objects_out = Some(d.writes(OBJECTS_SLOT));
+        d.context_switchable();
+        d.state("tracking", |m, ctx| m.cycle(ctx));
+        d.command("forget", |m, _ctx, _: ()| {
+            m.tracks.clear();
+            Outcome::done()
+        });
+    }
+
+    fn configure(&mut self, p: &TrackingMarkerParams) -> Result<(), String> {
+        crate::params::require_positive(&[
+            ("corner_sigma_px", p.corner_sigma_px),
+            ("max_rmse_px", p.max_rmse_px),
+            ("history_s", p.history_s),
+            ("lost_after_s", p.lost_after_s),
+        ])?;
+        if !(p.min_decision_margin.is_finite() && p.min_decision_margin >= 0.0) {
+            return Err(format!("min_decision_margin must be >= 0, got {}", p.min_decision_margin));
+        }
+        if !(p.max_extrapolation_s.is_finite() && p.max_extrapolation_s >= 0.0) {
+            return Err(format!("max_extrapolation_s must be >= 0, got {}", p.max_extrapolation_s));
+        }
+        self.placement.configure(p.history_s, p.max_extrapolation_s);
+        self.params = p.clone();
+        Ok(())
+    }
+}

@@ -21,7 +21,8 @@ pub fn module_config_dir() -> PathBuf {
 /// Modules of the system a scenario runs, in registration order.
 /// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders); the
 /// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate; visual
-/// odometry only with the cameras and a localization stereo rate.
+/// odometry only with the cameras and a localization stereo rate; the head camera's trackers only
+/// with the cameras and a head stereo rate.
 pub const MODULES: &[&str] = &[
     "localization_mechanical",
     "localization_inertial",
@@ -32,6 +33,7 @@ pub const MODULES: &[&str] = &[
     "cameras",
     "localization_visual",
     "localization_fusion",
+    "tracking_marker",
     "perception_tof",
     "perception_fusion",
     "traversability",
@@ -39,6 +41,9 @@ pub const MODULES: &[&str] = &[
     "navigator",
     faults::NAME,
 ];
+
+/// The modules that track in the head camera's images.
+const HEAD_TRACKING: &[&str] = &["tracking_marker"];
 
 /// The navigation chain's modules (they need the ToF cameras).
 const NAVIGATION: &[&str] =
@@ -122,6 +127,7 @@ pub(crate) fn build_system(
         if (*name == "cameras" && !cameras)
             || (NAVIGATION.contains(name) && !navigation_enabled(s))
             || (*name == "localization_visual" && !visual_enabled(s))
+            || (HEAD_TRACKING.contains(name) && !camera_rate_on(s, "head_stereo_hz"))
         {
             continue;
         }
@@ -256,6 +262,22 @@ fn add_module(
             ),
             config,
         ),
+        "tracking_marker" => {
+            let db_path = twin::assets_dir().join("objects.toml");
+            let db = framework::objects::ObjectDatabase::load(&db_path)?;
+            b.add(
+                name,
+                gnc::tracking_marker::TrackingMarker::new(
+                    "head_stereo",
+                    map.stereo_camera("head_stereo")?.calibration().left.clone(),
+                    db,
+                    map.mechanism()?,
+                    POSE_SLOT,
+                    &["ptu/joints", "arm/joints"],
+                ),
+                config,
+            )
+        }
         "perception_tof" => {
             let mut cams = Vec::new();
             for device in ["tof_left", "tof_right"] {

@@ -460,6 +460,46 @@ fn camera_frames_reach_the_logs_as_images_and_point_clouds() {
 }
 
 #[test]
+fn markers_give_a_marker_tables_pose_in_map_and_reach_the_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("markers.toml"), dir.path(), &[]);
+    assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+    let topics = read_mcap(&dir.path().join("run.mcap"));
+    // Once the pan-tilt unit has stopped: the table's four markers, its pose from all of them
+    // where the world file puts it (the start is known exactly here, so the error is the vision's
+    // and the believed calibration's).
+    let objects = &topics["/slots/tracking/objects"];
+    let last = &objects.last().unwrap()["value"]["objects"];
+    let table = last.as_array().unwrap().iter().find(|o| o["object"] == "marker_table").expect("the table");
+    assert_eq!(table["markers"], serde_json::json!([10, 11, 12, 13]));
+    let t: Vec<f64> = table["map_from_object"]["translation"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert!((t[0] - 4.0).hypot(t[1] + 1.5) < 0.03 && t[2].abs() < 0.03, "table at {t:?}");
+    let q: Vec<f64> = table["map_from_object"]["rotation"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let yaw = 2.0 * q[2].atan2(q[3]);
+    let err = (yaw - 160f64.to_radians()).sin().asin().to_degrees();
+    assert!(err.abs() < 1.0, "table yaw off by {err} deg");
+    assert!(table["seen_frames"].as_u64().unwrap() >= 3);
+    // Drawn: outlines over the image, the pose in 3D.
+    let notes = &topics["/sensors/head_stereo/left/markers"];
+    assert!(notes.iter().any(|n| n["points"].as_array().unwrap().len() == 4), "no annotations");
+    assert!(topics.contains_key("/tracking/objects/marker_table"));
+    let ents = rrd_entities(&dir.path().join("run.rrd"));
+    for e in ["/sensors/head_stereo/left/markers", "/world/estimate/objects/marker_table"] {
+        assert!(ents.contains(e), "{e} missing");
+    }
+}
+
+#[test]
 fn a_hung_module_ends_the_run_naming_it_with_finalized_logs() {
     let dir = tempfile::tempdir().unwrap();
     let o = run(&data("hang.toml"), dir.path(), &[]);

@@ -48,6 +48,13 @@ pub(super) fn foxglove_schema(name: &str) -> String {
             r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"poses":{{"type":"array","items":{}}}"#,
             pose_schema()
         ),
+        "foxglove.ImageAnnotations" => {
+            let colour = r#"{"title":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type":"number"}}}"#;
+            let point2 = r#"{"title":"foxglove.Point2","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"}}}"#;
+            format!(
+                r#""circles":{{"type":"array","items":{{"title":"foxglove.CircleAnnotation","type":"object","properties":{{"timestamp":{TIME},"position":{point2},"diameter":{{"type":"number"}},"thickness":{{"type":"number"}},"fill_color":{colour},"outline_color":{colour}}}}}}},"points":{{"type":"array","items":{{"title":"foxglove.PointsAnnotation","type":"object","properties":{{"timestamp":{TIME},"type":{{"title":"foxglove.PointsAnnotationType","oneOf":[{{"title":"UNKNOWN","const":0}},{{"title":"POINTS","const":1}},{{"title":"LINE_LOOP","const":2}},{{"title":"LINE_STRIP","const":3}},{{"title":"LINE_LIST","const":4}}]}},"points":{{"type":"array","items":{point2}}},"outline_color":{colour},"outline_colors":{{"type":"array","items":{colour}}},"fill_color":{colour},"thickness":{{"type":"number"}}}}}}}},"texts":{{"type":"array","items":{{"title":"foxglove.TextAnnotation","type":"object","properties":{{"timestamp":{TIME},"position":{point2},"text":{{"type":"string"}},"font_size":{{"type":"number"}},"text_color":{colour},"background_color":{colour}}}}}}}"#
+            )
+        }
         _ => unreachable!("known schema"),
     };
     format!(

@@ -23,11 +23,7 @@ use crate::scenario::{LoggingSettings, Scenario};
 use crate::score::{LogFiles, Score};
 use anyhow::{Context, Result};
 use base64::Engine;
-use framework::camera::TofFrame;
-use framework::data::{
-    ElevationMap, JointStates, LocomotionState, NavigationMap, PoseEstimate, StereoImages, TargetSelection,
-    VisualOdometry,
-};
+use framework::data::{PoseEstimate, VisualOdometry};
 use framework::system::Core;
 use framework::{Duration, Time};
 use nalgebra::Isometry3;
@@ -37,10 +33,13 @@ use twin::Twin;
 
 mod framework_log;
 mod images;
+mod known;
 mod maps;
 mod mcap_writer;
 mod rerun_view;
+mod tracking;
 
+use known::Known;
 use mcap_writer::{Mcap, own_schema, pose_json, stamp_json};
 use rerun_view::{blueprint, extend_track, rr_transform};
 
@@ -82,21 +81,6 @@ struct SlotRecord {
     type_name: &'static str,
     json: Option<serde_json::Value>,
     known: Known,
-}
-
-enum Known {
-    Pose(Time, Box<PoseEstimate>),
-    Joints(JointStates),
-    Locomotion(LocomotionState, Option<f64>),
-    Stereo(std::sync::Arc<framework::Stamped<StereoImages>>),
-    Tof(std::sync::Arc<framework::Stamped<TofFrame>>),
-    Target(TargetSelection),
-    Elevation(Time, std::sync::Arc<framework::Stamped<ElevationMap>>),
-    Navigation(Time, std::sync::Arc<framework::Stamped<NavigationMap>>),
-    /// A path with the ground height under each point.
-    Path(Time, framework::data::Path, Vec<f64>),
-    Visual(std::sync::Arc<framework::Stamped<VisualOdometry>>),
-    Other,
 }
 
 /// The logging thread's side: owns the files and does all the encoding.
@@ -283,55 +267,7 @@ impl RunLogger {
                 continue;
             }
             self.slot_seq.insert(name.clone(), seq);
-            let any = slot.as_any();
-            let known = if let Some(s) =
-                any.downcast_ref::<framework::blackboard::SlotCell<PoseEstimate>>().and_then(|c| c.latest())
-            {
-                Known::Pose(s.stamp, Box::new(s.value.clone()))
-            } else if let Some(s) =
-                any.downcast_ref::<framework::blackboard::SlotCell<JointStates>>().and_then(|c| c.latest())
-            {
-                Known::Joints(s.value.clone())
-            } else if let Some(s) = any
-                .downcast_ref::<framework::blackboard::SlotCell<LocomotionState>>()
-                .and_then(|c| c.latest())
-            {
-                let z = s.value.goal.map(|[x, y]| twin.world().ground_height(x, y));
-                Known::Locomotion(s.value.clone(), z)
-            } else if let Some(s) = any
-                .downcast_ref::<framework::blackboard::SlotCell<TargetSelection>>()
-                .and_then(|c| c.latest())
-            {
-                Known::Target(s.value.clone())
-            } else if let Some(s) =
-                any.downcast_ref::<framework::blackboard::SlotCell<StereoImages>>().and_then(|c| c.latest())
-            {
-                Known::Stereo(s)
-            } else if let Some(s) =
-                any.downcast_ref::<framework::blackboard::SlotCell<TofFrame>>().and_then(|c| c.latest())
-            {
-                Known::Tof(s)
-            } else if let Some(s) =
-                any.downcast_ref::<framework::blackboard::SlotCell<ElevationMap>>().and_then(|c| c.latest())
-            {
-                Known::Elevation(s.stamp, s)
-            } else if let Some(s) =
-                any.downcast_ref::<framework::blackboard::SlotCell<NavigationMap>>().and_then(|c| c.latest())
-            {
-                Known::Navigation(s.stamp, s)
-            } else if let Some(s) = any
-                .downcast_ref::<framework::blackboard::SlotCell<framework::data::Path>>()
-                .and_then(|c| c.latest())
-            {
-                let z = s.value.points.iter().map(|q| twin.world().ground_height(q[0], q[1])).collect();
-                Known::Path(s.stamp, s.value.clone(), z)
-            } else if let Some(s) =
-                any.downcast_ref::<framework::blackboard::SlotCell<VisualOdometry>>().and_then(|c| c.latest())
-            {
-                Known::Visual(s)
-            } else {
-                Known::Other
-            };
+            let known = known::classify(slot.as_any(), twin);
             if matches!(known, Known::Elevation(..) | Known::Navigation(..)) {
                 // Maps: at their own rate, never as JSON (a global map is megabytes of it). One
                 // skipped for the rate stays unseen, so the newest is logged when the rate allows.
@@ -686,6 +622,8 @@ impl Writer {
                     maps::path(self.rrd.as_ref(), self.mcap.as_mut(), &r.name, *stamp, p, z)?
                 }
                 Known::Visual(v) => self.visual_odometry(&r.name, &v.value)?,
+                Known::Markers(m) => self.markers(&m.value)?,
+                Known::Objects(o) => self.objects(&o.value)?,
                 Known::Other => {}
             }
             // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.

@@ -1,0 +1,115 @@
+//! Vision products in the logs: fiducial markers over the image they were found in (Rerun
+//! `LineStrips2D` and labels, MCAP `foxglove.ImageAnnotations`) and the object poses they give (Rerun
+//! transforms with axes under `world/estimate/objects`, MCAP `foxglove.PosesInFrame` in `map`).
+
+use super::Writer;
+use super::mcap_writer::{pose_json, stamp_json};
+use super::rerun_view::rr_transform;
+use anyhow::Result;
+use framework::data::{MarkerDetections, ObjectPoses};
+
+/// Marker outlines: green for a marker of a known object, orange for an unknown id.
+fn colour(known: bool) -> [u8; 3] {
+    if known { [60, 220, 90] } else { [255, 150, 40] }
+}
+
+impl Writer {
+    /// The markers of one image, drawn over its (downsampled) left image.
+    pub(super) fn markers(&mut self, m: &MarkerDetections) -> Result<()> {
+        let k = f64::from(self.downsample.max(1));
+        let outline = |corners: &[[f64; 2]; 4]| -> Vec<[f32; 2]> {
+            corners
+                .iter()
+                .chain(std::iter::once(&corners[0]))
+                .map(|c| [(c[0] / k) as f32, (c[1] / k) as f32])
+                .collect()
+        };
+        let path = format!("sensors/{}/left/markers", m.camera);
+        if let Some(rec) = &self.rrd {
+            let labels: Vec<String> = m
+                .markers
+                .iter()
+                .map(|o| match &o.object {
+                    Some(kind) => format!("{} ({kind})", o.id),
+                    None => o.id.to_string(),
+                })
+                .collect();
+            rec.log(
+                path.as_str(),
+                &rerun::LineStrips2D::new(m.markers.iter().map(|o| outline(&o.corners)))
+                    .with_colors(m.markers.iter().map(|o| colour(o.object.is_some())))
+                    .with_labels(labels),
+            )?;
+        }
+        if let Some(mc) = &mut self.mcap {
+            let rgba = |c: [u8; 3]| serde_json::json!({"r": f64::from(c[0]) / 255.0, "g": f64::from(c[1]) / 255.0, "b": f64::from(c[2]) / 255.0, "a": 1.0});
+            let points: Vec<_> = m
+                .markers
+                .iter()
+                .map(|o| {
+                    let pts: Vec<_> = outline(&o.corners)[..4]
+                        .iter()
+                        .map(|p| serde_json::json!({"x": p[0], "y": p[1]}))
+                        .collect();
+                    serde_json::json!({
+                        "timestamp": stamp_json(m.stamp), "type": 2, "points": pts,
+                        "outline_color": rgba(colour(o.object.is_some())), "outline_colors": [],
+                        "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}, "thickness": 2.0,
+                    })
+                })
+                .collect();
+            let texts: Vec<_> = m
+                .markers
+                .iter()
+                .map(|o| {
+                    let c = outline(&o.corners)[0];
+                    serde_json::json!({
+                        "timestamp": stamp_json(m.stamp), "position": {"x": c[0], "y": c[1]},
+                        "text": o.id.to_string(), "font_size": 12.0,
+                        "text_color": rgba(colour(o.object.is_some())), "background_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.6},
+                    })
+                })
+                .collect();
+            let msg = serde_json::json!({ "circles": [], "points": points, "texts": texts });
+            mc.foxglove(&format!("/{path}"), "foxglove.ImageAnnotations", m.stamp, &msg)?;
+        }
+        Ok(())
+    }
+
+    /// Object poses in `map`.
+    pub(super) fn objects(&mut self, o: &ObjectPoses) -> Result<()> {
+        for p in &o.objects {
+            if let Some(rec) = &self.rrd {
+                let base = format!("world/estimate/objects/{}", p.object);
+                rec.log(base.as_str(), &rr_transform(&p.map_from_object))?;
+                let sig = [0, 1, 2].map(|i| 3.0 * p.map_covariance[(i, i)].max(0.0).sqrt() as f32);
+                rec.log(
+                    format!("{base}/axes"),
+                    &rerun::Arrows3D::from_vectors([[0.15f32, 0.0, 0.0], [0.0, 0.15, 0.0], [0.0, 0.0, 0.15]])
+                        .with_colors([[255u8, 0, 0], [0, 255, 0], [0, 0, 255]])
+                        .with_labels([
+                            format!("{} ({} markers)", p.object, p.markers.len()),
+                            String::new(),
+                            String::new(),
+                        ]),
+                )?;
+                rec.log(
+                    format!("{base}/uncertainty"),
+                    &rerun::Ellipsoids3D::from_half_sizes([sig]).with_colors([[60u8, 220, 90]]),
+                )?;
+            }
+            if let Some(mc) = &mut self.mcap {
+                let msg = serde_json::json!({
+                    "timestamp": stamp_json(p.stamp), "frame_id": "map", "poses": [pose_json(&p.map_from_object)],
+                });
+                mc.foxglove(
+                    &format!("/tracking/objects/{}", p.object),
+                    "foxglove.PosesInFrame",
+                    p.stamp,
+                    &msg,
+                )?;
+            }
+        }
+        Ok(())
+    }
+}

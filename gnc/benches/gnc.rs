@@ -15,6 +15,10 @@
 //!   `pose_filter_late_relative` (a visual odometry measurement over the last 0.5 s arriving
 //!   0.1 s late: the filter rolls back, clones, re-runs 30 steps and updates). Target: under 50 us. Target: under 20 ms per
 //!   frame on one core: run with `RAYON_NUM_THREADS=1` (kornia's LK tracks points in parallel).
+//! - `marker_detection_640x480` (tag36h11; quads found in the image decimated by 1 or 2) and `marker_table_pose` (each
+//!   marker's own pose and the table's from its 16 corners) on a ray-cast 640 x 480 image of the
+//!   calibration table (four 0.2 m markers) 2 m away over textured ground. Target: both together
+//!   under 10 ms.
 
 #[path = "../tests/common/scene.rs"]
 mod scene;
@@ -30,6 +34,105 @@ use nalgebra::{Isometry3, Point2, Translation3, UnitQuaternion, Vector3};
 
 fn main() {
     divan::main();
+}
+
+/// A tag36h11 marker's modules, row-major from the top-left, white quiet zone included (true:
+/// white), and their count a side.
+fn tag_cells(id: u32) -> (Vec<bool>, usize) {
+    let fam = kornia_apriltag::family::TagFamily::tag36_h11().unwrap();
+    let code = fam.code_data[id as usize];
+    let n = fam.total_width;
+    let mut cells = vec![false; n * n];
+    let white = fam.width_at_border + 2;
+    let s0 = (n - white) / 2;
+    for i in 0..white {
+        for (x, y) in [(s0 + i, s0), (s0, s0 + i), (s0 + i, s0 + white - 1), (s0 + white - 1, s0 + i)] {
+            cells[y * n + x] = true;
+        }
+    }
+    let start = ((n - fam.width_at_border) / 2) as i64;
+    for i in 0..fam.nbits {
+        if code & (1 << (fam.nbits - i - 1)) != 0 {
+            cells[(fam.bit_y[i] as i64 + start) as usize * n + (fam.bit_x[i] as i64 + start) as usize] = true;
+        }
+    }
+    (cells, n)
+}
+
+/// A 640 x 480 image (70 degrees) of the calibration table's face (1 m square, four 0.2 m markers,
+/// ids 10-13 as in `assets/objects.toml`) 2 m away, turned 25 degrees, over textured ground;
+/// ray-cast with 2 x 2 samples per pixel.
+fn marker_image() -> (CameraModel, framework::camera::GreyImage) {
+    let model = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "head");
+    let k = model.pinhole;
+    let (ca, sa) = (25f64.to_radians().cos(), 25f64.to_radians().sin());
+    let centre = Vector3::new(0.0, -0.1, 2.0);
+    let (right, up) = (Vector3::new(ca, 0.0, sa), Vector3::new(0.0, -1.0, 0.0));
+    let normal = right.cross(&up);
+    let tags: Vec<((f64, f64), (Vec<bool>, usize))> =
+        [(10, -0.15, 0.2), (11, 0.15, 0.2), (12, -0.15, -0.2), (13, 0.15, -0.2)]
+            .iter()
+            .map(|&(id, x, y)| ((x, y), tag_cells(id)))
+            .collect();
+    let print = 0.2 * 10.0 / 8.0;
+    let sample = |u: f64, v: f64| -> f64 {
+        let d = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);
+        let t = centre.dot(&normal) / d.dot(&normal);
+        let (a, b) = ((d * t - centre).dot(&right), (d * t - centre).dot(&up));
+        if a.abs() > 0.5 || b.abs() > 0.5 {
+            return 40.0 + 160.0 * scene::albedo(u * 0.01, v * 0.01);
+        }
+        for ((x, y), (cells, n)) in &tags {
+            let (ma, mb) = ((a - x) / print + 0.5, 0.5 - (b - y) / print);
+            if (0.0..1.0).contains(&ma) && (0.0..1.0).contains(&mb) {
+                let (cx, cy) = ((ma * *n as f64) as usize, (mb * *n as f64) as usize);
+                return if cells[cy * n + cx] { 220.0 } else { 25.0 };
+            }
+        }
+        200.0
+    };
+    let mut data = Vec::with_capacity(640 * 480);
+    for v in 0..480 {
+        for u in 0..640 {
+            let mut sum = 0.0;
+            for (du, dv) in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)] {
+                sum += sample(u as f64 + du, v as f64 + dv);
+            }
+            data.push((sum / 4.0).round() as u8);
+        }
+    }
+    let img = framework::camera::GreyImage {
+        stamp: Time::ZERO,
+        frame: "head".into(),
+        width: 640,
+        height: 480,
+        data,
+    };
+    (model, img)
+}
+
+fn object_database() -> framework::objects::ObjectDatabase {
+    framework::objects::ObjectDatabase::load(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/objects.toml"))
+        .unwrap()
+}
+
+#[divan::bench(sample_count = 30, sample_size = 3, args = [1, 2])]
+fn marker_detection_640x480(b: Bencher<'_, '_>, decimate: u32) {
+    let (_, img) = marker_image();
+    let mut detector = gnc::tracking::markers::MarkerDetector::new(640, 480, decimate).unwrap();
+    assert_eq!(detector.detect(&img, 0).unwrap().len(), 4, "the four markers");
+    b.bench_local(|| black_box(detector.detect(black_box(&img), 0).unwrap()));
+}
+
+#[divan::bench(sample_count = 30, sample_size = 10)]
+fn marker_table_pose(b: Bencher<'_, '_>) {
+    let (model, img) = marker_image();
+    let found = gnc::tracking::markers::MarkerDetector::new(640, 480, 2).unwrap().detect(&img, 0).unwrap();
+    let db = object_database();
+    let (_, fits) = gnc::tracking_marker::measure(&db, &model, &found, 0.3);
+    assert_eq!(fits.len(), 1, "the table");
+    assert_eq!(fits[0].markers.len(), 4, "from its four markers");
+    b.bench(|| black_box(gnc::tracking_marker::measure(&db, &model, black_box(&found), 0.3)));
 }
 
 /// Rolling ground with round rocks every few metres.

@@ -35,6 +35,9 @@ pub const OBJECTS_SLOT: &str = "tracking/objects";
 pub struct TrackingMarkerParams {
     /// Corner position noise (1 sigma), pixels.
     pub corner_sigma_px: f64,
+    /// Quads are searched in the image decimated by this (1: full resolution, markers from ~15
+    /// pixels wide; 2: about three times faster, from ~25 pixels); decoded at full resolution.
+    pub decimate: u32,
     /// Markers decoded with more bits corrected are ignored.
     pub max_hamming: u32,
     /// Markers with a smaller decision margin are ignored.
@@ -53,6 +56,7 @@ impl Default for TrackingMarkerParams {
     fn default() -> Self {
         TrackingMarkerParams {
             corner_sigma_px: 0.3,
+            decimate: 1,
             max_hamming: 1,
             min_decision_margin: 15.0,
             max_rmse_px: 2.0,
@@ -196,7 +200,7 @@ impl TrackingMarker {
         let p = &self.params;
         let detector = match &mut self.detector {
             Some(d) => d,
-            None => self.detector.insert(MarkerDetector::new(img.width, img.height)?),
+            None => self.detector.insert(MarkerDetector::new(img.width, img.height, p.decimate)?),
         };
         let found: Vec<Detected> = detector
             .detect(img, p.max_hamming)?
@@ -298,6 +302,9 @@ impl Module for TrackingMarker {
             ("history_s", p.history_s),
             ("lost_after_s", p.lost_after_s),
         ])?;
+        if !(1..=4).contains(&p.decimate) {
+            return Err(format!("decimate must be 1 to 4, got {}", p.decimate));
+        }
         if !(p.min_decision_margin.is_finite() && p.min_decision_margin >= 0.0) {
             return Err(format!("min_decision_margin must be >= 0, got {}", p.min_decision_margin));
         }
@@ -305,6 +312,9 @@ impl Module for TrackingMarker {
             return Err(format!("max_extrapolation_s must be >= 0, got {}", p.max_extrapolation_s));
         }
         self.placement.configure(p.history_s, p.max_extrapolation_s);
+        if p.decimate != self.params.decimate {
+            self.detector = None;
+        }
         self.params = p.clone();
         Ok(())
     }

@@ -84,7 +84,7 @@ fn single_marker_errors(kind: &str, slot: &str, ranges: &[f64]) -> (f64, f64, f6
     let marker = object * slot.pose();
     let n = marker.rotation * Vector3::z();
     let side = marker.rotation * Vector3::x();
-    let mut detector = MarkerDetector::new(cam.pinhole.width, cam.pinhole.height).unwrap();
+    let mut detector = MarkerDetector::new(cam.pinhole.width, cam.pinhole.height, 1).unwrap();
     let mut worst = (0.0f64, 0.0f64, 0.0f64);
     for (k, range) in ranges.iter().enumerate() {
         let dir = (n + side * 0.3 + Vector3::z() * 0.35).normalize();
@@ -143,7 +143,7 @@ fn a_table_pose_from_several_markers_beats_a_single_markers() {
     let (cam, _) = head();
     let db = db();
     let entry = db.object("canister").unwrap().clone();
-    let mut detector = MarkerDetector::new(cam.pinhole.width, cam.pinhole.height).unwrap();
+    let mut detector = MarkerDetector::new(cam.pinhole.width, cam.pinhole.height, 1).unwrap();
     let (mut single, mut table, mut views) = ((0.0, 0.0), (0.0, 0.0), 0);
     for (k, yaw) in [6.0, 10.0, 14.0, 18.0].iter().enumerate() {
         let t = object_twin("canister", *yaw);

@@ -53,7 +53,7 @@ fn value_noise(x: f64, y: f64, cell: f64, seed: u64) -> f64 {
 }
 
 /// Ground albedo at (x, y), 0-1.
-fn albedo(x: f64, y: f64) -> f64 {
+pub fn albedo(x: f64, y: f64) -> f64 {
     0.45 * value_noise(x, y, 0.15, 1) + 0.35 * value_noise(x, y, 0.045, 2) + 0.2 * value_noise(x, y, 0.015, 3)
 }
 

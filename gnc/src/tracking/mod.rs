@@ -1,4 +1,6 @@
 //! Vision algorithms of seed 000, 8.1 and 8.4, free of the framework's module machinery: fiducial
-//! markers and the poses they give ([`markers`]).
+//! markers and the poses they give ([`markers`]), the operator-selected target's image tracker
+//! ([`template`]).
 
 pub mod markers;
+pub mod template;

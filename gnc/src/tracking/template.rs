@@ -1,0 +1,499 @@
+//! A target tracker in the spirit of track-learn-detect (seed 000, 8.1): normalized
+//! cross-correlation of learnt templates, with scale adaptation, a confidence, and re-detection over
+//! the whole image after a loss or an occlusion.
+//!
+//! A template is the target's box with some context around it (a small target far away is a few
+//! pixels; the ground around it moves with it), resampled to a fixed grid and normalized (zero mean,
+//! unit norm). Each frame the newest template is searched for around the prediction (the last
+//! position, or where the caller's 3D estimate projects) at a few scales, each scale resampling
+//! the search area once onto the template's grid so the search is a dense correlation with running
+//! sums. The confidence is the best correlation with any learnt template there; a confident match
+//! that looks unlike every stored template is learnt. Below the tracking threshold the target is
+//! lost, and every later frame is searched whole, coarse to fine, at several scales, with all the
+//! templates, until one matches above the re-detection threshold.
+
+use framework::camera::GreyImage;
+
+/// Tracker parameters.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackerParams {
+    /// Template grid: the longer side, cells.
+    pub template_cells: usize,
+    /// Context around the box in a template, as a fraction of the box on each side.
+    pub context: f64,
+    /// A template covers at least this many pixels a side (context for tiny targets).
+    pub min_region_px: f64,
+    /// Search window around the prediction, template cells each way.
+    pub search_cells: usize,
+    /// Scale factors tried each frame.
+    pub scales: Vec<f64>,
+    /// Below this correlation the target is lost.
+    pub track_threshold: f64,
+    /// Above this correlation (and unlike the stored templates) a match is learnt.
+    pub learn_threshold: f64,
+    /// A match correlating above this with a stored template is not new.
+    pub novelty_threshold: f64,
+    /// Templates kept (the first, the operator's, is never dropped).
+    pub max_templates: usize,
+    /// A re-detection is accepted above this correlation.
+    pub redetect_threshold: f64,
+    /// Scale factors tried when re-detecting.
+    pub redetect_scales: Vec<f64>,
+}
+
+impl Default for TrackerParams {
+    fn default() -> Self {
+        TrackerParams {
+            template_cells: 24,
+            context: 0.5,
+            min_region_px: 24.0,
+            search_cells: 10,
+            scales: vec![0.95, 1.0, 1.05],
+            track_threshold: 0.55,
+            learn_threshold: 0.8,
+            novelty_threshold: 0.93,
+            max_templates: 12,
+            redetect_threshold: 0.75,
+            redetect_scales: vec![0.8, 0.9, 1.0, 1.12, 1.25],
+        }
+    }
+}
+
+/// An image box, pixels: [u_min, v_min, u_max, v_max].
+pub type BBox = [f64; 4];
+
+/// How a frame went.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TrackStatus {
+    /// Followed from the last frame.
+    Tracking,
+    /// Found again by a whole-image search after a loss.
+    Redetected,
+    /// Not found.
+    Lost,
+}
+
+/// A frame's outcome.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TrackResult {
+    /// The target's box (the last known one when lost).
+    pub bbox: BBox,
+    /// Best correlation with the learnt appearance, -1 to 1.
+    pub confidence: f64,
+    /// What happened.
+    pub status: TrackStatus,
+}
+
+/// A normalized template: zero mean, unit norm, `w` x `h` cells.
+#[derive(Clone, Debug)]
+struct Template {
+    w: usize,
+    h: usize,
+    data: Vec<f32>,
+}
+
+/// The tracker.
+#[derive(Clone, Debug)]
+pub struct TemplateTracker {
+    params: TrackerParams,
+    templates: Vec<Template>,
+    /// The box, and its region's size (box plus context), pixels.
+    bbox: Option<BBox>,
+    region: (f64, f64),
+    lost: bool,
+}
+
+/// Bilinear sample at continuous pixel coordinates (pixel centres at +0.5); edges clamped.
+fn sample(img: &GreyImage, x: f64, y: f64) -> f32 {
+    let (w, h) = (img.width as i64, img.height as i64);
+    let (fx, fy) = (x - 0.5, y - 0.5);
+    let (x0, y0) = (fx.floor(), fy.floor());
+    let (ax, ay) = ((fx - x0) as f32, (fy - y0) as f32);
+    let at = |u: i64, v: i64| f32::from(img.data[(v.clamp(0, h - 1) * w + u.clamp(0, w - 1)) as usize]);
+    let (u, v) = (x0 as i64, y0 as i64);
+    let top = at(u, v) * (1.0 - ax) + at(u + 1, v) * ax;
+    let bottom = at(u, v + 1) * (1.0 - ax) + at(u + 1, v + 1) * ax;
+    top * (1.0 - ay) + bottom * ay
+}
+
+/// `w` x `h` samples with the top-left cell's centre at (x0, y0) and `step` pixels between cells.
+fn resample(img: &GreyImage, x0: f64, y0: f64, step: f64, w: usize, h: usize) -> Vec<f32> {
+    let mut out = Vec::with_capacity(w * h);
+    for j in 0..h {
+        for i in 0..w {
+            out.push(sample(img, x0 + i as f64 * step, y0 + j as f64 * step));
+        }
+    }
+    out
+}
+
+impl Template {
+    fn new(w: usize, h: usize, mut data: Vec<f32>) -> Option<Template> {
+        let mean = data.iter().sum::<f32>() / data.len() as f32;
+        data.iter_mut().for_each(|v| *v -= mean);
+        let norm = data.iter().map(|v| v * v).sum::<f32>().sqrt();
+        if norm < 1e-3 * data.len() as f32 {
+            return None; // a flat patch: nothing to track
+        }
+        data.iter_mut().for_each(|v| *v /= norm);
+        Some(Template { w, h, data })
+    }
+
+    /// Correlation with the raw patch `p` (same size).
+    fn ncc(&self, p: &[f32]) -> f64 {
+        Template::new(self.w, self.h, p.to_vec())
+            .map_or(0.0, |t| t.data.iter().zip(&self.data).map(|(a, b)| f64::from(a * b)).sum())
+    }
+}
+
+/// Dense correlation of `t` over `img` (`iw` x `ih`): the best score and its top-left offset,
+/// sub-cell by a parabola through the neighbours.
+fn ncc_search(t: &Template, img: &[f32], iw: usize, ih: usize) -> Option<(f64, f64, f64)> {
+    if iw < t.w || ih < t.h {
+        return None;
+    }
+    // Running sums of the image and its square for each window's mean and norm.
+    let (sw, sh) = (iw + 1, ih + 1);
+    let mut s1 = vec![0f64; sw * sh];
+    let mut s2 = vec![0f64; sw * sh];
+    for y in 0..ih {
+        let (mut r1, mut r2) = (0f64, 0f64);
+        for x in 0..iw {
+            let v = f64::from(img[y * iw + x]);
+            r1 += v;
+            r2 += v * v;
+            s1[(y + 1) * sw + x + 1] = s1[y * sw + x + 1] + r1;
+            s2[(y + 1) * sw + x + 1] = s2[y * sw + x + 1] + r2;
+        }
+    }
+    let n = (t.w * t.h) as f64;
+    let (nx, ny) = (iw - t.w + 1, ih - t.h + 1);
+    let mut scores = vec![f64::NEG_INFINITY; nx * ny];
+    for y in 0..ny {
+        for x in 0..nx {
+            let rect = |s: &[f64]| {
+                s[(y + t.h) * sw + x + t.w] - s[y * sw + x + t.w] - s[(y + t.h) * sw + x] + s[y * sw + x]
+            };
+            let (a, b) = (rect(&s1), rect(&s2));
+            let var = b - a * a / n;
+            if var <= 1e-6 * n {
+                continue;
+            }
+            // The template has zero mean, so the window's mean drops out of the dot product.
+            let mut dot = 0f32;
+            for j in 0..t.h {
+                let row = &img[(y + j) * iw + x..(y + j) * iw + x + t.w];
+                let trow = &t.data[j * t.w..(j + 1) * t.w];
+                dot += row.iter().zip(trow).map(|(p, q)| p * q).sum::<f32>();
+            }
+            scores[y * nx + x] = f64::from(dot) / var.sqrt();
+        }
+    }
+    let (k, best) = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
+    if !best.is_finite() {
+        return None;
+    }
+    let (bx, by) = (k % nx, k / nx);
+    let sub = |m: f64, c: f64, p: f64| {
+        let den = m - 2.0 * c + p;
+        if m.is_finite() && p.is_finite() && den < 0.0 { (0.5 * (m - p) / den).clamp(-0.5, 0.5) } else { 0.0 }
+    };
+    let dx = if bx > 0 && bx + 1 < nx { sub(scores[k - 1], *best, scores[k + 1]) } else { 0.0 };
+    let dy = if by > 0 && by + 1 < ny { sub(scores[k - nx], *best, scores[k + nx]) } else { 0.0 };
+    Some((*best, bx as f64 + dx, by as f64 + dy))
+}
+
+fn centre(b: &BBox) -> (f64, f64) {
+    (0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3]))
+}
+
+impl TemplateTracker {
+    /// A tracker with nothing to track yet.
+    pub fn new(params: TrackerParams) -> Self {
+        TemplateTracker { params, templates: Vec::new(), bbox: None, region: (0.0, 0.0), lost: false }
+    }
+
+    /// The parameters.
+    pub fn params(&self) -> &TrackerParams {
+        &self.params
+    }
+
+    /// The target's last box.
+    pub fn bbox(&self) -> Option<BBox> {
+        self.bbox
+    }
+
+    /// How many templates it has learnt (the first included).
+    pub fn templates(&self) -> usize {
+        self.templates.len()
+    }
+
+    /// The template grid (w, h) for a region of `rw` x `rh` pixels.
+    fn grid(&self, rw: f64, rh: f64) -> (usize, usize) {
+        let n = self.params.template_cells as f64;
+        if rw >= rh {
+            (n as usize, ((n * rh / rw).round() as usize).max(4))
+        } else {
+            (((n * rw / rh).round() as usize).max(4), n as usize)
+        }
+    }
+
+    /// The region around a box (box plus context, at least `min_region_px`).
+    fn region_of(&self, b: &BBox) -> (f64, f64) {
+        let k = 1.0 + 2.0 * self.params.context;
+        let m = self.params.min_region_px;
+        (((b[2] - b[0]) * k).max(m), ((b[3] - b[1]) * k).max(m))
+    }
+
+    /// The raw patch of the region centred at (cx, cy) of size `region`, on the template grid.
+    fn patch(&self, img: &GreyImage, cx: f64, cy: f64, region: (f64, f64)) -> (usize, usize, Vec<f32>) {
+        let (w, h) = self.grid(region.0, region.1);
+        let step = region.0 / w as f64;
+        let x0 = cx - 0.5 * (w as f64 - 1.0) * step;
+        let y0 = cy - 0.5 * (h as f64 - 1.0) * step;
+        (w, h, resample(img, x0, y0, step, w, h))
+    }
+
+    /// Starts tracking the target in box `bbox` of `img`: its first template. An error when the
+    /// box is degenerate, outside the image or shows nothing (a flat patch).
+    pub fn init(&mut self, img: &GreyImage, bbox: BBox) -> Result<(), String> {
+        if !(bbox.iter().all(|v| v.is_finite()) && bbox[2] > bbox[0] && bbox[3] > bbox[1]) {
+            return Err(format!("the box {bbox:?} is empty"));
+        }
+        let (cx, cy) = centre(&bbox);
+        if !(0.0..img.width as f64).contains(&cx) || !(0.0..img.height as f64).contains(&cy) {
+            return Err(format!("the box {bbox:?} is outside the {}x{} image", img.width, img.height));
+        }
+        let region = self.region_of(&bbox);
+        let (w, h, p) = self.patch(img, cx, cy, region);
+        let t = Template::new(w, h, p).ok_or("the box shows no texture to track")?;
+        self.templates = vec![t];
+        self.bbox = Some(bbox);
+        self.region = region;
+        self.lost = false;
+        Ok(())
+    }
+
+    /// Follows the target into `img`, searching around `predicted` (the box centre where the
+    /// caller expects it, pixels) or else the last position. Without an `init` it is lost.
+    pub fn update(&mut self, img: &GreyImage, predicted: Option<(f64, f64)>) -> TrackResult {
+        let Some(last) = self.bbox else {
+            return TrackResult { bbox: [0.0; 4], confidence: 0.0, status: TrackStatus::Lost };
+        };
+        let found = if self.lost {
+            self.redetect(img).map(|(c, b, s)| (c, b, s, TrackStatus::Redetected))
+        } else {
+            let (cx, cy) = predicted.unwrap_or_else(|| centre(&last));
+            self.search(img, cx, cy).map(|(c, b, s)| (c, b, s, TrackStatus::Tracking))
+        };
+        let threshold = if self.lost { self.params.redetect_threshold } else { self.params.track_threshold };
+        match found {
+            Some((confidence, bbox, region, status)) if confidence >= threshold => {
+                self.bbox = Some(bbox);
+                self.region = region;
+                self.lost = false;
+                self.learn(img, &bbox, region, confidence);
+                TrackResult { bbox, confidence, status }
+            }
+            other => {
+                self.lost = true;
+                TrackResult { bbox: last, confidence: other.map_or(0.0, |f| f.0), status: TrackStatus::Lost }
+            }
+        }
+    }
+
+    /// The best match of the newest template around (cx, cy), over the configured scales:
+    /// (confidence against all templates, box, region).
+    fn search(&self, img: &GreyImage, cx: f64, cy: f64) -> Option<(f64, BBox, (f64, f64))> {
+        let last = self.bbox?;
+        let newest = self.templates.last()?;
+        let m = self.params.search_cells;
+        let mut best: Option<(f64, f64, f64, f64)> = None; // score, cx, cy, scale
+        for &s in &self.params.scales {
+            let region = (self.region.0 * s, self.region.1 * s);
+            let step = region.0 / newest.w as f64;
+            let (iw, ih) = (newest.w + 2 * m, newest.h + 2 * m);
+            let x0 = cx - 0.5 * (iw as f64 - 1.0) * step;
+            let y0 = cy - 0.5 * (ih as f64 - 1.0) * step;
+            let area = resample(img, x0, y0, step, iw, ih);
+            if let Some((score, ox, oy)) = ncc_search(newest, &area, iw, ih) {
+                let c = (cx + (ox - m as f64) * step, cy + (oy - m as f64) * step);
+                if best.is_none_or(|b| score > b.0) {
+                    best = Some((score, c.0, c.1, s));
+                }
+            }
+        }
+        let (_, x, y, s) = best?;
+        let (hw, hh) = (0.5 * (last[2] - last[0]) * s, 0.5 * (last[3] - last[1]) * s);
+        let bbox = [x - hw, y - hh, x + hw, y + hh];
+        let region = (self.region.0 * s, self.region.1 * s);
+        Some((self.confidence(img, x, y, region), bbox, region))
+    }
+
+    /// Best correlation of the patch at (x, y) of `region` with any learnt template.
+    fn confidence(&self, img: &GreyImage, x: f64, y: f64, region: (f64, f64)) -> f64 {
+        let (_, _, p) = self.patch(img, x, y, region);
+        self.templates.iter().filter(|t| t.data.len() == p.len()).map(|t| t.ncc(&p)).fold(-1.0, f64::max)
+    }
+
+    /// Learns the patch at `bbox` when confident and unlike the stored templates.
+    fn learn(&mut self, img: &GreyImage, bbox: &BBox, region: (f64, f64), confidence: f64) {
+        if confidence < self.params.learn_threshold {
+            return;
+        }
+        let (cx, cy) = centre(bbox);
+        let (w, h, p) = self.patch(img, cx, cy, region);
+        let novel = self
+            .templates
+            .iter()
+            .filter(|t| t.data.len() == p.len())
+            .all(|t| t.ncc(&p) < self.params.novelty_threshold);
+        if !novel {
+            return;
+        }
+        if let Some(t) = Template::new(w, h, p) {
+            if self.templates.len() >= self.params.max_templates {
+                self.templates.remove(1);
+            }
+            self.templates.push(t);
+        }
+    }
+
+    /// Searches the whole image with every template at the re-detection scales: coarse (every
+    /// other cell) over the image, then fine around the best coarse match.
+    fn redetect(&self, img: &GreyImage) -> Option<(f64, BBox, (f64, f64))> {
+        let last = self.bbox?;
+        let mut best: Option<(f64, f64, f64, f64)> = None;
+        for &s in &self.params.redetect_scales {
+            let region = (self.region.0 * s, self.region.1 * s);
+            for t in &self.templates {
+                let step = region.0 / t.w as f64;
+                // Coarse: the image and the template at twice the step.
+                let (iw, ih) =
+                    ((img.width as f64 / (2.0 * step)) as usize, (img.height as f64 / (2.0 * step)) as usize);
+                let coarse_t = {
+                    let (w2, h2) = (t.w / 2, t.h / 2);
+                    let mut d = Vec::with_capacity(w2 * h2);
+                    for j in 0..h2 {
+                        for i in 0..w2 {
+                            let k = 2 * j * t.w + 2 * i;
+                            d.push(t.data[k] + t.data[k + 1] + t.data[k + t.w] + t.data[k + t.w + 1]);
+                        }
+                    }
+                    Template::new(w2, h2, d)
+                };
+                let Some(coarse_t) = coarse_t else { continue };
+                let area = resample(img, step, step, 2.0 * step, iw, ih);
+                let Some((_, ox, oy)) = ncc_search(&coarse_t, &area, iw, ih) else { continue };
+                // Its centre in pixels, then the fine search there.
+                let cx = step + (ox + 0.5 * (coarse_t.w as f64 - 1.0)) * 2.0 * step;
+                let cy = step + (oy + 0.5 * (coarse_t.h as f64 - 1.0)) * 2.0 * step;
+                let m = 3;
+                let (fw, fh) = (t.w + 2 * m, t.h + 2 * m);
+                let x0 = cx - 0.5 * (fw as f64 - 1.0) * step;
+                let y0 = cy - 0.5 * (fh as f64 - 1.0) * step;
+                let fine = resample(img, x0, y0, step, fw, fh);
+                if let Some((score, fx, fy)) = ncc_search(t, &fine, fw, fh) {
+                    let c = (cx + (fx - m as f64) * step, cy + (fy - m as f64) * step);
+                    if best.is_none_or(|b| score > b.0) {
+                        best = Some((score, c.0, c.1, s));
+                    }
+                }
+            }
+        }
+        let (score, x, y, s) = best?;
+        let (hw, hh) = (0.5 * (last[2] - last[0]) * s, 0.5 * (last[3] - last[1]) * s);
+        Some((score, [x - hw, y - hh, x + hw, y + hh], (self.region.0 * s, self.region.1 * s)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use framework::time::Time;
+
+    /// A textured image (value noise) with a bright square target of side `size` at (x, y).
+    fn scene(x: f64, y: f64, size: f64, occluded: bool) -> GreyImage {
+        let (w, h) = (320u32, 240u32);
+        let hash = |i: i64, j: i64| {
+            let mut v =
+                (i as u64).wrapping_mul(0x9E3779B97F4A7C15) ^ (j as u64).wrapping_mul(0xC2B2AE3D27D4EB4F);
+            v ^= v >> 29;
+            v = v.wrapping_mul(0xBF58476D1CE4E5B9);
+            ((v >> 40) % 120) as f64
+        };
+        let mut data = Vec::with_capacity((w * h) as usize);
+        for v in 0..h {
+            for u in 0..w {
+                let (uf, vf) = (u as f64 + 0.5, v as f64 + 0.5);
+                let ground = 60.0 + hash((uf / 6.0) as i64, (vf / 6.0) as i64);
+                let inside = (uf - x).abs() < size / 2.0 && (vf - y).abs() < size / 2.0;
+                let stripe = ((uf - x + size) / (size / 3.0)) as i64 % 2 == 0;
+                let val = if occluded && (uf - 150.0).abs() < 40.0 {
+                    30.0
+                } else if inside {
+                    if stripe { 240.0 } else { 200.0 }
+                } else {
+                    ground
+                };
+                data.push(val as u8);
+            }
+        }
+        GreyImage { stamp: Time::ZERO, frame: "t".into(), width: w, height: h, data }
+    }
+
+    fn boxed(x: f64, y: f64, size: f64) -> BBox {
+        [x - size / 2.0, y - size / 2.0, x + size / 2.0, y + size / 2.0]
+    }
+
+    fn overlap(a: &BBox, b: &BBox) -> f64 {
+        let i = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0) * (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+        let area = |r: &BBox| (r[2] - r[0]) * (r[3] - r[1]);
+        i / (area(a) + area(b) - i)
+    }
+
+    #[test]
+    fn it_follows_a_target_that_moves_and_grows() {
+        let mut t = TemplateTracker::new(TrackerParams::default());
+        let (mut x, mut y, mut size) = (60.0, 80.0, 12.0);
+        t.init(&scene(x, y, size, false), boxed(x, y, size)).unwrap();
+        for _ in 0..30 {
+            (x, y, size) = (x + 5.0, y + 2.0, size * 1.03);
+            let r = t.update(&scene(x, y, size, false), None);
+            assert_eq!(r.status, TrackStatus::Tracking, "{r:?}");
+            assert!(overlap(&r.bbox, &boxed(x, y, size)) > 0.6, "{r:?} vs {:?}", boxed(x, y, size));
+        }
+        assert!(t.templates() > 1, "it learnt nothing");
+    }
+
+    #[test]
+    fn it_reports_a_loss_under_occlusion_and_redetects_after() {
+        let mut t = TemplateTracker::new(TrackerParams::default());
+        t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
+        assert_eq!(t.update(&scene(105.0, 120.0, 16.0, false), None).status, TrackStatus::Tracking);
+        // Behind the occluder (a dark band at u 110-190).
+        let r = t.update(&scene(150.0, 120.0, 16.0, true), None);
+        assert_eq!(r.status, TrackStatus::Lost, "{r:?}");
+        // Out again, far from where it was lost.
+        let r = t.update(&scene(230.0, 110.0, 16.0, false), None);
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+        assert!(overlap(&r.bbox, &boxed(230.0, 110.0, 16.0)) > 0.6, "{r:?}");
+        assert_eq!(t.update(&scene(234.0, 110.0, 16.0, false), None).status, TrackStatus::Tracking);
+    }
+
+    #[test]
+    fn a_box_on_a_flat_patch_or_outside_the_image_is_refused() {
+        let mut t = TemplateTracker::new(TrackerParams::default());
+        let flat = GreyImage {
+            stamp: Time::ZERO,
+            frame: "t".into(),
+            width: 64,
+            height: 64,
+            data: vec![90; 64 * 64],
+        };
+        assert!(t.init(&flat, [10.0, 10.0, 30.0, 30.0]).unwrap_err().contains("texture"));
+        assert!(t.init(&flat, [100.0, 10.0, 130.0, 30.0]).unwrap_err().contains("outside"));
+        assert!(t.init(&flat, [30.0, 10.0, 10.0, 30.0]).unwrap_err().contains("empty"));
+    }
+}

@@ -1,0 +1,309 @@
+//! The target's 3D position from the rectified stereo pair (seed 000, 8.1): disparities by block
+//! matching inside the target's box, a point for each, k-means into foreground and background, the
+//! foreground's centroid with a covariance.
+//!
+//! Matching is zero-mean SAD over a square window along the rectified row, with a uniqueness test
+//! against the second-best disparity outside the best's neighbourhood, a left-right consistency
+//! check (the right pixel matched back into the left image) and a parabola for sub-pixel. The two
+//! clusters start from the median disparity of the box's centre (the target) and of its border
+//! (what surrounds it); the foreground is the one grown from the centre. Its position is
+//! triangulated from the cluster's mean pixel and mean disparity (averaging disparities, not
+//! depths, which are biased by their own noise), and its covariance is the pixel and disparity
+//! noise of that mean carried through the triangulation, with a floor on the disparity's (the
+//! calibration's error does not average out).
+
+use framework::camera::{GreyImage, StereoModel};
+use nalgebra::{Matrix3, Point3};
+
+/// Stereo locate parameters.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LocateParams {
+    /// Largest disparity searched, pixels.
+    pub max_disparity_px: usize,
+    /// Half the matching window's side, pixels.
+    pub half_window: usize,
+    /// The best cost must be below this fraction of the next best away from it.
+    pub uniqueness: f64,
+    /// Left-right check tolerance, pixels.
+    pub lr_tolerance_px: f64,
+    /// Windows whose mean absolute deviation is below this have too little texture, grey levels.
+    pub min_texture: f64,
+    /// At most this many pixels of the box are matched (a large box is subsampled).
+    pub max_samples: usize,
+    /// Disparity noise of one match (1 sigma), pixels.
+    pub disparity_sigma_px: f64,
+    /// Floor of the mean disparity's noise (calibration), pixels.
+    pub disparity_floor_px: f64,
+    /// Fewer foreground points than this: no position.
+    pub min_points: usize,
+}
+
+impl Default for LocateParams {
+    fn default() -> Self {
+        LocateParams {
+            max_disparity_px: 96,
+            half_window: 3,
+            uniqueness: 0.9,
+            lr_tolerance_px: 1.0,
+            min_texture: 2.0,
+            max_samples: 3000,
+            disparity_sigma_px: 0.3,
+            disparity_floor_px: 0.05,
+            min_points: 8,
+        }
+    }
+}
+
+/// A located target.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Located {
+    /// Position in the rectified left optical frame, m.
+    pub position: Point3<f64>,
+    /// Its covariance, m^2.
+    pub covariance: Matrix3<f64>,
+    /// The foreground's mean disparity, pixels.
+    pub disparity: f64,
+    /// Pixels matched in the box, and how many the foreground kept.
+    pub matched: usize,
+    /// See `matched`.
+    pub foreground: usize,
+}
+
+/// Zero-mean SAD between the left window at (u, v) and the right window at (u - d, v), and the
+/// left window's mean absolute deviation.
+fn zsad(l: &GreyImage, r: &GreyImage, u: usize, v: usize, d: usize, h: usize) -> f64 {
+    let w = l.width as usize;
+    let (mut sl, mut sr) = (0i32, 0i32);
+    for j in v - h..=v + h {
+        for i in u - h..=u + h {
+            sl += i32::from(l.data[j * w + i]);
+            sr += i32::from(r.data[j * w + i - d]);
+        }
+    }
+    let n = ((2 * h + 1) * (2 * h + 1)) as i32;
+    let off = (sl - sr) as f64 / n as f64;
+    let mut cost = 0.0;
+    for j in v - h..=v + h {
+        for i in u - h..=u + h {
+            cost += (f64::from(l.data[j * w + i]) - f64::from(r.data[j * w + i - d]) - off).abs();
+        }
+    }
+    cost
+}
+
+fn texture(l: &GreyImage, u: usize, v: usize, h: usize) -> f64 {
+    let w = l.width as usize;
+    let vals: Vec<f64> = (v - h..=v + h)
+        .flat_map(|j| (u - h..=u + h).map(move |i| (j, i)))
+        .map(|(j, i)| f64::from(l.data[j * w + i]))
+        .collect();
+    let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+    vals.iter().map(|x| (x - mean).abs()).sum::<f64>() / vals.len() as f64
+}
+
+/// The disparity of left pixel (u, v): the best of 0..=max with sub-pixel, if unique.
+fn match_left(l: &GreyImage, r: &GreyImage, u: usize, v: usize, p: &LocateParams) -> Option<f64> {
+    let h = p.half_window;
+    let max = p.max_disparity_px.min(u.saturating_sub(h));
+    let costs: Vec<f64> = (0..=max).map(|d| zsad(l, r, u, v, d, h)).collect();
+    let (best, &c) = costs.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1))?;
+    let second = costs
+        .iter()
+        .enumerate()
+        .filter(|(d, _)| d.abs_diff(best) > 1)
+        .map(|(_, c)| *c)
+        .fold(f64::INFINITY, f64::min);
+    if c > p.uniqueness * second {
+        return None;
+    }
+    if best == 0 || best == max {
+        return Some(best as f64);
+    }
+    let (m, n) = (costs[best - 1], costs[best + 1]);
+    let den = m - 2.0 * c + n;
+    Some(best as f64 + if den > 0.0 { 0.5 * (m - n) / den } else { 0.0 })
+}
+
+/// The disparity of right pixel (u, v), matched back into the left image (integer).
+fn match_right(l: &GreyImage, r: &GreyImage, u: usize, v: usize, p: &LocateParams) -> Option<usize> {
+    let (h, w) = (p.half_window, l.width as usize);
+    let max = p.max_disparity_px.min(w - 1 - h - u);
+    (0..=max).map(|d| (d, zsad(l, r, u + d, v, d, h))).min_by(|a, b| a.1.total_cmp(&b.1)).map(|(d, _)| d)
+}
+
+fn median(v: &mut [f64]) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    Some(v[v.len() / 2])
+}
+
+/// Locates the target in box `bbox` ([u_min, v_min, u_max, v_max], rectified left pixels) of the
+/// rectified pair `left`, `right` of `model`.
+pub fn locate(
+    left: &GreyImage,
+    right: &GreyImage,
+    model: &StereoModel,
+    bbox: [f64; 4],
+    p: &LocateParams,
+) -> Result<Located, String> {
+    let h = p.half_window;
+    let (w, ht) = (left.width as usize, left.height as usize);
+    let clamp = |x: f64, hi: usize| (x.max(0.0) as usize).clamp(h + 1, hi.saturating_sub(h + 2));
+    let (u0, u1) = (clamp(bbox[0].floor(), w), clamp(bbox[2].ceil(), w));
+    let (v0, v1) = (clamp(bbox[1].floor(), ht), clamp(bbox[3].ceil(), ht));
+    if u1 <= u0 || v1 <= v0 {
+        return Err(format!("the box {bbox:?} leaves no pixels to match"));
+    }
+    let area = (u1 - u0) * (v1 - v0);
+    let step = ((area as f64 / p.max_samples as f64).sqrt().ceil() as usize).max(1);
+    // (u, v, disparity, distance from the box centre as a fraction of its half size)
+    let (cu, cv) = (0.5 * (bbox[0] + bbox[2]), 0.5 * (bbox[1] + bbox[3]));
+    let (hu, hv) = ((0.5 * (bbox[2] - bbox[0])).max(1.0), (0.5 * (bbox[3] - bbox[1])).max(1.0));
+    let mut samples = Vec::new();
+    for v in (v0..v1).step_by(step) {
+        for u in (u0..u1).step_by(step) {
+            if texture(left, u, v, h) < p.min_texture {
+                continue;
+            }
+            let Some(d) = match_left(left, right, u, v, p) else { continue };
+            let ur = u as i64 - d.round() as i64;
+            if ur < (h + 1) as i64 {
+                continue;
+            }
+            let Some(back) = match_right(left, right, ur as usize, v, p) else { continue };
+            if (back as f64 - d).abs() > p.lr_tolerance_px || d <= 0.0 {
+                continue;
+            }
+            let r = (((u as f64 + 0.5 - cu) / hu).powi(2) + ((v as f64 + 0.5 - cv) / hv).powi(2)).sqrt();
+            samples.push((u as f64 + 0.5, v as f64 + 0.5, d, r));
+        }
+    }
+    if samples.len() < p.min_points {
+        return Err(format!("only {} of the box's pixels matched", samples.len()));
+    }
+    // Two clusters of disparity, seeded from the centre and the border.
+    let mut centre: Vec<f64> = samples.iter().filter(|s| s.3 < 0.5).map(|s| s.2).collect();
+    let mut border: Vec<f64> = samples.iter().filter(|s| s.3 >= 0.8).map(|s| s.2).collect();
+    let mut all: Vec<f64> = samples.iter().map(|s| s.2).collect();
+    let mut fg = median(&mut centre).or_else(|| median(&mut all)).unwrap_or(0.0);
+    let mut bg = median(&mut border).unwrap_or(fg);
+    let mut members = vec![true; samples.len()];
+    for _ in 0..20 {
+        for (m, s) in members.iter_mut().zip(&samples) {
+            *m = (s.2 - fg).abs() <= (s.2 - bg).abs();
+        }
+        let mean = |take: bool| {
+            let v: Vec<f64> =
+                samples.iter().zip(&members).filter(|(_, m)| **m == take).map(|(s, _)| s.2).collect();
+            (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+        };
+        let (f, b) = (mean(true).unwrap_or(fg), mean(false).unwrap_or(bg));
+        if (f - fg).abs() < 1e-6 && (b - bg).abs() < 1e-6 {
+            break;
+        }
+        (fg, bg) = (f, b);
+    }
+    let fore: Vec<&(f64, f64, f64, f64)> =
+        samples.iter().zip(&members).filter(|(_, m)| **m).map(|(s, _)| s).collect();
+    if fore.len() < p.min_points {
+        return Err(format!("only {} foreground points", fore.len()));
+    }
+    let n = fore.len() as f64;
+    let mu = fore.iter().map(|s| s.0).sum::<f64>() / n;
+    let mv = fore.iter().map(|s| s.1).sum::<f64>() / n;
+    let md = fore.iter().map(|s| s.2).sum::<f64>() / n;
+    let k = &model.left.pinhole;
+    let fb = k.fx * model.baseline;
+    let z = fb / md;
+    let position = Point3::new((mu - k.cx) * z / k.fx, (mv - k.cy) * z / k.fy, z);
+    // The mean pixel's spread, the mean disparity's noise (with its floor).
+    let var_u = fore.iter().map(|s| (s.0 - mu).powi(2)).sum::<f64>() / n / n + 0.25;
+    let var_v = fore.iter().map(|s| (s.1 - mv).powi(2)).sum::<f64>() / n / n + 0.25;
+    let var_d = p.disparity_sigma_px.powi(2) / n + p.disparity_floor_px.powi(2);
+    // d(X, Y, Z)/d(u, v, d).
+    let j = Matrix3::new(z / k.fx, 0.0, -position.x / md, 0.0, z / k.fy, -position.y / md, 0.0, 0.0, -z / md);
+    let covariance = j * Matrix3::from_diagonal(&nalgebra::Vector3::new(var_u, var_v, var_d)) * j.transpose();
+    Ok(Located { position, covariance, disparity: md, matched: samples.len(), foreground: fore.len() })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use framework::camera::CameraModel;
+    use framework::time::Time;
+
+    fn hash(i: i64, j: i64, seed: u64) -> f64 {
+        let mut v =
+            (i as u64).wrapping_mul(0x9E3779B97F4A7C15) ^ (j as u64).wrapping_mul(0xC2B2AE3D27D4EB4F) ^ seed;
+        v ^= v >> 29;
+        v = v.wrapping_mul(0xBF58476D1CE4E5B9);
+        ((v >> 40) % 1000) as f64 / 1000.0
+    }
+
+    /// Smooth value noise of cell `c` (m) at (x, y), 0-1.
+    fn noise(x: f64, y: f64, c: f64, seed: u64) -> f64 {
+        let (fx, fy) = (x / c, y / c);
+        let (i, j) = (fx.floor() as i64, fy.floor() as i64);
+        let (tx, ty) = (fx - fx.floor(), fy - fy.floor());
+        let a = hash(i, j, seed) * (1.0 - tx) + hash(i + 1, j, seed) * tx;
+        let b = hash(i, j + 1, seed) * (1.0 - tx) + hash(i + 1, j + 1, seed) * tx;
+        a * (1.0 - ty) + b * ty
+    }
+
+    /// A rectified pair of a fronto-parallel textured box at depth `z` (its centre at the image
+    /// centre, `size` m wide) in front of a textured wall at 2z.
+    fn pair(z: f64, size: f64) -> (StereoModel, GreyImage, GreyImage) {
+        let cam = CameraModel::from_hfov(320, 240, 70f64.to_radians(), "l");
+        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
+        let f = model.left.pinhole.fx;
+        let render = |shift: f64| {
+            let mut data = Vec::new();
+            for v in 0..240 {
+                for u in 0..320 {
+                    let (x, y) = ((u as f64 + 0.5 - 160.0) / f, (v as f64 + 0.5 - 120.0) / f);
+                    // Left camera at x = 0, right at x = shift (metres); the ray's x at depth Z.
+                    let hit = |depth: f64| (x * depth + shift, y * depth);
+                    let (bx, by) = hit(z);
+                    let val = if bx.abs() < size / 2.0 && by.abs() < size / 2.0 {
+                        255.0 * noise(bx, by, 0.03, 1)
+                    } else {
+                        let (wx, wy) = hit(2.0 * z);
+                        255.0 * noise(wx, wy, 0.08, 2)
+                    };
+                    data.push(val as u8);
+                }
+            }
+            GreyImage { stamp: Time::ZERO, frame: "r".into(), width: 320, height: 240, data }
+        };
+        (model.clone(), render(0.0), render(model.baseline))
+    }
+
+    #[test]
+    fn a_box_before_a_wall_is_located_at_its_depth() {
+        for z in [3.0, 6.0] {
+            let (model, l, r) = pair(z, 0.5);
+            let f = model.left.pinhole.fx;
+            let half = 0.25 * f / z;
+            // The box's region with a margin that shows the wall.
+            let bbox = [160.0 - 1.4 * half, 120.0 - 1.4 * half, 160.0 + 1.4 * half, 120.0 + 1.4 * half];
+            let loc = locate(&l, &r, &model, bbox, &LocateParams::default()).unwrap();
+            assert!((loc.position.z - z).abs() < 0.02 * z, "at {z} m: {loc:?}");
+            assert!(loc.position.x.abs() < 0.03 && loc.position.y.abs() < 0.03, "{loc:?}");
+            assert!(loc.foreground < loc.matched, "the wall was not separated: {loc:?}");
+            assert!(loc.covariance[(2, 2)].sqrt() < 0.05 * z, "{loc:?}");
+        }
+    }
+
+    #[test]
+    fn a_box_with_nothing_to_match_is_an_error() {
+        let (model, l, _) = pair(3.0, 0.5);
+        let flat = GreyImage { data: vec![100; 320 * 240], ..l.clone() };
+        assert!(
+            locate(&flat, &flat, &model, [100.0, 100.0, 140.0, 140.0], &LocateParams::default()).is_err()
+        );
+        assert!(locate(&l, &l, &model, [400.0, 10.0, 500.0, 50.0], &LocateParams::default()).is_err());
+    }
+}

@@ -192,3 +192,116 @@ fn a_table_pose_from_several_markers_beats_a_single_markers() {
     );
     assert!(table.0 < single.0 && table.1 < single.1, "the table does not beat its markers alone");
 }
+
+/// The head pair's design as a believed calibration (both cameras alike, 0.25 m baseline).
+fn head_pair() -> framework::camera::StereoCalibration {
+    let (cam, _) = head();
+    framework::camera::StereoCalibration {
+        left: framework::camera::CameraCalibration {
+            model: cam.clone(),
+            mount: "head".into(),
+            mount_from_optical: Isometry3::identity(),
+        },
+        right: cam,
+        left_from_right: Isometry3::translation(0.25, 0.0, 0.0),
+    }
+}
+
+/// The canister's box in an image of `cam` at `pose` (its body's corners and handle projected).
+fn canister_box(cam: &CameraModel, pose: &Isometry3<f64>, can: &Isometry3<f64>) -> [f64; 4] {
+    let mut b = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    for x in [-0.05, 0.05] {
+        for y in [-0.05, 0.05] {
+            for z in [0.0, 0.205] {
+                let p = cam.project(&(pose.inverse() * can * nalgebra::Point3::new(x, y, z))).unwrap();
+                b = [b[0].min(p.x), b[1].min(p.y), b[2].max(p.x), b[3].max(p.y)];
+            }
+        }
+    }
+    b
+}
+
+fn iou(a: &[f64; 4], b: &[f64; 4]) -> f64 {
+    let i = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0) * (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
+    let area = |r: &[f64; 4]| (r[2] - r[0]) * (r[3] - r[1]);
+    i / (area(a) + area(b) - i)
+}
+
+#[test]
+fn stereo_locate_finds_the_canister_within_five_percent_of_its_range_from_3_to_15_m() {
+    use gnc::localization::rectify::Rectification;
+    use gnc::tracking::locate::{LocateParams, locate};
+    let t = object_twin("canister", 40.0);
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let pair = head_pair();
+    let rect = Rectification::new(&pair);
+    let can = t.canister_truth().unwrap();
+    let centre = can * nalgebra::Point3::new(0.0, 0.0, 0.1);
+    let mut worst: f64 = 0.0;
+    for (k, range) in [3.0, 5.0, 8.0, 11.0, 15.0].iter().enumerate() {
+        // The mast's height, looking at the canister from the south-west.
+        let eye = centre.coords + Vector3::new(-0.8, -0.6, 0.0).normalize() * *range + Vector3::z() * 1.4;
+        let left = look_at(eye, centre.coords);
+        let right = left * Isometry3::translation(0.25, 0.0, 0.0);
+        let (cam, photometry) = head();
+        let mut rng = Pcg64Mcg::seed_from_u64(20 + k as u64);
+        let imgs = r
+            .grey_views(&t, &[(&cam, left), (&cam, right)], &photometry, Exposure::NOMINAL, &mut rng)
+            .unwrap();
+        let (l, rr) = (rect.left(&imgs[0]), rect.right(&imgs[1]));
+        // The box the operator would draw (in the rectified image: the design pair is rectified
+        // up to the principal point and the distortion).
+        let b = canister_box(&rect.model.left, &left, &can);
+        let found = locate(&l, &rr, &rect.model, b, &LocateParams::default())
+            .unwrap_or_else(|e| panic!("at {range} m: {e}"));
+        let truth = (left.inverse() * centre).coords.norm();
+        let err = (found.position.coords.norm() - truth) / truth;
+        println!(
+            "{range} m: located at {:.2} m ({:+.1} %), sigma {:.2} m, {} of {} points foreground",
+            found.position.coords.norm(),
+            err * 100.0,
+            found.covariance[(2, 2)].sqrt(),
+            found.foreground,
+            found.matched
+        );
+        worst = worst.max(err.abs());
+    }
+    assert!(worst < 0.05, "range error {:.1} %", worst * 100.0);
+}
+
+#[test]
+fn the_tracker_follows_the_canister_through_a_rendered_approach() {
+    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    let t = object_twin("canister", 40.0);
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let (cam, _) = head();
+    let can = t.canister_truth().unwrap();
+    let centre = can.translation.vector + Vector3::z() * 0.1;
+    let mut tracker = TemplateTracker::new(TrackerParams::default());
+    let frames = 60;
+    let mut good = 0;
+    for k in 0..frames {
+        // From 12 m to 2.5 m, the pointing wandering around the target (pan-tilt pursuit lag).
+        let f = k as f64 / (frames - 1) as f64;
+        let range = 12.0 - 9.5 * f;
+        let eye = centre + Vector3::new(-0.8, -0.6, 0.0).normalize() * range + Vector3::z() * 1.4;
+        let aim = centre + Vector3::new((k as f64 * 0.7).sin(), (k as f64 * 0.5).cos(), 0.0) * 0.04 * range;
+        let pose = look_at(eye, aim);
+        let img = render(&mut r, &t, &cam, &pose, 100 + k as u64);
+        let truth = canister_box(&cam, &pose, &can);
+        if k == 0 {
+            tracker.init(&img, truth).unwrap();
+            continue;
+        }
+        let out = tracker.update(&img, None);
+        let o = iou(&out.bbox, &truth);
+        if out.status != TrackStatus::Lost && o > 0.5 {
+            good += 1;
+        } else {
+            println!("frame {k} at {range:.1} m: {out:?} overlap {o:.2} with {truth:?}");
+        }
+    }
+    let share = good as f64 / (frames - 1) as f64;
+    println!("overlap above 0.5 in {good} of {} frames ({:.0} %)", frames - 1, share * 100.0);
+    assert!(share >= 0.95, "{:.0} % of frames", share * 100.0);
+}

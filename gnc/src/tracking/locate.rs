@@ -5,9 +5,11 @@
 //! Matching is zero-mean SAD over a square window along the rectified row, with a uniqueness test
 //! against the second-best disparity outside the best's neighbourhood, a left-right consistency
 //! check (the right pixel matched back into the left image) and a parabola for sub-pixel. The two
-//! clusters start from the median disparity of the box's centre (the target) and of its border
-//! (what surrounds it); the foreground is the one grown from the centre. Its position is
-//! triangulated from the cluster's mean pixel and mean disparity (averaging disparities, not
+//! clusters start from the disparity of the whole box matched as one window (its dominant
+//! structure: the target, however few pixels it covers far away) and the median disparity of the
+//! box's border (what surrounds it); the foreground is the one grown from the first. Its position is
+//! triangulated from the cluster's mean pixel and mean disparity (a target of a few pixels, too
+//! small for clusters, is the whole box's match at the box's centre) (averaging disparities, not
 //! depths, which are biased by their own noise), and its covariance is the pixel and disparity
 //! noise of that mean carried through the triangulation, with a floor on the disparity's (the
 //! calibration's error does not average out).
@@ -35,8 +37,11 @@ pub struct LocateParams {
     pub disparity_sigma_px: f64,
     /// Floor of the mean disparity's noise (calibration), pixels.
     pub disparity_floor_px: f64,
-    /// Fewer foreground points than this: no position.
+    /// Fewer foreground points than this: the whole box's match stands for the target.
     pub min_points: usize,
+    /// The target's radius, m: what is seen is its near surface, not its centre (added to the
+    /// covariance, each axis).
+    pub target_radius_m: f64,
 }
 
 impl Default for LocateParams {
@@ -49,8 +54,9 @@ impl Default for LocateParams {
             min_texture: 2.0,
             max_samples: 3000,
             disparity_sigma_px: 0.3,
-            disparity_floor_px: 0.05,
+            disparity_floor_px: 0.15,
             min_points: 8,
+            target_radius_m: 0.05,
         }
     }
 }
@@ -64,7 +70,8 @@ pub struct Located {
     pub covariance: Matrix3<f64>,
     /// The foreground's mean disparity, pixels.
     pub disparity: f64,
-    /// Pixels matched in the box, and how many the foreground kept.
+    /// Pixels matched in the box, and how many the foreground kept (0: too few for clusters; the
+    /// position is the whole box's match at its centre).
     pub matched: usize,
     /// See `matched`.
     pub foreground: usize,
@@ -132,6 +139,51 @@ fn match_right(l: &GreyImage, r: &GreyImage, u: usize, v: usize, p: &LocateParam
     (0..=max).map(|d| (d, zsad(l, r, u + d, v, d, h))).min_by(|a, b| a.1.total_cmp(&b.1)).map(|(d, _)| d)
 }
 
+/// The disparity of the whole box (integer pixel bounds) matched as one window by zero-mean
+/// normalized correlation along the row, sub-pixel: the dominant structure in the box, which for a
+/// box drawn around a target is the target however few pixels it covers.
+fn box_disparity(
+    l: &GreyImage,
+    r: &GreyImage,
+    u: (usize, usize),
+    v: (usize, usize),
+    max: usize,
+) -> Option<f64> {
+    let w = l.width as usize;
+    let max = max.min(u.0);
+    let left: Vec<f64> = (v.0..v.1)
+        .flat_map(|j| (u.0..u.1).map(move |i| (j, i)))
+        .map(|(j, i)| f64::from(l.data[j * w + i]))
+        .collect();
+    let n = left.len() as f64;
+    let ml = left.iter().sum::<f64>() / n;
+    let sl = left.iter().map(|x| (x - ml).powi(2)).sum::<f64>().sqrt();
+    if sl < 1e-6 {
+        return None;
+    }
+    let scores: Vec<f64> = (0..=max)
+        .map(|d| {
+            let right: Vec<f64> = (v.0..v.1)
+                .flat_map(|j| (u.0..u.1).map(move |i| (j, i)))
+                .map(|(j, i)| f64::from(r.data[j * w + i - d]))
+                .collect();
+            let mr = right.iter().sum::<f64>() / n;
+            let sr = right.iter().map(|x| (x - mr).powi(2)).sum::<f64>().sqrt();
+            if sr < 1e-6 {
+                return -1.0;
+            }
+            left.iter().zip(&right).map(|(a, b)| (a - ml) * (b - mr)).sum::<f64>() / (sl * sr)
+        })
+        .collect();
+    let (best, &c) = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
+    if best == 0 || best == max {
+        return Some(best as f64);
+    }
+    let (m, p) = (scores[best - 1], scores[best + 1]);
+    let den = m - 2.0 * c + p;
+    Some(best as f64 + if den < 0.0 { 0.5 * (m - p) / den } else { 0.0 })
+}
+
 fn median(v: &mut [f64]) -> Option<f64> {
     if v.is_empty() {
         return None;
@@ -181,14 +233,20 @@ pub fn locate(
             samples.push((u as f64 + 0.5, v as f64 + 0.5, d, r));
         }
     }
-    if samples.len() < p.min_points {
-        return Err(format!("only {} of the box's pixels matched", samples.len()));
-    }
-    // Two clusters of disparity, seeded from the centre and the border.
+    // The whole box's match: at least 9 pixels a side (a far target's surroundings lie at about
+    // its range).
+    let grow = |a: usize, b: usize, hi: usize| {
+        let short = 9usize.saturating_sub(b - a) / 2;
+        (a.saturating_sub(short).max(h + 1), (b + short).min(hi - h - 2))
+    };
+    let (bu, bv) = (grow(u0, u1, w), grow(v0, v1, ht));
+    let whole = box_disparity(left, right, bu, bv, p.max_disparity_px).filter(|d| *d > 0.0);
+    // Two clusters of disparity, seeded from the whole box's match (else the centre's median) and
+    // the border's median.
     let mut centre: Vec<f64> = samples.iter().filter(|s| s.3 < 0.5).map(|s| s.2).collect();
     let mut border: Vec<f64> = samples.iter().filter(|s| s.3 >= 0.8).map(|s| s.2).collect();
     let mut all: Vec<f64> = samples.iter().map(|s| s.2).collect();
-    let mut fg = median(&mut centre).or_else(|| median(&mut all)).unwrap_or(0.0);
+    let mut fg = whole.or_else(|| median(&mut centre)).or_else(|| median(&mut all)).unwrap_or(0.0);
     let mut bg = median(&mut border).unwrap_or(fg);
     let mut members = vec![true; samples.len()];
     for _ in 0..20 {
@@ -206,11 +264,21 @@ pub fn locate(
         }
         (fg, bg) = (f, b);
     }
-    let fore: Vec<&(f64, f64, f64, f64)> =
-        samples.iter().zip(&members).filter(|(_, m)| **m).map(|(s, _)| s).collect();
-    if fore.len() < p.min_points {
-        return Err(format!("only {} foreground points", fore.len()));
-    }
+    let fore: Vec<(f64, f64, f64, f64)> =
+        samples.iter().zip(&members).filter(|(_, m)| **m).map(|(s, _)| *s).collect();
+    // Too few pixels for k-means (a target of a few pixels): the whole box's match, as one
+    // measurement at the box's centre.
+    let (fore, fallback) = if fore.len() >= p.min_points {
+        (fore, false)
+    } else if let Some(d) = whole {
+        (vec![(cu, cv, d, 0.0)], true)
+    } else {
+        return Err(format!(
+            "only {} foreground points of {} matched, and no match of the whole box",
+            fore.len(),
+            samples.len()
+        ));
+    };
     let n = fore.len() as f64;
     let mu = fore.iter().map(|s| s.0).sum::<f64>() / n;
     let mv = fore.iter().map(|s| s.1).sum::<f64>() / n;
@@ -223,10 +291,20 @@ pub fn locate(
     let var_u = fore.iter().map(|s| (s.0 - mu).powi(2)).sum::<f64>() / n / n + 0.25;
     let var_v = fore.iter().map(|s| (s.1 - mv).powi(2)).sum::<f64>() / n / n + 0.25;
     let var_d = p.disparity_sigma_px.powi(2) / n + p.disparity_floor_px.powi(2);
+    // The box's centre as the target's centre: its pixel is known to a quarter of the box.
+    let (var_u, var_v) =
+        if fallback { (var_u + (0.25 * hu).powi(2), var_v + (0.25 * hv).powi(2)) } else { (var_u, var_v) };
     // d(X, Y, Z)/d(u, v, d).
     let j = Matrix3::new(z / k.fx, 0.0, -position.x / md, 0.0, z / k.fy, -position.y / md, 0.0, 0.0, -z / md);
-    let covariance = j * Matrix3::from_diagonal(&nalgebra::Vector3::new(var_u, var_v, var_d)) * j.transpose();
-    Ok(Located { position, covariance, disparity: md, matched: samples.len(), foreground: fore.len() })
+    let covariance = j * Matrix3::from_diagonal(&nalgebra::Vector3::new(var_u, var_v, var_d)) * j.transpose()
+        + Matrix3::identity() * p.target_radius_m.powi(2);
+    Ok(Located {
+        position,
+        covariance,
+        disparity: md,
+        matched: samples.len(),
+        foreground: if fallback { 0 } else { fore.len() },
+    })
 }
 
 #[cfg(test)]
@@ -293,7 +371,7 @@ mod tests {
             assert!((loc.position.z - z).abs() < 0.02 * z, "at {z} m: {loc:?}");
             assert!(loc.position.x.abs() < 0.03 && loc.position.y.abs() < 0.03, "{loc:?}");
             assert!(loc.foreground < loc.matched, "the wall was not separated: {loc:?}");
-            assert!(loc.covariance[(2, 2)].sqrt() < 0.05 * z, "{loc:?}");
+            assert!(loc.covariance[(2, 2)].sqrt() < 0.1 * z, "{loc:?}");
         }
     }
 

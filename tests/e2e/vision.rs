@@ -305,3 +305,69 @@ fn the_tracker_follows_the_canister_through_a_rendered_approach() {
     println!("overlap above 0.5 in {good} of {} frames ({:.0} %)", frames - 1, share * 100.0);
     assert!(share >= 0.95, "{:.0} % of frames", share * 100.0);
 }
+
+#[test]
+fn the_tracker_loses_the_canister_behind_a_rock_and_redetects_it_after() {
+    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    // The canister, and a 1 m rock half-way between it and the camera's path.
+    let text = "name = \"t\"\nseed = 3\n[terrain]\nsize_m = [40.0, 40.0]\nresolution_m = 0.5\n\
+                [[objects]]\nname = \"o\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\nyaw_deg = 40.0\n";
+    let mut world = worlds::World::from_str(text, "<test>", std::path::Path::new("."), None).unwrap();
+    let away = Vector3::new(-0.8, -0.6, 0.0).normalize();
+    let rock_at = away * 3.0;
+    let points = [(-0.25, -0.25), (0.25, -0.25), (0.25, 0.25), (-0.25, 0.25)]
+        .iter()
+        .flat_map(|(x, y)| [nalgebra::Point3::new(*x, *y, 0.0), nalgebra::Point3::new(0.8 * x, 0.8 * y, 1.0)])
+        .collect();
+    world.rocks.push(worlds::Rock {
+        position: nalgebra::Point3::new(rock_at.x, rock_at.y, 0.0),
+        yaw: 0.0,
+        diameter: 0.5,
+        height: 1.0,
+        points,
+    });
+    let t =
+        Twin::with_defaults(world, StartPose { x: 15.0, y: 15.0, yaw: 0.0 }, Fidelity::Kinematic).unwrap();
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let (cam, _) = head();
+    let can = t.canister_truth().unwrap();
+    let centre = can.translation.vector + Vector3::z() * 0.1;
+    let mut tracker = TemplateTracker::new(TrackerParams::default());
+    let (mut hidden, mut lost_while_hidden, mut redetected, mut wrong) = (0, 0, 0, 0);
+    let mut last = None;
+    for (k, deg) in (-24..=24).step_by(2).enumerate() {
+        // 6 m from the canister, walking round it behind the rock.
+        let a = f64::from(deg).to_radians();
+        let dir = nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), a) * away;
+        let eye = centre + dir * 6.0 + Vector3::z() * 1.4;
+        let pose = look_at(eye, centre);
+        let img = render(&mut r, &t, &cam, &pose, 300 + k as u64);
+        let truth = canister_box(&cam, &pose, &can);
+        let visible = t.line_of_sight(
+            &nalgebra::Point3::from(eye),
+            &nalgebra::Point3::from(centre + Vector3::z() * 0.05),
+        );
+        if k == 0 {
+            assert!(visible);
+            tracker.init(&img, truth).unwrap();
+            continue;
+        }
+        let out = tracker.update(&img, None);
+        let o = iou(&out.bbox, &truth);
+        println!("{deg:+} deg: visible {visible}, {:?} {:.2}, overlap {o:.2}", out.status, out.confidence);
+        if !visible {
+            hidden += 1;
+            lost_while_hidden += usize::from(out.status == TrackStatus::Lost);
+        } else if out.status != TrackStatus::Lost && o < 0.5 {
+            wrong += 1;
+        }
+        redetected += usize::from(out.status == TrackStatus::Redetected);
+        last = Some((out, o));
+    }
+    assert!(hidden >= 2, "the rock hid the canister in {hidden} frames");
+    assert_eq!(lost_while_hidden, hidden, "the tracker claimed the canister behind the rock");
+    assert_eq!(wrong, 0, "frames tracking something else");
+    assert!(redetected >= 1, "never re-detected");
+    let (out, o) = last.unwrap();
+    assert!(out.status == TrackStatus::Tracking && o > 0.5, "at the end: {out:?}, overlap {o:.2}");
+}

@@ -54,7 +54,7 @@ impl Default for TrackerParams {
             learn_threshold: 0.8,
             novelty_threshold: 0.93,
             max_templates: 12,
-            redetect_threshold: 0.75,
+            redetect_threshold: 0.65,
             redetect_scales: vec![0.8, 0.9, 1.0, 1.12, 1.25],
         }
     }

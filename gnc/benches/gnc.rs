@@ -19,6 +19,12 @@
 //!   marker's own pose and the table's from its 16 corners) on a ray-cast 640 x 480 image of the
 //!   calibration table (four 0.2 m markers) 2 m away over textured ground. Target: both together
 //!   under 10 ms.
+//! - `tracker_update` (the target's templates searched around its last position at three scales,
+//!   the confidence against every template, learning) and `tracker_redetect` (a lost target
+//!   searched over the whole image, five scales, its learnt templates) on the ray-cast ground
+//!   scene, a 48 x 48 pixel box; target under 10 ms per frame. `stereo_locate_64x64`: block
+//!   matching, left-right check and k-means in a 64 x 64 box of the rectified pair; target under
+//!   20 ms.
 
 #[path = "../tests/common/scene.rs"]
 mod scene;
@@ -322,4 +328,55 @@ fn pose_filter_late_relative(b: Bencher<'_, '_>) {
         covariance: nalgebra::Matrix6::identity() * 1e-6,
     };
     b.with_inputs(|| f.clone()).bench_local_values(|mut f| black_box(f.relative(m.clone())));
+}
+
+/// Two consecutive rectified pairs of the ray-cast ground scene and a box on a boulder.
+fn tracking_frames()
+-> (framework::camera::StereoModel, Vec<(framework::camera::GreyImage, framework::camera::GreyImage)>) {
+    let r = scene::PairRenderer::new(scene::loc_pair());
+    let rect = gnc::localization::rectify::Rectification::new(&scene::loc_pair());
+    let frames = [0.0, 0.1]
+        .iter()
+        .map(|t| {
+            let (l, rr) = r.render(&scene::body(0.3 * t, 0.0, 0.05 * t), Time::from_secs_f64(*t));
+            (rect.left(&l), rect.right(&rr))
+        })
+        .collect();
+    (rect.model, frames)
+}
+
+const TRACK_BOX: [f64; 4] = [296.0, 276.0, 344.0, 324.0];
+
+#[divan::bench(sample_count = 30, sample_size = 5)]
+fn tracker_update(b: Bencher<'_, '_>) {
+    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    let (_, frames) = tracking_frames();
+    let mut t = TemplateTracker::new(TrackerParams::default());
+    t.init(&frames[0].0, TRACK_BOX).unwrap();
+    assert_ne!(t.clone().update(&frames[1].0, None).status, TrackStatus::Lost);
+    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None)));
+}
+
+#[divan::bench(sample_count = 20, sample_size = 1)]
+fn tracker_redetect(b: Bencher<'_, '_>) {
+    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    let (_, frames) = tracking_frames();
+    let mut t = TemplateTracker::new(TrackerParams::default());
+    t.init(&frames[0].0, TRACK_BOX).unwrap();
+    let blank =
+        framework::camera::GreyImage { data: vec![90; frames[0].0.data.len()], ..frames[0].0.clone() };
+    assert_eq!(t.update(&blank, None).status, TrackStatus::Lost);
+    assert_eq!(t.clone().update(&frames[1].0, None).status, TrackStatus::Redetected);
+    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None)));
+}
+
+#[divan::bench(sample_count = 30, sample_size = 3)]
+fn stereo_locate_64x64(b: Bencher<'_, '_>) {
+    use gnc::tracking::locate::{LocateParams, locate};
+    let (model, frames) = tracking_frames();
+    let (l, r) = &frames[0];
+    let bbox = [288.0, 268.0, 352.0, 332.0];
+    let p = LocateParams::default();
+    locate(l, r, &model, bbox, &p).unwrap();
+    b.bench(|| black_box(locate(l, r, &model, bbox, &p).unwrap()));
 }

@@ -75,11 +75,10 @@ fn marker_image() -> (CameraModel, framework::camera::GreyImage) {
     let centre = Vector3::new(0.0, -0.1, 2.0);
     let (right, up) = (Vector3::new(ca, 0.0, sa), Vector3::new(0.0, -1.0, 0.0));
     let normal = right.cross(&up);
-    let tags: Vec<((f64, f64), (Vec<bool>, usize))> =
-        [(10, -0.15, 0.2), (11, 0.15, 0.2), (12, -0.15, -0.2), (13, 0.15, -0.2)]
-            .iter()
-            .map(|&(id, x, y)| ((x, y), tag_cells(id)))
-            .collect();
+    let tags: Vec<_> = [(10, -0.15, 0.2), (11, 0.15, 0.2), (12, -0.15, -0.2), (13, 0.15, -0.2)]
+        .iter()
+        .map(|&(id, x, y)| ((x, y), tag_cells(id)))
+        .collect();
     let print = 0.2 * 10.0 / 8.0;
     let sample = |u: f64, v: f64| -> f64 {
         let d = Vector3::new((u - k.cx) / k.fx, (v - k.cy) / k.fy, 1.0);

@@ -100,6 +100,9 @@ pub struct ObjectFit {
     pub fit: PoseFit,
 }
 
+/// A marker found in an image, its slot in the database and its own pose.
+type Seen<'a> = (&'a Detected, &'a MarkerSlot, Option<PoseFit>);
+
 /// The object database's slot for a marker id: (object kind, slot).
 fn lookup(db: &ObjectDatabase, id: u32) -> Option<(&str, &MarkerSlot)> {
     db.objects.iter().find_map(|o| o.markers.iter().find(|m| m.id == id).map(|m| (o.kind.as_str(), m)))
@@ -114,7 +117,7 @@ pub fn measure(
     sigma_px: f64,
 ) -> (Vec<MarkerObservation>, Vec<ObjectFit>) {
     let mut observations = Vec::new();
-    let mut per_object: BTreeMap<&str, Vec<(&Detected, &MarkerSlot, Option<PoseFit>)>> = BTreeMap::new();
+    let mut per_object: BTreeMap<&str, Vec<Seen<'_>>> = BTreeMap::new();
     for d in found {
         let known = lookup(db, d.id);
         let own = known.and_then(|(_, slot)| marker_pose(model, d, slot.size_m, sigma_px));

@@ -273,11 +273,11 @@ mod tests {
         let faces = [
             Isometry3::from_parts(
                 Translation3::new(0.05, 0.0, 0.0),
-                UnitQuaternion::from_euler_angles(0.0, 1.5708, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, std::f64::consts::FRAC_PI_2, 0.0),
             ),
             Isometry3::from_parts(
                 Translation3::new(0.0, 0.0, -0.05),
-                UnitQuaternion::from_euler_angles(0.0, 3.1416, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, std::f64::consts::PI, 0.0),
             ),
         ];
         let pose = Isometry3::from_parts(

@@ -35,4 +35,5 @@ pub mod perception_tof;
 pub mod placement;
 pub mod tracking;
 pub mod tracking_marker;
+pub mod tracking_target;
 pub mod traversability;

@@ -34,6 +34,7 @@ pub const MODULES: &[&str] = &[
     "localization_visual",
     "localization_fusion",
     "tracking_marker",
+    "tracking_target",
     "perception_tof",
     "perception_fusion",
     "traversability",
@@ -43,7 +44,7 @@ pub const MODULES: &[&str] = &[
 ];
 
 /// The modules that track in the head camera's images.
-const HEAD_TRACKING: &[&str] = &["tracking_marker"];
+const HEAD_TRACKING: &[&str] = &["tracking_marker", "tracking_target"];
 
 /// The navigation chain's modules (they need the ToF cameras).
 const NAVIGATION: &[&str] =
@@ -278,6 +279,17 @@ fn add_module(
                 config,
             )
         }
+        "tracking_target" => b.add(
+            name,
+            gnc::tracking_target::TrackingTarget::new(
+                "head_stereo",
+                map.stereo_camera("head_stereo")?.calibration().clone(),
+                map.mechanism()?,
+                POSE_SLOT,
+                &["ptu/joints", "arm/joints"],
+            ),
+            config,
+        ),
         "perception_tof" => {
             let mut cams = Vec::new();
             for device in ["tof_left", "tof_right"] {

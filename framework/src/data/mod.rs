@@ -120,4 +120,4 @@ mod maps;
 mod tracking;
 pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};
-pub use tracking::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses};
+pub use tracking::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, TargetStatus, TargetTrack};

@@ -1,8 +1,8 @@
 //! Vision products (seed 000, 8.1 and 8.4): fiducial markers seen in an image and the object poses
-//! they give.
+//! they give, and the operator-selected target as a tracker follows it.
 
 use crate::time::Time;
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3};
 use serde::{Deserialize, Serialize};
 
 /// One fiducial marker found in an image.
@@ -76,4 +76,45 @@ pub struct ObjectPoses {
     pub stamp: Time,
     /// One pose per object seen.
     pub objects: Vec<ObjectPose>,
+}
+
+/// What a target tracker is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TargetStatus {
+    /// Followed from the last image.
+    Tracking,
+    /// Found again after a loss.
+    Redetected,
+    /// Not in this image (occluded, out of view, or changed beyond recognition).
+    Lost,
+}
+
+/// An operator-selected target as a tracker follows it (seed 000, 8.1): where it is in the image,
+/// and where it is in the world as stereo locates it.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TargetTrack {
+    /// What the target is (`canister`).
+    pub target: String,
+    /// The camera device.
+    pub camera: String,
+    /// The image's capture time.
+    pub stamp: Time,
+    /// This image's outcome.
+    pub status: TargetStatus,
+    /// Best correlation with the learnt appearance, -1 to 1.
+    pub confidence: f64,
+    /// The target's box in the raw (distorted) left image, pixels: [u_min, v_min, u_max, v_max]
+    /// (the last known one when lost).
+    pub bbox: [f64; 4],
+    /// Its position in `map` (stereo, fused over the images so far), m; None until located.
+    pub position: Option<Point3<f64>>,
+    /// Its covariance, m^2.
+    pub covariance: Matrix3<f64>,
+    /// Distance from the camera at the last location, m.
+    pub range_m: Option<f64>,
+    /// This image's stereo location (in `map`), when it gave one.
+    pub measured: Option<Point3<f64>>,
+    /// Images located so far.
+    pub located: u32,
 }

@@ -42,6 +42,9 @@ pub struct LocateParams {
     /// The target's radius, m: what is seen is its near surface, not its centre (added to the
     /// covariance, each axis).
     pub target_radius_m: f64,
+    /// Pointing error of the camera (its believed mounting and the joints that carry it), degrees
+    /// (1 sigma): added across the line of sight.
+    pub pointing_sigma_deg: f64,
 }
 
 impl Default for LocateParams {
@@ -54,9 +57,10 @@ impl Default for LocateParams {
             min_texture: 2.0,
             max_samples: 3000,
             disparity_sigma_px: 0.3,
-            disparity_floor_px: 0.15,
+            disparity_floor_px: 0.4,
             min_points: 8,
             target_radius_m: 0.05,
+            pointing_sigma_deg: 0.5,
         }
     }
 }
@@ -66,8 +70,11 @@ impl Default for LocateParams {
 pub struct Located {
     /// Position in the rectified left optical frame, m.
     pub position: Point3<f64>,
-    /// Its covariance, m^2.
+    /// Its covariance, m^2: the noise of this image and the biases below.
     pub covariance: Matrix3<f64>,
+    /// The share of `covariance` that every image of the same pair repeats (the calibration's
+    /// disparity and pointing errors, the target's size): averaging images does not reduce it.
+    pub bias_covariance: Matrix3<f64>,
     /// The foreground's mean disparity, pixels.
     pub disparity: f64,
     /// Pixels matched in the box, and how many the foreground kept (0: too few for clusters; the
@@ -290,17 +297,23 @@ pub fn locate(
     // The mean pixel's spread, the mean disparity's noise (with its floor).
     let var_u = fore.iter().map(|s| (s.0 - mu).powi(2)).sum::<f64>() / n / n + 0.25;
     let var_v = fore.iter().map(|s| (s.1 - mv).powi(2)).sum::<f64>() / n / n + 0.25;
-    let var_d = p.disparity_sigma_px.powi(2) / n + p.disparity_floor_px.powi(2);
+    let var_d = p.disparity_sigma_px.powi(2) / n;
     // The box's centre as the target's centre: its pixel is known to a quarter of the box.
     let (var_u, var_v) =
         if fallback { (var_u + (0.25 * hu).powi(2), var_v + (0.25 * hv).powi(2)) } else { (var_u, var_v) };
     // d(X, Y, Z)/d(u, v, d).
     let j = Matrix3::new(z / k.fx, 0.0, -position.x / md, 0.0, z / k.fy, -position.y / md, 0.0, 0.0, -z / md);
-    let covariance = j * Matrix3::from_diagonal(&nalgebra::Vector3::new(var_u, var_v, var_d)) * j.transpose()
-        + Matrix3::identity() * p.target_radius_m.powi(2);
+    let through =
+        |u: f64, v: f64, d: f64| j * Matrix3::from_diagonal(&nalgebra::Vector3::new(u, v, d)) * j.transpose();
+    let bias_covariance = through(0.0, 0.0, p.disparity_floor_px.powi(2))
+        + Matrix3::identity() * p.target_radius_m.powi(2)
+        + Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 1.0, 0.0))
+            * (p.pointing_sigma_deg.to_radians() * position.coords.norm()).powi(2);
+    let covariance = through(var_u, var_v, var_d) + bias_covariance;
     Ok(Located {
         position,
         covariance,
+        bias_covariance,
         disparity: md,
         matched: samples.len(),
         foreground: if fallback { 0 } else { fore.len() },

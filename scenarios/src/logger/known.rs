@@ -7,7 +7,7 @@ use framework::blackboard::SlotCell;
 use framework::camera::TofFrame;
 use framework::data::{
     ElevationMap, JointStates, LocomotionState, MarkerDetections, NavigationMap, ObjectPoses, PoseEstimate,
-    StereoImages, TargetSelection, VisualOdometry,
+    StereoImages, TargetSelection, TargetTrack, VisualOdometry,
 };
 use std::any::Any;
 use std::sync::Arc;
@@ -29,6 +29,7 @@ pub(super) enum Known {
     Visual(Arc<Stamped<VisualOdometry>>),
     Markers(Arc<Stamped<MarkerDetections>>),
     Objects(Arc<Stamped<ObjectPoses>>),
+    Track(Arc<Stamped<TargetTrack>>),
     Other,
 }
 
@@ -66,6 +67,8 @@ pub(super) fn classify(any: &dyn Any, twin: &Twin) -> Known {
         Known::Markers(s)
     } else if let Some(s) = latest::<ObjectPoses>(any) {
         Known::Objects(s)
+    } else if let Some(s) = latest::<TargetTrack>(any) {
+        Known::Track(s)
     } else {
         Known::Other
     }

@@ -624,6 +624,7 @@ impl Writer {
                 Known::Visual(v) => self.visual_odometry(&r.name, &v.value)?,
                 Known::Markers(m) => self.markers(&m.value)?,
                 Known::Objects(o) => self.objects(&o.value)?,
+                Known::Track(t) => self.target(&t.value)?,
                 Known::Other => {}
             }
             // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.

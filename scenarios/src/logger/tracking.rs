@@ -1,12 +1,13 @@
 //! Vision products in the logs: fiducial markers over the image they were found in (Rerun
-//! `LineStrips2D` and labels, MCAP `foxglove.ImageAnnotations`) and the object poses they give (Rerun
-//! transforms with axes under `world/estimate/objects`, MCAP `foxglove.PosesInFrame` in `map`).
+//! `LineStrips2D` and labels, MCAP `foxglove.ImageAnnotations`), the object poses they give (Rerun
+//! transforms with axes under `world/estimate/objects`, MCAP `foxglove.PosesInFrame` in `map`), and
+//! the target track (its box over the image, its position in `map`).
 
 use super::Writer;
 use super::mcap_writer::{pose_json, stamp_json};
 use super::rerun_view::rr_transform;
 use anyhow::Result;
-use framework::data::{MarkerDetections, ObjectPoses};
+use framework::data::{MarkerDetections, ObjectPoses, TargetStatus, TargetTrack};
 
 /// Marker outlines: green for a marker of a known object, orange for an unknown id.
 fn colour(known: bool) -> [u8; 3] {
@@ -108,6 +109,68 @@ impl Writer {
                     p.stamp,
                     &msg,
                 )?;
+            }
+        }
+        Ok(())
+    }
+
+    /// The target track: its box over the image (yellow while followed, red when lost) and its
+    /// position in `map` with its 3-sigma ellipsoid.
+    pub(super) fn target(&mut self, t: &TargetTrack) -> Result<()> {
+        let k = f64::from(self.downsample.max(1));
+        let [u0, v0, u1, v1] = t.bbox.map(|x| x / k);
+        let lost = t.status == TargetStatus::Lost;
+        let colour: [u8; 3] = if lost { [230, 40, 40] } else { [255, 200, 0] };
+        let label = format!("{} {:?} {:.2}", t.target, t.status, t.confidence);
+        let path = format!("sensors/{}/left/track", t.camera);
+        if let Some(rec) = &self.rrd {
+            rec.log(
+                path.as_str(),
+                &rerun::Boxes2D::from_mins_and_sizes(
+                    [[u0 as f32, v0 as f32]],
+                    [[(u1 - u0) as f32, (v1 - v0) as f32]],
+                )
+                .with_labels([label.clone()])
+                .with_colors([colour]),
+            )?;
+            if let Some(p) = &t.position {
+                let sig = [0, 1, 2].map(|i| 3.0 * t.covariance[(i, i)].max(0.0).sqrt() as f32);
+                rec.log(
+                    "world/estimate/target",
+                    &rerun::Ellipsoids3D::from_centers_and_half_sizes(
+                        [[p.x as f32, p.y as f32, p.z as f32]],
+                        [sig],
+                    )
+                    .with_colors([[255u8, 200, 0]])
+                    .with_labels([t.target.clone()]),
+                )?;
+            }
+        }
+        if let Some(mc) = &mut self.mcap {
+            let c = |v: u8| f64::from(v) / 255.0;
+            let rgba = serde_json::json!({"r": c(colour[0]), "g": c(colour[1]), "b": c(colour[2]), "a": 1.0});
+            let corners: Vec<_> = [(u0, v0), (u1, v0), (u1, v1), (u0, v1)]
+                .iter()
+                .map(|(x, y)| serde_json::json!({"x": x, "y": y}))
+                .collect();
+            let msg = serde_json::json!({
+                "circles": [],
+                "points": [{
+                    "timestamp": stamp_json(t.stamp), "type": 2, "points": corners, "outline_color": rgba,
+                    "outline_colors": [], "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}, "thickness": 2.0,
+                }],
+                "texts": [{
+                    "timestamp": stamp_json(t.stamp), "position": {"x": u0, "y": v0}, "text": label, "font_size": 12.0,
+                    "text_color": rgba, "background_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.6},
+                }],
+            });
+            mc.foxglove(&format!("/{path}"), "foxglove.ImageAnnotations", t.stamp, &msg)?;
+            if let Some(p) = &t.position {
+                let msg = serde_json::json!({
+                    "timestamp": stamp_json(t.stamp), "frame_id": "map",
+                    "pose": pose_json(&nalgebra::Isometry3::translation(p.x, p.y, p.z)),
+                });
+                mc.foxglove("/tracking/target", "foxglove.PoseInFrame", t.stamp, &msg)?;
             }
         }
         Ok(())

@@ -1,0 +1,508 @@
+//! `TrackingTarget` (seed 000, 8.1): follows an operator-selected target in the head camera's
+//! images and locates it in 3D by stereo.
+//!
+//! A selection (the `operator/target_selection` slot, or the `select` command) names a box in the
+//! raw left image of a given capture time; the module keeps the last few rectified pairs, so it
+//! starts the [`TemplateTracker`] on the very image the box was drawn in (mapped into the
+//! rectified image through the believed calibration) and catches up on the images since. Each new
+//! pair is then tracked (around where the target's 3D estimate projects, once it has one) and, when
+//! the target is found, located by [`locate`] in the rectified pair; the location is placed in `map`
+//! through the believed mechanism, the pan-tilt joints and the rover's pose estimate at the image's
+//! capture time, and fused with the earlier ones by a Kalman filter of a slowly wandering point
+//! (a static target's estimate sharpens as the rover approaches; a moving one is followed).
+//! Published every image: `tracking/target` ([`TargetTrack`]).
+//!
+//! Commands: `select {bbox, image_stamp_s?}` (a box in a held image, the newest by default),
+//! `forget`, and `locate {max_sigma_m?}`, which completes once the target's position is known to
+//! `max_sigma_m` (1 sigma, horizontal) and fails if the target is lost for `lost_timeout_s` or
+//! nothing is selected.
+
+use crate::localization::rectify::Rectification;
+use crate::placement::Placement;
+use crate::tracking::locate::{LocateParams, locate};
+use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, TrackerParams};
+use framework::camera::{GreyImage, StereoCalibration};
+use framework::data::{StereoImages, TargetSelection, TargetStatus, TargetTrack};
+use framework::mechanism::MechanismModel;
+use framework::module::Request;
+use framework::prelude::*;
+use nalgebra::{Matrix3, Point2, Point3, Vector3};
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+
+/// The slot of the target track.
+pub const SLOT: &str = "tracking/target";
+
+/// TrackingTarget parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrackingTargetParams {
+    /// The image tracker's.
+    pub tracker: TrackerParams,
+    /// The stereo locate's.
+    pub locate: LocateParams,
+    /// Rectified pairs kept to start on a selection's own image.
+    pub held_images: usize,
+    /// The target's wander between images (random walk), m per sqrt(s): 0 for a static target.
+    pub target_walk: f64,
+    /// A location further than this many sigmas from the estimate is rejected (a wrong match).
+    pub gate_sigma: f64,
+    /// `locate` fails when the target has been lost this long, s.
+    pub lost_timeout_s: f64,
+    /// How long the pose and joint histories reach back, s (more than the camera's latency).
+    pub history_s: f64,
+    /// How far past the newest pose or joint sample an image may be placed, s.
+    pub max_extrapolation_s: f64,
+}
+
+impl Default for TrackingTargetParams {
+    fn default() -> Self {
+        TrackingTargetParams {
+            tracker: TrackerParams::default(),
+            locate: LocateParams::default(),
+            held_images: 8,
+            target_walk: 0.01,
+            gate_sigma: 5.0,
+            lost_timeout_s: 20.0,
+            history_s: 4.0,
+            max_extrapolation_s: 0.15,
+        }
+    }
+}
+
+/// Arguments of `select`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SelectArgs {
+    /// The box in the raw left image, pixels: [u_min, v_min, u_max, v_max].
+    pub bbox: [f64; 4],
+    /// Capture time of the image it was drawn in, s (default: the newest held image).
+    #[serde(default)]
+    pub image_stamp_s: Option<f64>,
+    /// What the target is.
+    #[serde(default)]
+    pub target: Option<String>,
+}
+
+/// Arguments of `locate`.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LocateArgs {
+    /// Horizontal 1-sigma the position must reach, m (default 0.5).
+    #[serde(default)]
+    pub max_sigma_m: Option<f64>,
+}
+
+/// A held rectified pair.
+struct Held {
+    stamp: Time,
+    left: GreyImage,
+    right: GreyImage,
+}
+
+/// The target's fused position in `map`: the covariance of the images' own noise averaged, and
+/// the newest image's biases (which averaging does not reduce).
+#[derive(Clone, Debug)]
+struct Estimate {
+    position: Point3<f64>,
+    covariance: Matrix3<f64>,
+    bias: Matrix3<f64>,
+    stamp: Time,
+}
+
+impl Estimate {
+    fn total(&self) -> Matrix3<f64> {
+        self.covariance + self.bias
+    }
+}
+
+/// The TrackingTarget module.
+pub struct TrackingTarget {
+    device: String,
+    calibration: StereoCalibration,
+    rect: Rectification,
+    placement: Placement,
+    params: TrackingTargetParams,
+    images: Option<Reader<StereoImages>>,
+    selections: Option<Reader<TargetSelection>>,
+    out: Option<Writer<TargetTrack>>,
+    last_image_seq: u64,
+    last_selection_seq: u64,
+    held: VecDeque<Held>,
+    tracker: Option<TemplateTracker>,
+    target: String,
+    estimate: Option<Estimate>,
+    located: u32,
+    last_range: Option<f64>,
+    lost_since: Option<Time>,
+    /// A pending `locate` and its accuracy.
+    pending: Option<(Request, f64)>,
+    /// A failed stereo location was noted since the selection.
+    locate_noted: bool,
+}
+
+/// The transform and its inverse between raw left pixels and rectified left pixels.
+fn raw_to_rect(rect: &Rectification, cal: &StereoCalibration, uv: &Point2<f64>) -> Option<Point2<f64>> {
+    let r = cal.left.model.ray(uv);
+    let p = rect.left_from_rect.inverse() * Point3::new(r.x, r.y, 1.0);
+    rect.model.left.project(&p)
+}
+
+fn rect_to_raw(rect: &Rectification, cal: &StereoCalibration, uv: &Point2<f64>) -> Option<Point2<f64>> {
+    let r = rect.model.left.ray(uv);
+    cal.left.model.project(&(rect.left_from_rect * Point3::new(r.x, r.y, 1.0)))
+}
+
+/// The box spanning the images of a box's corners and edge midpoints under `f`.
+fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>) -> Option<BBox> {
+    let (cx, cy) = (0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3]));
+    let pts = [
+        (b[0], b[1]),
+        (b[2], b[1]),
+        (b[0], b[3]),
+        (b[2], b[3]),
+        (cx, b[1]),
+        (cx, b[3]),
+        (b[0], cy),
+        (b[2], cy),
+    ];
+    let mut out = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+    for (u, v) in pts {
+        let p = f(&Point2::new(u, v))?;
+        out = [out[0].min(p.x), out[1].min(p.y), out[2].max(p.x), out[3].max(p.y)];
+    }
+    Some(out)
+}
+
+fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
+}
+
+impl TrackingTarget {
+    /// Target tracking on the stereo slot `cameras/<device>` from a pair with the believed
+    /// `calibration`, placed on the robot of the believed `mechanism` with the rover's pose from
+    /// `pose_slot` and joints from `joints_slots`; selections from `selection_slot`.
+    pub fn new(
+        device: &str,
+        calibration: StereoCalibration,
+        mechanism: MechanismModel,
+        pose_slot: &str,
+        joints_slots: &[&str],
+    ) -> Self {
+        let p = TrackingTargetParams::default();
+        TrackingTarget {
+            device: device.to_string(),
+            rect: Rectification::new(&calibration),
+            calibration,
+            placement: Placement::new(mechanism, pose_slot, joints_slots, p.history_s),
+            params: p,
+            images: None,
+            selections: None,
+            out: None,
+            last_image_seq: 0,
+            last_selection_seq: 0,
+            held: VecDeque::new(),
+            tracker: None,
+            target: String::new(),
+            estimate: None,
+            located: 0,
+            last_range: None,
+            lost_since: None,
+            pending: None,
+            locate_noted: false,
+        }
+    }
+
+    /// Starts tracking the box `bbox` (raw left pixels) of the held image of `stamp` (None: the
+    /// newest), then catches up on the images since.
+    fn select(
+        &mut self,
+        ctx: &mut Ctx<'_>,
+        target: &str,
+        bbox: [f64; 4],
+        stamp: Option<Time>,
+    ) -> Result<(), String> {
+        let k = match stamp {
+            Some(t) => {
+                self.held.iter().position(|h| (h.stamp - t).as_secs_f64().abs() < 1e-3).ok_or_else(|| {
+                    format!("the image of {t} is no longer held (the {} newest are)", self.held.len())
+                })?
+            }
+            None => self.held.len().checked_sub(1).ok_or("no image yet")?,
+        };
+        let rect_box = map_box(&bbox, |p| raw_to_rect(&self.rect, &self.calibration, p))
+            .ok_or_else(|| format!("the box {bbox:?} does not map into the rectified image"))?;
+        let mut tracker = TemplateTracker::new(self.params.tracker.clone());
+        tracker.init(&self.held[k].left, rect_box)?;
+        self.tracker = Some(tracker);
+        self.target = target.to_string();
+        self.estimate = None;
+        self.located = 0;
+        self.lost_since = None;
+        self.locate_noted = false;
+        ctx.note(format!(
+            "tracking the {target} selected at {bbox:?} in the image of {}",
+            self.held[k].stamp
+        ));
+        let first = self.held[k].stamp;
+        self.process(ctx, first, false);
+        for j in k + 1..self.held.len() {
+            let stamp = self.held[j].stamp;
+            self.process(ctx, stamp, true);
+        }
+        Ok(())
+    }
+
+    /// Tracks and locates in the held image of `stamp` (`track`: false for the selection's own
+    /// image, which is only located) and publishes the track.
+    fn process(&mut self, ctx: &mut Ctx<'_>, stamp: Time, track: bool) {
+        let Some(h) = self.held.iter().find(|h| h.stamp == stamp) else { return };
+        let Some(tracker) = &mut self.tracker else { return };
+        let placed = {
+            let (pose, base_from_optical) = match self.placement.camera_at(&self.calibration.left, stamp) {
+                Ok(p) => p,
+                Err(e) => {
+                    ctx.note(format!("target image not placed: {e}"));
+                    return;
+                }
+            };
+            (pose.pose * base_from_optical * self.rect.left_from_rect, pose)
+        };
+        let (map_from_rect, pose) = placed;
+        let result = if track {
+            // Search where the estimate projects, when there is one in front of the camera.
+            let predicted = self
+                .estimate
+                .as_ref()
+                .and_then(|e| self.rect.model.left.project(&(map_from_rect.inverse() * e.position)))
+                .map(|p| (p.x, p.y));
+            tracker.update(&h.left, predicted)
+        } else {
+            crate::tracking::template::TrackResult {
+                bbox: tracker.bbox().unwrap_or([0.0; 4]),
+                confidence: 1.0,
+                status: TrackStatus::Tracking,
+            }
+        };
+        let mut measured = None;
+        if result.status == TrackStatus::Lost {
+            self.lost_since.get_or_insert(stamp);
+        } else {
+            self.lost_since = None;
+            match locate(&h.left, &h.right, &self.rect.model, result.bbox, &self.params.locate) {
+                Ok(loc) => {
+                    let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
+                    let p = map_from_rect * loc.position;
+                    // The pose's own uncertainty: its position, and its rotation's lever arm.
+                    let lever = p.coords - pose.pose.translation.vector;
+                    let mut a = nalgebra::Matrix3x6::zeros();
+                    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
+                    a.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&lever));
+                    let cov = r * loc.covariance * r.transpose() + a * pose.covariance * a.transpose();
+                    let bias = r * loc.bias_covariance * r.transpose();
+                    if self.fuse(p, cov, bias, stamp) {
+                        measured = Some(p);
+                        self.located += 1;
+                        self.last_range = Some(loc.position.coords.norm());
+                    } else {
+                        ctx.note(format!(
+                            "a {} location at {p:?} disagrees with the estimate: rejected",
+                            self.target
+                        ));
+                    }
+                }
+                Err(e) => {
+                    if !self.locate_noted {
+                        ctx.note(format!("the {} is tracked but not located: {e}", self.target));
+                        self.locate_noted = true;
+                    }
+                }
+            }
+        }
+        let status = match result.status {
+            TrackStatus::Tracking => TargetStatus::Tracking,
+            TrackStatus::Redetected => TargetStatus::Redetected,
+            TrackStatus::Lost => TargetStatus::Lost,
+        };
+        let bbox =
+            map_box(&result.bbox, |p| rect_to_raw(&self.rect, &self.calibration, p)).unwrap_or(result.bbox);
+        let out = TargetTrack {
+            target: self.target.clone(),
+            camera: self.device.clone(),
+            stamp,
+            status,
+            confidence: result.confidence,
+            bbox,
+            position: self.estimate.as_ref().map(|e| e.position),
+            covariance: self.estimate.as_ref().map_or(Matrix3::zeros(), Estimate::total),
+            range_m: self.last_range,
+            measured,
+            located: self.located,
+        };
+        if let Some(w) = &self.out {
+            ctx.write_stamped(w, out, stamp);
+        }
+    }
+
+    /// Fuses a location (covariance `cov`, of which `bias` every image repeats) into the estimate
+    /// (a random-walk point); false when gated out.
+    fn fuse(&mut self, p: Point3<f64>, cov: Matrix3<f64>, bias: Matrix3<f64>, stamp: Time) -> bool {
+        let noise = cov - bias;
+        let Some(e) = &mut self.estimate else {
+            self.estimate = Some(Estimate { position: p, covariance: noise, bias, stamp });
+            return true;
+        };
+        let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
+        let prior = e.covariance + Matrix3::identity() * self.params.target_walk.powi(2) * dt;
+        // Gated on the whole uncertainty; averaged on the noise alone.
+        let Some(gate) = (prior + e.bias + cov).try_inverse() else { return false };
+        let innovation = p - e.position;
+        if innovation.dot(&(gate * innovation)) > self.params.gate_sigma.powi(2) {
+            return false;
+        }
+        let Some(s_inv) = (prior + noise).try_inverse() else { return false };
+        let k = prior * s_inv;
+        e.position += k * innovation;
+        e.covariance = (Matrix3::identity() - k) * prior;
+        e.covariance = 0.5 * (e.covariance + e.covariance.transpose());
+        e.bias = bias;
+        e.stamp = stamp;
+        true
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        self.placement.update(ctx);
+        let mut fresh = None;
+        if let Some(frame) = self.images.as_ref().and_then(|r| ctx.read(r))
+            && frame.seq != self.last_image_seq
+        {
+            self.last_image_seq = frame.seq;
+            let stamp = frame.value.left.stamp;
+            self.held.push_back(Held {
+                stamp,
+                left: self.rect.left(&frame.value.left),
+                right: self.rect.right(&frame.value.right),
+            });
+            while self.held.len() > self.params.held_images.max(1) {
+                self.held.pop_front();
+            }
+            fresh = Some(stamp);
+        }
+        if let Some(sel) = self.selections.as_ref().and_then(|r| ctx.read(r))
+            && sel.seq != self.last_selection_seq
+        {
+            self.last_selection_seq = sel.seq;
+            let s = sel.value.clone();
+            if s.camera != self.device {
+                ctx.note(format!(
+                    "a selection in '{}' ignored: this module tracks in '{}'",
+                    s.camera, self.device
+                ));
+            } else if let Err(e) = self.select(ctx, &s.target, s.bbox, Some(s.image_stamp)) {
+                ctx.note(format!("the {} selection cannot be tracked: {e}", s.target));
+            }
+            return self.settle(ctx);
+        }
+        if let Some(stamp) = fresh {
+            self.process(ctx, stamp, true);
+        }
+        self.settle(ctx)
+    }
+
+    /// Answers a pending `locate` when it can.
+    fn settle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        let Some((_, max_sigma)) = &self.pending else { return Ok(()) };
+        let outcome = if let Some(e) = &self.estimate
+            && e.total()[(0, 0)].max(e.total()[(1, 1)]).sqrt() <= *max_sigma
+        {
+            let c = e.total();
+            Some(Outcome::Completed(serde_json::json!({
+                "target": self.target,
+                "position": [e.position.x, e.position.y, e.position.z],
+                "sigma_m": [c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()],
+                "located": self.located,
+            })))
+        } else if self.tracker.is_none() {
+            Some(Outcome::fail("no target selected"))
+        } else if let Some(since) = self.lost_since
+            && (ctx.now() - since).as_secs_f64() > self.params.lost_timeout_s
+        {
+            Some(Outcome::fail(format!("the {} has been lost since {since}", self.target)))
+        } else {
+            None
+        };
+        if let Some(o) = outcome {
+            let (req, _) = self.pending.take().expect("checked");
+            ctx.reply(&req, o);
+        }
+        Ok(())
+    }
+}
+
+impl Module for TrackingTarget {
+    type Params = TrackingTargetParams;
+    const KIND: ModuleKind = ModuleKind::Resource;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.images = Some(d.reads(&format!("cameras/{}", self.device)));
+        self.selections = Some(d.reads("operator/target_selection"));
+        self.placement.declare(d);
+        self.out = Some(d.writes(SLOT));
+        d.context_switchable();
+        d.state("tracking", |m, ctx| m.cycle(ctx));
+        d.command("select", |m, ctx, a: SelectArgs| {
+            let target = a.target.unwrap_or_else(|| "target".into());
+            match m.select(ctx, &target, a.bbox, a.image_stamp_s.map(Time::from_secs_f64)) {
+                Ok(()) => Outcome::done(),
+                Err(e) => Outcome::reject(e),
+            }
+        });
+        d.command("forget", |m, _ctx, _: ()| {
+            m.tracker = None;
+            m.estimate = None;
+            m.located = 0;
+            Outcome::done()
+        });
+        d.command("locate", |m, ctx, a: LocateArgs| {
+            let sigma = a.max_sigma_m.unwrap_or(0.5);
+            if !(sigma.is_finite() && sigma > 0.0) {
+                return Outcome::reject(format!("max_sigma_m must be positive, got {sigma}"));
+            }
+            if m.tracker.is_none() {
+                return Outcome::reject("no target selected (by the operator or 'select')");
+            }
+            let Some(req) = ctx.request() else { return Outcome::reject("locate needs a request to answer") };
+            if let Some((old, _)) = m.pending.replace((req, sigma)) {
+                ctx.reply(&old, Outcome::fail("superseded by a new locate"));
+            }
+            Outcome::Accepted
+        });
+    }
+
+    fn configure(&mut self, p: &TrackingTargetParams) -> Result<(), String> {
+        crate::params::require_positive(&[
+            ("held_images", p.held_images as f64),
+            ("gate_sigma", p.gate_sigma),
+            ("lost_timeout_s", p.lost_timeout_s),
+            ("history_s", p.history_s),
+            ("tracker.track_threshold", p.tracker.track_threshold),
+            ("tracker.redetect_threshold", p.tracker.redetect_threshold),
+            ("locate.disparity_sigma_px", p.locate.disparity_sigma_px),
+        ])?;
+        if p.tracker.scales.is_empty() || p.tracker.redetect_scales.is_empty() {
+            return Err("tracker.scales and tracker.redetect_scales must not be empty".into());
+        }
+        if p.tracker.template_cells < 8 || p.tracker.max_templates == 0 {
+            return Err("tracker.template_cells must be >= 8 and tracker.max_templates >= 1".into());
+        }
+        if !(p.target_walk.is_finite() && p.target_walk >= 0.0) {
+            return Err(format!("target_walk must be >= 0, got {}", p.target_walk));
+        }
+        if !(p.max_extrapolation_s.is_finite() && p.max_extrapolation_s >= 0.0) {
+            return Err(format!("max_extrapolation_s must be >= 0, got {}", p.max_extrapolation_s));
+        }
+        self.placement.configure(p.history_s, p.max_extrapolation_s);
+        self.params = p.clone();
+        Ok(())
+    }
+}

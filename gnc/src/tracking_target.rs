@@ -13,7 +13,7 @@
 //! Published every image: `tracking/target` ([`TargetTrack`]).
 //!
 //! Commands: `select {bbox, image_stamp_s?}` (a box in a held image, the newest by default),
-//! `forget`, and `locate {max_sigma_m?}`, which completes once the target's position is known to
+//! `forget`, `stop` (a pending `locate` fails; tracking goes on), and `locate {max_sigma_m?}`, which completes once the target's position is known to
 //! `max_sigma_m` (1 sigma, horizontal) and fails if the target is lost for `lost_timeout_s` or
 //! nothing is selected.
 
@@ -456,6 +456,12 @@ impl Module for TrackingTarget {
                 Ok(()) => Outcome::done(),
                 Err(e) => Outcome::reject(e),
             }
+        });
+        d.command("stop", |m, ctx, _: ()| {
+            if let Some((req, _)) = m.pending.take() {
+                ctx.reply(&req, Outcome::fail("stopped"));
+            }
+            Outcome::done()
         });
         d.command("forget", |m, _ctx, _: ()| {
             m.tracker = None;

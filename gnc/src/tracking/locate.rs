@@ -297,7 +297,21 @@ pub fn locate(
     // The mean pixel's spread, the mean disparity's noise (with its floor).
     let var_u = fore.iter().map(|s| (s.0 - mu).powi(2)).sum::<f64>() / n / n + 0.25;
     let var_v = fore.iter().map(|s| (s.1 - mv).powi(2)).sum::<f64>() / n / n + 0.25;
-    let var_d = p.disparity_sigma_px.powi(2) / n;
+    // A whole-box match of a few pixels spans whatever depths its window covers (far away, the
+    // ground in a 9-pixel window reaches metres nearer and farther): its disparity is uncertain by
+    // the spread of the box's own matches, or by half itself without any.
+    let var_d = if fallback {
+        let all: Vec<f64> = samples.iter().map(|s| s.2).collect();
+        let m = all.iter().sum::<f64>() / all.len().max(1) as f64;
+        let spread = if all.len() >= 2 {
+            all.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (all.len() - 1) as f64
+        } else {
+            (0.5 * md).powi(2)
+        };
+        p.disparity_sigma_px.powi(2) + spread
+    } else {
+        p.disparity_sigma_px.powi(2) / n
+    };
     // The box's centre as the target's centre: its pixel is known to a quarter of the box.
     let (var_u, var_v) =
         if fallback { (var_u + (0.25 * hu).powi(2), var_v + (0.25 * hv).powi(2)) } else { (var_u, var_v) };

@@ -1,7 +1,7 @@
 //! `TrackingTarget` (seed 000, 8.1): follows an operator-selected target in the head camera's
 //! images and locates it in 3D by stereo.
 //!
-//! A selection (the `operator/target_selection` slot, or the `select` command) names a box in the
+//! A selection (a `TargetSelection` slot such as the operator's, or the `select` command) names a box in the
 //! raw left image of a given capture time; the module keeps the last few rectified pairs, so it
 //! starts the [`TemplateTracker`] on the very image the box was drawn in (mapped into the
 //! rectified image through the believed calibration) and catches up on the images since. Each new
@@ -124,6 +124,7 @@ pub struct TrackingTarget {
     placement: Placement,
     params: TrackingTargetParams,
     images: Option<Reader<StereoImages>>,
+    selection_slot: Option<String>,
     selections: Option<Reader<TargetSelection>>,
     out: Option<Writer<TargetTrack>>,
     last_image_seq: u64,
@@ -181,13 +182,15 @@ fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
 impl TrackingTarget {
     /// Target tracking on the stereo slot `cameras/<device>` from a pair with the believed
     /// `calibration`, placed on the robot of the believed `mechanism` with the rover's pose from
-    /// `pose_slot` and joints from `joints_slots`; selections from `selection_slot`.
+    /// `pose_slot` and joints from `joints_slots`; selections from `selection_slot` (a
+    /// `TargetSelection` slot, when someone publishes selections) and the `select` command.
     pub fn new(
         device: &str,
         calibration: StereoCalibration,
         mechanism: MechanismModel,
         pose_slot: &str,
         joints_slots: &[&str],
+        selection_slot: Option<&str>,
     ) -> Self {
         let p = TrackingTargetParams::default();
         TrackingTarget {
@@ -197,6 +200,7 @@ impl TrackingTarget {
             placement: Placement::new(mechanism, pose_slot, joints_slots, p.history_s),
             params: p,
             images: None,
+            selection_slot: selection_slot.map(str::to_string),
             selections: None,
             out: None,
             last_image_seq: 0,
@@ -445,7 +449,9 @@ impl Module for TrackingTarget {
 
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         self.images = Some(d.reads(&format!("cameras/{}", self.device)));
-        self.selections = Some(d.reads("operator/target_selection"));
+        if let Some(slot) = &self.selection_slot {
+            self.selections = Some(d.reads(slot));
+        }
         self.placement.declare(d);
         self.out = Some(d.writes(SLOT));
         d.context_switchable();

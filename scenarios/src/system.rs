@@ -133,7 +133,8 @@ pub(crate) fn build_system(
             continue;
         }
         let config = module_config(name, s, p, start_params(name))?;
-        add_module(&mut b, name, &map, twin, model.clone(), config, visual_enabled(s))?;
+        let wiring = Wiring { visual: visual_enabled(s), operator: s.operator.select_target && cameras };
+        add_module(&mut b, name, &map, twin, model.clone(), config, wiring)?;
     }
     if s.operator.select_target && cameras {
         let truth = map.stereo_belief("head_stereo")?.left;
@@ -216,8 +217,16 @@ fn visual_enabled(s: &Scenario) -> bool {
     camera_rate_on(s, "loc_stereo_hz")
 }
 
-/// Registers module `name` of the runner's system, with its devices from `map` (`visual`: the
-/// system runs visual odometry, which the data fusion then reads).
+/// What else the system runs, which decides what some modules read.
+#[derive(Clone, Copy, Debug, Default)]
+struct Wiring {
+    /// Visual odometry, which the data fusion then reads.
+    visual: bool,
+    /// The scripted operator, whose target selections the target tracker then reads.
+    operator: bool,
+}
+
+/// Registers module `name` of the runner's system, with its devices from `map`.
 fn add_module(
     b: &mut SystemBuilder,
     name: &str,
@@ -225,7 +234,7 @@ fn add_module(
     twin: &SharedTwin,
     model: framework::hal::LocomotorModel,
     config: ConfigSource,
-    visual: bool,
+    wiring: Wiring,
 ) -> Result<()> {
     match name {
         "localization_mechanical" => b.add(
@@ -249,7 +258,7 @@ fn add_module(
             config,
         ),
         "localization_fusion" => {
-            let visual = visual.then_some(gnc::localization_visual::SLOT);
+            let visual = wiring.visual.then_some(gnc::localization_visual::SLOT);
             b.add(name, gnc::localization_fusion::LocalizationDataFusion::new(visual), config)
         }
         "locomotion" => b.add(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
@@ -287,6 +296,7 @@ fn add_module(
                 map.mechanism()?,
                 POSE_SLOT,
                 &["ptu/joints", "arm/joints"],
+                wiring.operator.then_some("operator/target_selection"),
             ),
             config,
         ),
@@ -342,6 +352,7 @@ pub fn check_module_config(name: &str, path: &Path) -> std::result::Result<(), V
     let mut b = SystemBuilder::new();
     let map = DryRunDeviceMap::new(twin.clone(), b.resources().clone(), 1);
     let model = map.locomotor().map_err(|e| fail(e.into()))?.model().clone();
-    add_module(&mut b, name, &map, &twin, model, ConfigSource::file(path), false).map_err(fail)?;
+    add_module(&mut b, name, &map, &twin, model, ConfigSource::file(path), Wiring::default())
+        .map_err(fail)?;
     if b.problems().is_empty() { Ok(()) } else { Err(b.problems().to_vec()) }
 }

@@ -140,6 +140,8 @@ pub struct TrackingTarget {
     pending: Option<(Request, f64)>,
     /// A failed stereo location was noted since the selection.
     locate_noted: bool,
+    /// Locations rejected in a row by the gate.
+    rejected: u32,
 }
 
 /// The transform and its inverse between raw left pixels and rectified left pixels.
@@ -214,6 +216,7 @@ impl TrackingTarget {
             lost_since: None,
             pending: None,
             locate_noted: false,
+            rejected: 0,
         }
     }
 
@@ -244,6 +247,8 @@ impl TrackingTarget {
         self.located = 0;
         self.lost_since = None;
         self.locate_noted = false;
+        self.rejected = 0;
+        self.last_range = None;
         ctx.note(format!(
             "tracking the {target} selected at {bbox:?} in the image of {}",
             self.held[k].stamp
@@ -262,24 +267,19 @@ impl TrackingTarget {
     fn process(&mut self, ctx: &mut Ctx<'_>, stamp: Time, track: bool) {
         let Some(h) = self.held.iter().find(|h| h.stamp == stamp) else { return };
         let Some(tracker) = &mut self.tracker else { return };
-        let placed = {
-            let (pose, base_from_optical) = match self.placement.camera_at(&self.calibration.left, stamp) {
-                Ok(p) => p,
-                Err(e) => {
-                    ctx.note(format!("target image not placed: {e}"));
-                    return;
-                }
-            };
-            (pose.pose * base_from_optical * self.rect.left_from_rect, pose)
-        };
-        let (map_from_rect, pose) = placed;
+        // Where the camera was: for the prediction and the location (the 2D track goes on without).
+        let placed =
+            self.placement.camera_at(&self.calibration.left, stamp).map(|(pose, base_from_optical)| {
+                (pose.pose * base_from_optical * self.rect.left_from_rect, pose)
+            });
         let result = if track {
             // Search where the estimate projects, when there is one in front of the camera.
-            let predicted = self
-                .estimate
-                .as_ref()
-                .and_then(|e| self.rect.model.left.project(&(map_from_rect.inverse() * e.position)))
-                .map(|p| (p.x, p.y));
+            let predicted = placed.as_ref().ok().and_then(|(map_from_rect, _)| {
+                self.estimate
+                    .as_ref()
+                    .and_then(|e| self.rect.model.left.project(&(map_from_rect.inverse() * e.position)))
+                    .map(|p| (p.x, p.y))
+            });
             tracker.update(&h.left, predicted)
         } else {
             crate::tracking::template::TrackResult {
@@ -291,19 +291,27 @@ impl TrackingTarget {
         let mut measured = None;
         if result.status == TrackStatus::Lost {
             self.lost_since.get_or_insert(stamp);
-        } else {
+        } else if let Err(e) = &placed {
+            self.lost_since = None;
+            if !self.locate_noted {
+                ctx.note(format!("the {} is tracked but not placed: {e}", self.target));
+                self.locate_noted = true;
+            }
+        } else if let Ok((map_from_rect, pose)) = &placed {
             self.lost_since = None;
             match locate(&h.left, &h.right, &self.rect.model, result.bbox, &self.params.locate) {
                 Ok(loc) => {
                     let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
-                    let p = map_from_rect * loc.position;
+                    let p = *map_from_rect * loc.position;
                     // The pose's own uncertainty: its position, and its rotation's lever arm.
                     let lever = p.coords - pose.pose.translation.vector;
                     let mut a = nalgebra::Matrix3x6::zeros();
                     a.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
                     a.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&lever));
-                    let cov = r * loc.covariance * r.transpose() + a * pose.covariance * a.transpose();
-                    let bias = r * loc.bias_covariance * r.transpose();
+                    // The pose's error is nearly the same from one image to the next: a bias.
+                    let pose_term = a * pose.covariance * a.transpose();
+                    let cov = r * loc.covariance * r.transpose() + pose_term;
+                    let bias = r * loc.bias_covariance * r.transpose() + pose_term;
                     if self.fuse(p, cov, bias, stamp) {
                         measured = Some(p);
                         self.located += 1;
@@ -349,27 +357,47 @@ impl TrackingTarget {
     }
 
     /// Fuses a location (covariance `cov`, of which `bias` every image repeats) into the estimate
-    /// (a random-walk point); false when gated out.
+    /// (a random-walk point); false when gated out. After `RESTART_AFTER` rejections in a row the
+    /// estimate starts again from the new location (a wrong first location must not lock out
+    /// every later right one).
     fn fuse(&mut self, p: Point3<f64>, cov: Matrix3<f64>, bias: Matrix3<f64>, stamp: Time) -> bool {
+        const RESTART_AFTER: u32 = 5;
+        if !p.coords.iter().chain(cov.iter()).all(|v| v.is_finite()) {
+            return false;
+        }
         let noise = cov - bias;
+        let fresh = Estimate { position: p, covariance: noise, bias, stamp };
         let Some(e) = &mut self.estimate else {
-            self.estimate = Some(Estimate { position: p, covariance: noise, bias, stamp });
+            self.estimate = Some(fresh);
             return true;
         };
         let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
         let prior = e.covariance + Matrix3::identity() * self.params.target_walk.powi(2) * dt;
         // Gated on the whole uncertainty; averaged on the noise alone.
-        let Some(gate) = (prior + e.bias + cov).try_inverse() else { return false };
         let innovation = p - e.position;
-        if innovation.dot(&(gate * innovation)) > self.params.gate_sigma.powi(2) {
+        let inside = (prior + e.bias + cov)
+            .try_inverse()
+            .is_some_and(|g| innovation.dot(&(g * innovation)) <= self.params.gate_sigma.powi(2));
+        if !inside {
+            self.rejected += 1;
+            if self.rejected >= RESTART_AFTER {
+                self.estimate = Some(fresh);
+                self.rejected = 0;
+                return true;
+            }
             return false;
         }
+        self.rejected = 0;
         let Some(s_inv) = (prior + noise).try_inverse() else { return false };
         let k = prior * s_inv;
+        let i_k = Matrix3::identity() - k;
         e.position += k * innovation;
-        e.covariance = (Matrix3::identity() - k) * prior;
+        e.covariance = i_k * prior;
         e.covariance = 0.5 * (e.covariance + e.covariance.transpose());
-        e.bias = bias;
+        // The biases of the estimate and of this image, combined as if fully correlated (a
+        // bound: (a + b)(a + b)^T <= 2 (a a^T + b b^T)).
+        e.bias = 2.0 * (i_k * e.bias * i_k.transpose() + k * bias * k.transpose());
+        e.bias = 0.5 * (e.bias + e.bias.transpose());
         e.stamp = stamp;
         true
     }
@@ -473,6 +501,8 @@ impl Module for TrackingTarget {
             m.tracker = None;
             m.estimate = None;
             m.located = 0;
+            m.last_range = None;
+            m.lost_since = None;
             Outcome::done()
         });
         d.command("locate", |m, ctx, a: LocateArgs| {
@@ -504,8 +534,13 @@ impl Module for TrackingTarget {
         if p.tracker.scales.is_empty() || p.tracker.redetect_scales.is_empty() {
             return Err("tracker.scales and tracker.redetect_scales must not be empty".into());
         }
-        if p.tracker.template_cells < 8 || p.tracker.max_templates == 0 {
-            return Err("tracker.template_cells must be >= 8 and tracker.max_templates >= 1".into());
+        if p.tracker.template_cells < 8 || p.tracker.max_templates < 2 {
+            return Err("tracker.template_cells must be >= 8 and tracker.max_templates >= 2".into());
+        }
+        if p.locate.min_points == 0 || p.locate.max_samples == 0 || p.locate.half_window > 15 {
+            return Err(
+                "locate.min_points and locate.max_samples must be >= 1, locate.half_window <= 15".into()
+            );
         }
         if !(p.target_walk.is_finite() && p.target_walk >= 0.0) {
             return Err(format!("target_walk must be >= 0, got {}", p.target_walk));

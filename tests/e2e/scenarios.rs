@@ -185,10 +185,22 @@ fn exit_codes_tell_success_mission_failure_and_bad_input() {
     assert_eq!(track["status"], "not_run");
     assert_eq!(track["success"], false);
     assert!(track["reason"].as_str().unwrap().contains("tracker"));
-    // The canister located from the head camera's images (TrackingTarget on the operator's box).
+    // The canister located from the head camera's images (TrackingTarget on the operator's box),
+    // consistently with its uncertainty (the GNC's map starts at the operator's start knowledge).
     assert_eq!(phase("locate")["status"], "succeeded", "{}", show(&o));
     // The scripted operator marked the canister in the first head-camera image (operator input).
     let topics = read_mcap(&dir.path().join("run.mcap"));
+    let targets = &topics["/slots/tracking/target"];
+    let located = targets.iter().rev().find(|t| t["value"]["position"].is_array()).expect("a location");
+    let p: Vec<f64> =
+        located["value"]["position"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let c = &located["value"]["covariance"];
+    let sigma = (c[0].as_f64().unwrap() + c[4].as_f64().unwrap()).sqrt();
+    let err = (p[0] - 3.0).hypot(p[1]);
+    assert!(
+        err < 3.0 * sigma + 0.1 && err < 0.6,
+        "located {err:.2} m from the canister (sigma {sigma:.2} m)"
+    );
     let sel = &topics["/slots/operator/target_selection"];
     assert_eq!(sel.len(), 1);
     let v = &sel[0]["value"];
@@ -489,9 +501,11 @@ fn markers_give_a_marker_tables_pose_in_map_and_reach_the_logs() {
         .iter()
         .map(|v| v.as_f64().unwrap())
         .collect();
-    let yaw = 2.0 * q[2].atan2(q[3]);
-    let err = (yaw - 160f64.to_radians()).sin().asin().to_degrees();
-    assert!(err.abs() < 1.0, "table yaw off by {err} deg");
+    let estimated =
+        nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[3], q[0], q[1], q[2]));
+    let truth = nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, 160f64.to_radians());
+    let err = estimated.angle_to(&truth).to_degrees();
+    assert!(err < 1.0, "table rotation off by {err} deg");
     assert!(table["seen_frames"].as_u64().unwrap() >= 3);
     // Drawn: outlines over the image, the pose in 3D.
     let notes = &topics["/sensors/head_stereo/left/markers"];

@@ -63,7 +63,8 @@ pub struct ObjectPose {
     pub map_covariance: Matrix6<f64>,
     /// Root-mean-square reprojection error of the table's corners, pixels.
     pub rmse_px: f64,
-    /// Consecutive images in which the object was measured (1: first sight after a gap).
+    /// Images in which the object was measured since it was last (re)acquired after an absence
+    /// (1: first sight; the tracker's `lost_after_s` sets how long an absence is).
     pub seen_frames: u32,
 }
 

@@ -210,6 +210,16 @@ pub fn locate(
 ) -> Result<Located, String> {
     let h = p.half_window;
     let (w, ht) = (left.width as usize, left.height as usize);
+    if 2 * h + 4 >= w.min(ht) || (right.width, right.height) != (left.width, left.height) {
+        return Err(format!(
+            "a {}x{} pair (right {}x{}) is too small for a {}-pixel window",
+            w,
+            ht,
+            right.width,
+            right.height,
+            2 * h + 1
+        ));
+    }
     let clamp = |x: f64, hi: usize| (x.max(0.0) as usize).clamp(h + 1, hi.saturating_sub(h + 2));
     let (u0, u1) = (clamp(bbox[0].floor(), w), clamp(bbox[2].ceil(), w));
     let (v0, v1) = (clamp(bbox[1].floor(), ht), clamp(bbox[3].ceil(), ht));

@@ -353,21 +353,31 @@ impl TemplateTracker {
             return;
         }
         if let Some(t) = Template::new(w, h, p) {
-            if self.templates.len() >= self.params.max_templates {
+            if self.templates.len() >= self.params.max_templates.max(2) {
                 self.templates.remove(1);
             }
             self.templates.push(t);
         }
     }
 
-    /// Searches the whole image with every template at the re-detection scales: coarse (every
-    /// other cell) over the image, then fine around the best coarse match.
+    /// Searches the whole image at the re-detection scales with the operator's template and the
+    /// three newest learnt ones (a whole-image search costs tens of milliseconds per template and
+    /// scale for a small target): coarse (every other cell) over the image, then fine around the
+    /// best coarse match.
     fn redetect(&self, img: &GreyImage) -> Option<(f64, BBox, (f64, f64))> {
         let last = self.bbox?;
+        let n = self.templates.len();
+        let chosen: Vec<&Template> = self
+            .templates
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| *k == 0 || *k + 3 >= n)
+            .map(|(_, t)| t)
+            .collect();
         let mut best: Option<(f64, f64, f64, f64)> = None;
         for &s in &self.params.redetect_scales {
             let region = (self.region.0 * s, self.region.1 * s);
-            for t in &self.templates {
+            for t in chosen.iter().copied() {
                 let step = region.0 / t.w as f64;
                 // Coarse: the image and the template at twice the step.
                 let (iw, ih) =

@@ -2,8 +2,8 @@
 //! matching inside the target's box, a point for each, k-means into foreground and background, the
 //! foreground's centroid with a covariance.
 //!
-//! Matching is zero-mean SAD over a square window along the rectified row, with a uniqueness test
-//! against the second-best disparity outside the best's neighbourhood, a left-right consistency
+//! Matching is visual odometry's zero-mean SAD over a square window along the rectified row, with
+//! a uniqueness test against the next local minimum of the cost curve, a left-right consistency
 //! check (the right pixel matched back into the left image) and a parabola for sub-pixel. The two
 //! clusters start from the disparity of the whole box matched as one window (its dominant
 //! structure: the target, however few pixels it covers far away) and the median disparity of the
@@ -14,6 +14,7 @@
 //! noise of that mean carried through the triangulation, with a floor on the disparity's (the
 //! calibration's error does not average out).
 
+use crate::localization::features::{FeatureParams, match_disparity};
 use framework::camera::{GreyImage, StereoModel};
 use nalgebra::{Matrix3, Point3};
 
@@ -25,7 +26,8 @@ pub struct LocateParams {
     pub max_disparity_px: usize,
     /// Half the matching window's side, pixels.
     pub half_window: usize,
-    /// The best cost must be below this fraction of the next best away from it.
+    /// The best cost must be below this fraction of the next local minimum more than two pixels
+    /// away.
     pub uniqueness: f64,
     /// Left-right check tolerance, pixels.
     pub lr_tolerance_px: f64,
@@ -116,29 +118,6 @@ fn texture(l: &GreyImage, u: usize, v: usize, h: usize) -> f64 {
     vals.iter().map(|x| (x - mean).abs()).sum::<f64>() / vals.len() as f64
 }
 
-/// The disparity of left pixel (u, v): the best of 0..=max with sub-pixel, if unique.
-fn match_left(l: &GreyImage, r: &GreyImage, u: usize, v: usize, p: &LocateParams) -> Option<f64> {
-    let h = p.half_window;
-    let max = p.max_disparity_px.min(u.saturating_sub(h));
-    let costs: Vec<f64> = (0..=max).map(|d| zsad(l, r, u, v, d, h)).collect();
-    let (best, &c) = costs.iter().enumerate().min_by(|a, b| a.1.total_cmp(b.1))?;
-    let second = costs
-        .iter()
-        .enumerate()
-        .filter(|(d, _)| d.abs_diff(best) > 1)
-        .map(|(_, c)| *c)
-        .fold(f64::INFINITY, f64::min);
-    if c > p.uniqueness * second {
-        return None;
-    }
-    if best == 0 || best == max {
-        return Some(best as f64);
-    }
-    let (m, n) = (costs[best - 1], costs[best + 1]);
-    let den = m - 2.0 * c + n;
-    Some(best as f64 + if den > 0.0 { 0.5 * (m - n) / den } else { 0.0 })
-}
-
 /// The disparity of right pixel (u, v), matched back into the left image (integer).
 fn match_right(l: &GreyImage, r: &GreyImage, u: usize, v: usize, p: &LocateParams) -> Option<usize> {
     let (h, w) = (p.half_window, l.width as usize);
@@ -226,6 +205,16 @@ pub fn locate(
     if u1 <= u0 || v1 <= v0 {
         return Err(format!("the box {bbox:?} leaves no pixels to match"));
     }
+    // The left-to-right match is visual odometry's (zero-mean SAD, unique against the next local
+    // minimum, sub-pixel), with this module's window and range.
+    let matching = FeatureParams {
+        patch_radius: h,
+        min_disparity_px: 0.0,
+        max_disparity_px: p.max_disparity_px as f64,
+        uniqueness: p.uniqueness,
+        max_cost: f64::INFINITY,
+        ..FeatureParams::default()
+    };
     let area = (u1 - u0) * (v1 - v0);
     let step = ((area as f64 / p.max_samples as f64).sqrt().ceil() as usize).max(1);
     // (u, v, disparity, distance from the box centre as a fraction of its half size)
@@ -237,7 +226,7 @@ pub fn locate(
             if texture(left, u, v, h) < p.min_texture {
                 continue;
             }
-            let Some(d) = match_left(left, right, u, v, p) else { continue };
+            let Some(d) = match_disparity(left, right, u, v, &matching) else { continue };
             let ur = u as i64 - d.round() as i64;
             if ur < (h + 1) as i64 {
                 continue;

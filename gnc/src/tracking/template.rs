@@ -117,6 +117,11 @@ fn sample(img: &GreyImage, x: f64, y: f64) -> f32 {
     top * (1.0 - ay) + bottom * ay
 }
 
+/// `w` x `h` samples centred at (cx, cy), `step` pixels between cells.
+fn resample_centred(img: &GreyImage, cx: f64, cy: f64, step: f64, w: usize, h: usize) -> Vec<f32> {
+    resample(img, cx - 0.5 * (w as f64 - 1.0) * step, cy - 0.5 * (h as f64 - 1.0) * step, step, w, h)
+}
+
 /// `w` x `h` samples with the top-left cell's centre at (x0, y0) and `step` pixels between cells.
 fn resample(img: &GreyImage, x0: f64, y0: f64, step: f64, w: usize, h: usize) -> Vec<f32> {
     let mut out = Vec::with_capacity(w * h);
@@ -204,6 +209,22 @@ fn ncc_search(t: &Template, img: &[f32], iw: usize, ih: usize) -> Option<(f64, f
     Some((*best, bx as f64 + dx, by as f64 + dy))
 }
 
+/// The best match of `t` whose centre lies within `m` cells (of `step` pixels) of (cx, cy): its
+/// score and centre, pixels.
+fn search_around(
+    img: &GreyImage,
+    t: &Template,
+    cx: f64,
+    cy: f64,
+    step: f64,
+    m: usize,
+) -> Option<(f64, f64, f64)> {
+    let (iw, ih) = (t.w + 2 * m, t.h + 2 * m);
+    let area = resample_centred(img, cx, cy, step, iw, ih);
+    let (score, ox, oy) = ncc_search(t, &area, iw, ih)?;
+    Some((score, cx + (ox - m as f64) * step, cy + (oy - m as f64) * step))
+}
+
 fn centre(b: &BBox) -> (f64, f64) {
     (0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3]))
 }
@@ -249,10 +270,7 @@ impl TemplateTracker {
     /// The raw patch of the region centred at (cx, cy) of size `region`, on the template grid.
     fn patch(&self, img: &GreyImage, cx: f64, cy: f64, region: (f64, f64)) -> (usize, usize, Vec<f32>) {
         let (w, h) = self.grid(region.0, region.1);
-        let step = region.0 / w as f64;
-        let x0 = cx - 0.5 * (w as f64 - 1.0) * step;
-        let y0 = cy - 0.5 * (h as f64 - 1.0) * step;
-        (w, h, resample(img, x0, y0, step, w, h))
+        (w, h, resample_centred(img, cx, cy, region.0 / w as f64, w, h))
     }
 
     /// Starts tracking the target in box `bbox` of `img`: its first template. An error when the
@@ -311,24 +329,22 @@ impl TemplateTracker {
         let m = self.params.search_cells;
         let mut best: Option<(f64, f64, f64, f64)> = None; // score, cx, cy, scale
         for &s in &self.params.scales {
-            let region = (self.region.0 * s, self.region.1 * s);
-            let step = region.0 / newest.w as f64;
-            let (iw, ih) = (newest.w + 2 * m, newest.h + 2 * m);
-            let x0 = cx - 0.5 * (iw as f64 - 1.0) * step;
-            let y0 = cy - 0.5 * (ih as f64 - 1.0) * step;
-            let area = resample(img, x0, y0, step, iw, ih);
-            if let Some((score, ox, oy)) = ncc_search(newest, &area, iw, ih) {
-                let c = (cx + (ox - m as f64) * step, cy + (oy - m as f64) * step);
-                if best.is_none_or(|b| score > b.0) {
-                    best = Some((score, c.0, c.1, s));
-                }
+            let step = self.region.0 * s / newest.w as f64;
+            if let Some((score, x, y)) = search_around(img, newest, cx, cy, step, m)
+                && best.is_none_or(|b| score > b.0)
+            {
+                best = Some((score, x, y, s));
             }
         }
         let (_, x, y, s) = best?;
-        let (hw, hh) = (0.5 * (last[2] - last[0]) * s, 0.5 * (last[3] - last[1]) * s);
-        let bbox = [x - hw, y - hh, x + hw, y + hh];
-        let region = (self.region.0 * s, self.region.1 * s);
+        let (bbox, region) = self.scaled(&last, x, y, s);
         Some((self.confidence(img, x, y, region), bbox, region))
+    }
+
+    /// The box `last` scaled by `s` and centred at (x, y), and the region around it.
+    fn scaled(&self, last: &BBox, x: f64, y: f64, s: f64) -> (BBox, (f64, f64)) {
+        let (hw, hh) = (0.5 * (last[2] - last[0]) * s, 0.5 * (last[3] - last[1]) * s);
+        ([x - hw, y - hh, x + hw, y + hh], (self.region.0 * s, self.region.1 * s))
     }
 
     /// Best correlation of the patch at (x, y) of `region` with any learnt template.
@@ -399,22 +415,16 @@ impl TemplateTracker {
                 // Its centre in pixels, then the fine search there.
                 let cx = step + (ox + 0.5 * (coarse_t.w as f64 - 1.0)) * 2.0 * step;
                 let cy = step + (oy + 0.5 * (coarse_t.h as f64 - 1.0)) * 2.0 * step;
-                let m = 3;
-                let (fw, fh) = (t.w + 2 * m, t.h + 2 * m);
-                let x0 = cx - 0.5 * (fw as f64 - 1.0) * step;
-                let y0 = cy - 0.5 * (fh as f64 - 1.0) * step;
-                let fine = resample(img, x0, y0, step, fw, fh);
-                if let Some((score, fx, fy)) = ncc_search(t, &fine, fw, fh) {
-                    let c = (cx + (fx - m as f64) * step, cy + (fy - m as f64) * step);
-                    if best.is_none_or(|b| score > b.0) {
-                        best = Some((score, c.0, c.1, s));
-                    }
+                if let Some((score, x, y)) = search_around(img, t, cx, cy, step, 3)
+                    && best.is_none_or(|b| score > b.0)
+                {
+                    best = Some((score, x, y, s));
                 }
             }
         }
         let (score, x, y, s) = best?;
-        let (hw, hh) = (0.5 * (last[2] - last[0]) * s, 0.5 * (last[3] - last[1]) * s);
-        Some((score, [x - hw, y - hh, x + hw, y + hh], (self.region.0 * s, self.region.1 * s)))
+        let (bbox, region) = self.scaled(&last, x, y, s);
+        Some((score, bbox, region))
     }
 }
 

@@ -20,13 +20,14 @@
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
 use crate::tracking::locate::{LocateParams, locate};
+use crate::tracking::markers::compose_covariance;
 use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, TrackerParams};
 use framework::camera::{GreyImage, StereoCalibration};
 use framework::data::{StereoImages, TargetSelection, TargetStatus, TargetTrack};
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
 use framework::prelude::*;
-use nalgebra::{Matrix3, Point2, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
@@ -177,10 +178,6 @@ fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>) -> Option<
     Some(out)
 }
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
 impl TrackingTarget {
     /// Target tracking on the stereo slot `cameras/<device>` from a pair with the believed
     /// `calibration`, placed on the robot of the believed `mechanism` with the rover's pose from
@@ -291,45 +288,42 @@ impl TrackingTarget {
         let mut measured = None;
         if result.status == TrackStatus::Lost {
             self.lost_since.get_or_insert(stamp);
-        } else if let Err(e) = &placed {
+        } else {
             self.lost_since = None;
-            if !self.locate_noted {
-                ctx.note(format!("the {} is tracked but not placed: {e}", self.target));
+        }
+        let located = match (&placed, result.status) {
+            (_, TrackStatus::Lost) => None,
+            (Err(e), _) => Some(Err(format!("not placed: {e}"))),
+            (Ok(_), _) => Some(locate(&h.left, &h.right, &self.rect.model, result.bbox, &self.params.locate)),
+        };
+        match (located, &placed) {
+            (Some(Ok(loc)), Ok((map_from_rect, pose))) => {
+                let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
+                let p = *map_from_rect * loc.position;
+                // The pose's own uncertainty (its position, its rotation's lever arm) is nearly
+                // the same from one image to the next: a bias.
+                let in_base = Isometry3::from((pose.pose.inverse() * p).coords);
+                let (_, through_pose) =
+                    compose_covariance(&pose.pose, &pose.covariance, &in_base, &Matrix6::zeros());
+                let pose_term: Matrix3<f64> = through_pose.fixed_view::<3, 3>(0, 0).into_owned();
+                let cov = r * loc.covariance * r.transpose() + pose_term;
+                let bias = r * loc.bias_covariance * r.transpose() + pose_term;
+                if self.fuse(p, cov, bias, stamp) {
+                    measured = Some(p);
+                    self.located += 1;
+                    self.last_range = Some(loc.position.coords.norm());
+                } else {
+                    ctx.note(format!(
+                        "a {} location at {p:?} disagrees with the estimate: rejected",
+                        self.target
+                    ));
+                }
+            }
+            (Some(Err(e)), _) if !self.locate_noted => {
+                ctx.note(format!("the {} is tracked but not located: {e}", self.target));
                 self.locate_noted = true;
             }
-        } else if let Ok((map_from_rect, pose)) = &placed {
-            self.lost_since = None;
-            match locate(&h.left, &h.right, &self.rect.model, result.bbox, &self.params.locate) {
-                Ok(loc) => {
-                    let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
-                    let p = *map_from_rect * loc.position;
-                    // The pose's own uncertainty: its position, and its rotation's lever arm.
-                    let lever = p.coords - pose.pose.translation.vector;
-                    let mut a = nalgebra::Matrix3x6::zeros();
-                    a.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
-                    a.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&lever));
-                    // The pose's error is nearly the same from one image to the next: a bias.
-                    let pose_term = a * pose.covariance * a.transpose();
-                    let cov = r * loc.covariance * r.transpose() + pose_term;
-                    let bias = r * loc.bias_covariance * r.transpose() + pose_term;
-                    if self.fuse(p, cov, bias, stamp) {
-                        measured = Some(p);
-                        self.located += 1;
-                        self.last_range = Some(loc.position.coords.norm());
-                    } else {
-                        ctx.note(format!(
-                            "a {} location at {p:?} disagrees with the estimate: rejected",
-                            self.target
-                        ));
-                    }
-                }
-                Err(e) => {
-                    if !self.locate_noted {
-                        ctx.note(format!("the {} is tracked but not located: {e}", self.target));
-                        self.locate_noted = true;
-                    }
-                }
-            }
+            _ => {}
         }
         let status = match result.status {
             TrackStatus::Tracking => TargetStatus::Tracking,

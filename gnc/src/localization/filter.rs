@@ -154,10 +154,6 @@ pub struct PoseFilter {
     pending: Vec<RelativePose>,
 }
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    v.cross_matrix()
-}
-
 /// Error-state size, and with a clone.
 const N: usize = 9;
 type M18 = SMatrix<f64, 18, 18>;
@@ -217,7 +213,7 @@ impl Augmented {
         let r_next = rotation.to_rotation_matrix().into_inner();
         // P <- F P F^T + Q with F = I except F[p, θ] = -[R d]x and F[θ, b] = -R' Δt_gyro: rows,
         // then columns (each from the blocks as they were).
-        let s = -skew(&rd);
+        let s = -rd.cross_matrix();
         let g = -r_next * gdt;
         let rows_p = s * self.p.fixed_rows::<3>(3);
         let rows_t = g * self.p.fixed_rows::<3>(6);
@@ -279,7 +275,7 @@ impl Augmented {
         let predicted = rt * Vector3::z();
         // H is zero but for the rotation block: the products take only the columns it touches
         // (a third of the generic update's cost, at every step of every re-run).
-        let hb = rt * skew(&Vector3::z());
+        let hb = rt * Vector3::z().cross_matrix();
         let n = Matrix3::identity() * sigma * sigma;
         let pht: SMatrix<f64, 18, 3> = self.p.fixed_columns::<3>(3) * hb.transpose();
         let s = hb * pht.fixed_rows::<3>(3) + n;
@@ -319,7 +315,7 @@ impl Augmented {
         let mut h = SMatrix::<f64, 6, 18>::zeros();
         h.fixed_view_mut::<3, 3>(0, 0).copy_from(&ra.transpose());
         h.fixed_view_mut::<3, 3>(0, N).copy_from(&-ra.transpose());
-        h.fixed_view_mut::<3, 3>(0, N + 3).copy_from(&(ra.transpose() * skew(&dp)));
+        h.fixed_view_mut::<3, 3>(0, N + 3).copy_from(&(ra.transpose() * dp.cross_matrix()));
         h.fixed_view_mut::<3, 3>(3, 3).copy_from(&rb.transpose());
         h.fixed_view_mut::<3, 3>(3, N + 3).copy_from(&-rb.transpose());
         // Gated on the rotation only: the gyro that predicted it is reliable, while the wheels that

@@ -93,10 +93,6 @@ pub struct Motion {
     pub variance_factor: f64,
 }
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
 /// Applies the left perturbation ξ = (ρ, φ) to `pose`.
 pub fn perturb(pose: &Isometry3<f64>, xi: &Vector6<f64>) -> Isometry3<f64> {
     let rho = Vector3::new(xi[0], xi[1], xi[2]);
@@ -176,7 +172,7 @@ fn residual(
     // d(pc)/dξ = [I, -[pc]x].
     let mut dpc = nalgebra::Matrix3x6::zeros();
     dpc.fixed_view_mut::<3, 3>(0, 0).copy_from(&Matrix3::identity());
-    dpc.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&pc.coords));
+    dpc.fixed_view_mut::<3, 3>(0, 3).copy_from(&-pc.coords.cross_matrix());
     Some((r, w, jp * dpc))
 }
 

@@ -16,9 +16,7 @@ use kornia_algebra::{Vec2F64, Vec3F64};
 use kornia_apriltag::family::TagFamilyKind;
 use kornia_apriltag::{AprilTagDecoder, DecodeTagsConfig};
 use kornia_image::{Image, ImageSize};
-use nalgebra::{
-    Isometry3, Matrix3, Matrix6, Point2, Point3, Rotation3, Translation3, UnitQuaternion, Vector3,
-};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Rotation3, Translation3, UnitQuaternion};
 
 /// One decoded marker.
 #[derive(Clone, Debug, PartialEq)]
@@ -200,16 +198,12 @@ pub fn marker_pose(model: &CameraModel, detected: &Detected, size: f64, sigma_px
         .min_by(|a, b| a.rmse_px.total_cmp(&b.rmse_px))
 }
 
-fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
-    Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
-}
-
 /// The covariance of (x, y, z, roll, pitch, yaw) of `pose` (position and small rotations about
 /// the reference frame's axes) from the covariance of a left perturbation ξ = (ρ, φ) of it
 /// (T ← Exp(ξ) T, whose translation part moves the position by ρ + φ × t).
 pub fn position_rotation_covariance(pose: &Isometry3<f64>, left: &Matrix6<f64>) -> Matrix6<f64> {
     let mut j = Matrix6::identity();
-    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&pose.translation.vector));
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&-pose.translation.vector.cross_matrix());
     j * left * j.transpose()
 }
 
@@ -225,7 +219,7 @@ pub fn compose_covariance(
     let r = a.rotation.to_rotation_matrix().into_inner();
     // Position a.t + R b.t: moved by a's rotation about a's origin, and by b's own errors turned.
     let mut ja = Matrix6::identity();
-    ja.fixed_view_mut::<3, 3>(0, 3).copy_from(&-skew(&(r * b.translation.vector)));
+    ja.fixed_view_mut::<3, 3>(0, 3).copy_from(&-(r * b.translation.vector).cross_matrix());
     let mut jb = Matrix6::zeros();
     jb.fixed_view_mut::<3, 3>(0, 0).copy_from(&r);
     jb.fixed_view_mut::<3, 3>(3, 3).copy_from(&r);

@@ -8,10 +8,28 @@ use super::mcap_writer::{pose_json, stamp_json};
 use super::rerun_view::rr_transform;
 use anyhow::Result;
 use framework::data::{MarkerDetections, ObjectPoses, TargetStatus, TargetTrack};
+use serde_json::{Value, json};
 
 /// Marker outlines: green for a marker of a known object, orange for an unknown id.
 fn colour(known: bool) -> [u8; 3] {
     if known { [60, 220, 90] } else { [255, 150, 40] }
+}
+
+/// A `foxglove.ImageAnnotations` line loop through `corners` and a label at its first corner, in
+/// `colour`.
+fn annotation(stamp: framework::Time, corners: &[[f32; 2]], colour: [u8; 3], text: &str) -> (Value, Value) {
+    let c = |v: u8| f64::from(v) / 255.0;
+    let rgba = json!({"r": c(colour[0]), "g": c(colour[1]), "b": c(colour[2]), "a": 1.0});
+    let points: Vec<_> = corners.iter().map(|p| json!({"x": p[0], "y": p[1]})).collect();
+    let outline = json!({
+        "timestamp": stamp_json(stamp), "type": 2, "points": points, "outline_color": rgba,
+        "outline_colors": [], "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}, "thickness": 2.0,
+    });
+    let label = json!({
+        "timestamp": stamp_json(stamp), "position": {"x": corners[0][0], "y": corners[0][1]}, "text": text,
+        "font_size": 12.0, "text_color": rgba, "background_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.6},
+    });
+    (outline, label)
 }
 
 impl Writer {
@@ -43,35 +61,19 @@ impl Writer {
             )?;
         }
         if let Some(mc) = &mut self.mcap {
-            let rgba = |c: [u8; 3]| serde_json::json!({"r": f64::from(c[0]) / 255.0, "g": f64::from(c[1]) / 255.0, "b": f64::from(c[2]) / 255.0, "a": 1.0});
-            let points: Vec<_> = m
+            let (points, texts): (Vec<_>, Vec<_>) = m
                 .markers
                 .iter()
                 .map(|o| {
-                    let pts: Vec<_> = outline(&o.corners)[..4]
-                        .iter()
-                        .map(|p| serde_json::json!({"x": p[0], "y": p[1]}))
-                        .collect();
-                    serde_json::json!({
-                        "timestamp": stamp_json(m.stamp), "type": 2, "points": pts,
-                        "outline_color": rgba(colour(o.object.is_some())), "outline_colors": [],
-                        "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}, "thickness": 2.0,
-                    })
+                    annotation(
+                        m.stamp,
+                        &outline(&o.corners)[..4],
+                        colour(o.object.is_some()),
+                        &o.id.to_string(),
+                    )
                 })
-                .collect();
-            let texts: Vec<_> = m
-                .markers
-                .iter()
-                .map(|o| {
-                    let c = outline(&o.corners)[0];
-                    serde_json::json!({
-                        "timestamp": stamp_json(m.stamp), "position": {"x": c[0], "y": c[1]},
-                        "text": o.id.to_string(), "font_size": 12.0,
-                        "text_color": rgba(colour(o.object.is_some())), "background_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.6},
-                    })
-                })
-                .collect();
-            let msg = serde_json::json!({ "circles": [], "points": points, "texts": texts });
+                .unzip();
+            let msg = json!({ "circles": [], "points": points, "texts": texts });
             mc.foxglove(&format!("/{path}"), "foxglove.ImageAnnotations", m.stamp, &msg)?;
         }
         Ok(())
@@ -100,7 +102,7 @@ impl Writer {
                 )?;
             }
             if let Some(mc) = &mut self.mcap {
-                let msg = serde_json::json!({
+                let msg = json!({
                     "timestamp": stamp_json(p.stamp), "frame_id": "map", "poses": [pose_json(&p.map_from_object)],
                 });
                 mc.foxglove(
@@ -147,26 +149,12 @@ impl Writer {
             }
         }
         if let Some(mc) = &mut self.mcap {
-            let c = |v: u8| f64::from(v) / 255.0;
-            let rgba = serde_json::json!({"r": c(colour[0]), "g": c(colour[1]), "b": c(colour[2]), "a": 1.0});
-            let corners: Vec<_> = [(u0, v0), (u1, v0), (u1, v1), (u0, v1)]
-                .iter()
-                .map(|(x, y)| serde_json::json!({"x": x, "y": y}))
-                .collect();
-            let msg = serde_json::json!({
-                "circles": [],
-                "points": [{
-                    "timestamp": stamp_json(t.stamp), "type": 2, "points": corners, "outline_color": rgba,
-                    "outline_colors": [], "fill_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.0}, "thickness": 2.0,
-                }],
-                "texts": [{
-                    "timestamp": stamp_json(t.stamp), "position": {"x": u0, "y": v0}, "text": label, "font_size": 12.0,
-                    "text_color": rgba, "background_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.6},
-                }],
-            });
+            let corners = [[u0, v0], [u1, v0], [u1, v1], [u0, v1]].map(|[x, y]| [x as f32, y as f32]);
+            let (outline, text) = annotation(t.stamp, &corners, colour, &label);
+            let msg = json!({ "circles": [], "points": [outline], "texts": [text] });
             mc.foxglove(&format!("/{path}"), "foxglove.ImageAnnotations", t.stamp, &msg)?;
             if let Some(p) = &t.position {
-                let msg = serde_json::json!({
+                let msg = json!({
                     "timestamp": stamp_json(t.stamp), "frame_id": "map",
                     "pose": pose_json(&nalgebra::Isometry3::translation(p.x, p.y, p.z)),
                 });

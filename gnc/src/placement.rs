@@ -95,11 +95,6 @@ impl Placement {
             .ok_or_else(|| format!("no '{}' pose at {stamp}", self.pose_slot))
     }
 
-    /// The newest pose estimate.
-    pub fn newest_pose(&self) -> Option<&(Time, PoseEstimate)> {
-        self.poses.newest()
-    }
-
     /// The mechanism's joint values at `stamp`, from the joint histories.
     pub fn joints_at(&self, stamp: Time) -> Result<Vec<f64>, String> {
         let mut q = vec![0.0; self.mechanism.dof_count()];

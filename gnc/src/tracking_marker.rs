@@ -20,7 +20,7 @@ use framework::data::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPos
 use framework::mechanism::MechanismModel;
 use framework::objects::{MarkerSlot, ObjectDatabase};
 use framework::prelude::*;
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::Matrix6;
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
@@ -273,11 +273,6 @@ impl TrackingMarker {
             ctx.write_stamped(w, ObjectPoses { camera: self.device.clone(), stamp, objects }, stamp);
         }
         Ok(())
-    }
-
-    /// Pose of the camera's optical frame in `base_link` as the module believes it at `q`.
-    pub fn base_from_optical(&self, q: &[f64]) -> Result<Isometry3<f64>, String> {
-        self.placement.base_from_optical(&self.calibration, q)
     }
 }
 

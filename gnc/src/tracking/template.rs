@@ -235,11 +235,6 @@ impl TemplateTracker {
         TemplateTracker { params, templates: Vec::new(), bbox: None, region: (0.0, 0.0), lost: false }
     }
 
-    /// The parameters.
-    pub fn params(&self) -> &TrackerParams {
-        &self.params
-    }
-
     /// The target's last box.
     pub fn bbox(&self) -> Option<BBox> {
         self.bbox

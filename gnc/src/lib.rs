@@ -13,8 +13,10 @@
 //! navigation chain of seed 000, 8.2: [`perception_tof::PerceptionToF`],
 //! [`perception_fusion::PerceptionDataFusion`], [`traversability::Traversability`],
 //! [`path_planning::PathPlanning`] and [`navigator::CoordinatorNavigator`], over the algorithms of
-//! [`navigation`].
-//! To come (see DESIGN.md): target and marker tracking, visual servoing, autonomy.
+//! [`navigation`]; the vision modules of seed 000, 8.1 and 8.4:
+//! [`tracking_marker::TrackingMarker`], [`tracking_target::TrackingTarget`] and
+//! [`visual_tracking::CoordinatorVisualTracking`], over the algorithms of [`tracking`].
+//! To come (see DESIGN.md): visual servoing, autonomy.
 
 pub mod body;
 pub mod cameras;
@@ -37,3 +39,4 @@ pub mod tracking;
 pub mod tracking_marker;
 pub mod tracking_target;
 pub mod traversability;
+pub mod visual_tracking;

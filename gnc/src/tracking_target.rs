@@ -19,17 +19,24 @@
 
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
+use crate::tracking::estimate::{RESTART_AFTER, TargetEstimate};
 use crate::tracking::locate::{LocateParams, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, TrackerParams};
 use framework::camera::{GreyImage, StereoCalibration};
-use framework::data::{StereoImages, TargetSelection, TargetStatus, TargetTrack};
+use framework::data::{LineOfSight, StereoImages, TargetSelection, TargetStatus, TargetTrack};
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
 use framework::prelude::*;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
+
+/// Locations fused after which one that agrees with the estimate confirms the box's look.
+const CONFIRM_AFTER: u32 = 3;
+
+/// Disagreeing locations in a row after which the tracker is taken to be on something else.
+const REJECTS_TO_LOSE: u32 = 2;
 
 /// The slot of the target track.
 pub const SLOT: &str = "tracking/target";
@@ -54,6 +61,9 @@ pub struct TrackingTargetParams {
     pub history_s: f64,
     /// How far past the newest pose or joint sample an image may be placed, s.
     pub max_extrapolation_s: f64,
+    /// Range assumed along the line of sight of a target not located yet, m: where to look for it
+    /// after the camera moved.
+    pub sight_range_m: f64,
 }
 
 impl Default for TrackingTargetParams {
@@ -67,6 +77,7 @@ impl Default for TrackingTargetParams {
             lost_timeout_s: 20.0,
             history_s: 4.0,
             max_extrapolation_s: 0.15,
+            sight_range_m: 20.0,
         }
     }
 }
@@ -101,22 +112,6 @@ struct Held {
     right: GreyImage,
 }
 
-/// The target's fused position in `map`: the covariance of the images' own noise averaged, and
-/// the newest image's biases (which averaging does not reduce).
-#[derive(Clone, Debug)]
-struct Estimate {
-    position: Point3<f64>,
-    covariance: Matrix3<f64>,
-    bias: Matrix3<f64>,
-    stamp: Time,
-}
-
-impl Estimate {
-    fn total(&self) -> Matrix3<f64> {
-        self.covariance + self.bias
-    }
-}
-
 /// The TrackingTarget module.
 pub struct TrackingTarget {
     device: String,
@@ -133,7 +128,7 @@ pub struct TrackingTarget {
     held: VecDeque<Held>,
     tracker: Option<TemplateTracker>,
     target: String,
-    estimate: Option<Estimate>,
+    estimate: TargetEstimate,
     located: u32,
     last_range: Option<f64>,
     lost_since: Option<Time>,
@@ -141,8 +136,8 @@ pub struct TrackingTarget {
     pending: Option<(Request, f64)>,
     /// A failed stereo location was noted since the selection.
     locate_noted: bool,
-    /// Locations rejected in a row by the gate.
-    rejected: u32,
+    /// The line of sight through the box's centre in the last image it was seen in.
+    sight: Option<LineOfSight>,
 }
 
 /// The transform and its inverse between raw left pixels and rectified left pixels.
@@ -207,13 +202,13 @@ impl TrackingTarget {
             held: VecDeque::new(),
             tracker: None,
             target: String::new(),
-            estimate: None,
+            estimate: TargetEstimate::default(),
             located: 0,
             last_range: None,
             lost_since: None,
             pending: None,
             locate_noted: false,
-            rejected: 0,
+            sight: None,
         }
     }
 
@@ -240,12 +235,12 @@ impl TrackingTarget {
         tracker.init(&self.held[k].left, rect_box)?;
         self.tracker = Some(tracker);
         self.target = target.to_string();
-        self.estimate = None;
+        self.estimate = TargetEstimate::default();
         self.located = 0;
         self.lost_since = None;
         self.locate_noted = false;
-        self.rejected = 0;
         self.last_range = None;
+        self.sight = None;
         ctx.note(format!(
             "tracking the {target} selected at {bbox:?} in the image of {}",
             self.held[k].stamp
@@ -270,11 +265,15 @@ impl TrackingTarget {
                 (pose.pose * base_from_optical * self.rect.left_from_rect, pose)
             });
         let result = if track {
-            // Search where the estimate projects, when there is one in front of the camera.
+            // Search where the estimate projects, when there is one in front of the camera; else
+            // where the last line of sight does at the last range (the camera may have turned).
+            let expected = self
+                .estimate
+                .position()
+                .or_else(|| self.sight.map(|s| s.at(self.last_range.unwrap_or(self.params.sight_range_m))));
             let predicted = placed.as_ref().ok().and_then(|(map_from_rect, _)| {
-                self.estimate
-                    .as_ref()
-                    .and_then(|e| self.rect.model.left.project(&(map_from_rect.inverse() * e.position)))
+                expected
+                    .and_then(|p| self.rect.model.left.project(&(map_from_rect.inverse() * p)))
                     .map(|p| (p.x, p.y))
             });
             tracker.update(&h.left, predicted)
@@ -308,7 +307,18 @@ impl TrackingTarget {
                 let pose_term: Matrix3<f64> = through_pose.fixed_view::<3, 3>(0, 0).into_owned();
                 let cov = r * loc.covariance * r.transpose() + pose_term;
                 let bias = r * loc.bias_covariance * r.transpose() + pose_term;
-                if self.fuse(p, cov, bias, stamp) {
+                let (walk, gate) = (self.params.target_walk, self.params.gate_sigma);
+                // Once established (confirmed locations), the estimate is not restarted by
+                // disagreeing locations: they mean the tracker is on something else. Before, a
+                // wrong first location must not lock out the right ones.
+                let established = self.located >= CONFIRM_AFTER;
+                let restarts = !established && self.estimate.rejected() + 1 >= RESTART_AFTER;
+                if self.estimate.fuse(p, cov, bias, stamp, walk, gate, !established) {
+                    // Where the estimate holds it (not a first or restarted location), the box
+                    // is the target: its look is learnt.
+                    if established && !restarts {
+                        tracker.confirm(&h.left);
+                    }
                     measured = Some(p);
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
@@ -317,6 +327,16 @@ impl TrackingTarget {
                         "a {} location at {p:?} disagrees with the estimate: rejected",
                         self.target
                     ));
+                    if established && self.estimate.rejected() >= REJECTS_TO_LOSE {
+                        // The box is on something else: look for the target where it is.
+                        tracker.reject();
+                        if self.estimate.rejected() == REJECTS_TO_LOSE {
+                            ctx.note(format!(
+                                "the tracker's box disagreed with the {} estimate {REJECTS_TO_LOSE} times: re-detecting",
+                                self.target
+                            ));
+                        }
+                    }
                 }
             }
             (Some(Err(e)), _) if !self.locate_noted => {
@@ -324,6 +344,16 @@ impl TrackingTarget {
                 self.locate_noted = true;
             }
             _ => {}
+        }
+        if result.status != TrackStatus::Lost
+            && let Ok((map_from_rect, _)) = &placed
+        {
+            let b = &result.bbox;
+            let ray = self.rect.model.left.ray(&Point2::new(0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3])));
+            self.sight = Some(LineOfSight {
+                origin: Point3::from(map_from_rect.translation.vector),
+                direction: (map_from_rect.rotation * Vector3::new(ray.x, ray.y, 1.0)).normalize(),
+            });
         }
         let status = match result.status {
             TrackStatus::Tracking => TargetStatus::Tracking,
@@ -339,61 +369,16 @@ impl TrackingTarget {
             status,
             confidence: result.confidence,
             bbox,
-            position: self.estimate.as_ref().map(|e| e.position),
-            covariance: self.estimate.as_ref().map_or(Matrix3::zeros(), Estimate::total),
+            position: self.estimate.position(),
+            covariance: self.estimate.covariance().unwrap_or_else(Matrix3::zeros),
             range_m: self.last_range,
             measured,
             located: self.located,
+            line_of_sight: self.sight,
         };
         if let Some(w) = &self.out {
             ctx.write_stamped(w, out, stamp);
         }
-    }
-
-    /// Fuses a location (covariance `cov`, of which `bias` every image repeats) into the estimate
-    /// (a random-walk point); false when gated out. After `RESTART_AFTER` rejections in a row the
-    /// estimate starts again from the new location (a wrong first location must not lock out
-    /// every later right one).
-    fn fuse(&mut self, p: Point3<f64>, cov: Matrix3<f64>, bias: Matrix3<f64>, stamp: Time) -> bool {
-        const RESTART_AFTER: u32 = 5;
-        if !p.coords.iter().chain(cov.iter()).all(|v| v.is_finite()) {
-            return false;
-        }
-        let noise = cov - bias;
-        let fresh = Estimate { position: p, covariance: noise, bias, stamp };
-        let Some(e) = &mut self.estimate else {
-            self.estimate = Some(fresh);
-            return true;
-        };
-        let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
-        let prior = e.covariance + Matrix3::identity() * self.params.target_walk.powi(2) * dt;
-        // Gated on the whole uncertainty; averaged on the noise alone.
-        let innovation = p - e.position;
-        let inside = (prior + e.bias + cov)
-            .try_inverse()
-            .is_some_and(|g| innovation.dot(&(g * innovation)) <= self.params.gate_sigma.powi(2));
-        if !inside {
-            self.rejected += 1;
-            if self.rejected >= RESTART_AFTER {
-                self.estimate = Some(fresh);
-                self.rejected = 0;
-                return true;
-            }
-            return false;
-        }
-        self.rejected = 0;
-        let Some(s_inv) = (prior + noise).try_inverse() else { return false };
-        let k = prior * s_inv;
-        let i_k = Matrix3::identity() - k;
-        e.position += k * innovation;
-        e.covariance = i_k * prior;
-        e.covariance = 0.5 * (e.covariance + e.covariance.transpose());
-        // The biases of the estimate and of this image, combined as if fully correlated (a
-        // bound: (a + b)(a + b)^T <= 2 (a a^T + b b^T)).
-        e.bias = 2.0 * (i_k * e.bias * i_k.transpose() + k * bias * k.transpose());
-        e.bias = 0.5 * (e.bias + e.bias.transpose());
-        e.stamp = stamp;
-        true
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
@@ -438,13 +423,12 @@ impl TrackingTarget {
     /// Answers a pending `locate` when it can.
     fn settle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
         let Some((_, max_sigma)) = &self.pending else { return Ok(()) };
-        let outcome = if let Some(e) = &self.estimate
-            && e.total()[(0, 0)].max(e.total()[(1, 1)]).sqrt() <= *max_sigma
+        let outcome = if let (Some(p), Some(c)) = (self.estimate.position(), self.estimate.covariance())
+            && c[(0, 0)].max(c[(1, 1)]).sqrt() <= *max_sigma
         {
-            let c = e.total();
             Some(Outcome::Completed(serde_json::json!({
                 "target": self.target,
-                "position": [e.position.x, e.position.y, e.position.z],
+                "position": [p.x, p.y, p.z],
                 "sigma_m": [c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()],
                 "located": self.located,
             })))
@@ -493,10 +477,11 @@ impl Module for TrackingTarget {
         });
         d.command("forget", |m, _ctx, _: ()| {
             m.tracker = None;
-            m.estimate = None;
+            m.estimate = TargetEstimate::default();
             m.located = 0;
             m.last_range = None;
             m.lost_since = None;
+            m.sight = None;
             Outcome::done()
         });
         d.command("locate", |m, ctx, a: LocateArgs| {
@@ -521,6 +506,7 @@ impl Module for TrackingTarget {
             ("gate_sigma", p.gate_sigma),
             ("lost_timeout_s", p.lost_timeout_s),
             ("history_s", p.history_s),
+            ("sight_range_m", p.sight_range_m),
             ("tracker.track_threshold", p.tracker.track_threshold),
             ("tracker.redetect_threshold", p.tracker.redetect_threshold),
             ("locate.disparity_sigma_px", p.locate.disparity_sigma_px),

@@ -1,5 +1,6 @@
 //! The scripted operator: the person at the ground station who, as in the canister mission of
-//! seed 000, marks the target region in the first tracking-camera image. A person sees the canister
+//! seed 000, marks the target region in the first tracking-camera image of the plan (captured
+//! after the settle period, when the rover stands and the exposure has adjusted). A person sees the canister
 //! in the image; the script finds it from ground truth (the canister's true pose and the camera as
 //! built, at the image's capture time) — the only use of ground truth on the GNC side, marked as
 //! operator input: the selection is published as `operator/target_selection` with
@@ -27,6 +28,9 @@ pub struct Operator {
     image: Option<Reader<StereoImages>>,
     out: Option<Writer<TargetSelection>>,
     done: bool,
+    /// Images captured before this are not looked at (the rover settles and the cameras adjust
+    /// their exposure while it stands still before the plan).
+    from: Time,
     /// What the scene showed at each recent tick: the canister's region, or why it was not seen.
     seen: VecDeque<(Time, Result<[f64; 4], String>)>,
 }
@@ -36,7 +40,8 @@ const MIN_VISIBLE: f64 = 0.5;
 
 impl Operator {
     /// An operator who looks at the left image of stereo camera `camera` (as built: `truth`).
-    pub fn new(twin: SharedTwin, camera: &str, truth: CameraTruth) -> Self {
+    /// The first image it looks at is the first captured at or after `from`.
+    pub fn new(twin: SharedTwin, camera: &str, truth: CameraTruth, from: Time) -> Self {
         Operator {
             twin,
             camera: camera.to_string(),
@@ -44,6 +49,7 @@ impl Operator {
             image: None,
             out: None,
             done: false,
+            from,
             seen: VecDeque::new(),
         }
     }
@@ -138,6 +144,9 @@ impl Module for Operator {
                 m.seen.pop_front();
             }
             let Some(img) = m.image.as_ref().and_then(|r| ctx.read(r)) else { return Ok(()) };
+            if img.value.left.stamp < m.from {
+                return Ok(());
+            }
             // The first image decides: the operator marks the target there, or reports it unseen.
             m.done = true;
             let stamp = img.value.left.stamp;
@@ -203,7 +212,7 @@ mod tests {
         let twin = twin::devices::share(t);
         let map =
             twin::devices::DryRunDeviceMap::new(twin.clone(), framework::resources::Resources::new(), 1);
-        Operator::new(twin, "head_stereo", map.stereo_belief("head_stereo").unwrap().left)
+        Operator::new(twin, "head_stereo", map.stereo_belief("head_stereo").unwrap().left, Time::ZERO)
     }
 
     #[test]

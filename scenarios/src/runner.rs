@@ -338,6 +338,17 @@ impl Scorer {
     }
 }
 
+/// The canister's horizontal distance from `base_link` and its bearing off the rover's heading
+/// (degrees), from ground truth.
+fn canister_from_rover(t: &Twin) -> Option<(f64, f64)> {
+    let can = t.canister_truth()?.translation.vector;
+    let base = t.base_pose();
+    let (dx, dy) = (can.x - base.translation.x, can.y - base.translation.y);
+    let heading = base * nalgebra::Vector3::x();
+    let bearing = framework::angle::wrap(dy.atan2(dx) - heading.y.atan2(heading.x));
+    Some((dx.hypot(dy), bearing.to_degrees()))
+}
+
 /// True when the canister rests in the stowage slot (and the gripper does not hold it).
 fn canister_stowed(t: &Twin) -> bool {
     let (Some(slot), Some(can)) = (t.link_pose("stow_slot"), t.canister_truth()) else { return false };
@@ -433,6 +444,21 @@ fn check_criteria(
             m.canister_stowed == want,
             m.canister_stowed.to_string(),
             want.to_string(),
+        );
+    }
+    if let Some(n) = &c.near_canister {
+        let (d, b) = (m.canister_distance_m, m.canister_bearing_deg);
+        add(
+            format!("rover ends within {} m of the canister", n.max_distance_m),
+            d.is_some_and(|d| d <= n.max_distance_m),
+            d.map(|d| format!("{d:.3} m")).unwrap_or_else(|| "no canister".into()),
+            format!("<= {} m", n.max_distance_m),
+        );
+        add(
+            "rover faces the canister".into(),
+            b.is_some_and(|b| b.abs() <= n.max_bearing_deg),
+            b.map(|b| format!("{b:.1} deg off the heading")).unwrap_or_else(|| "no canister".into()),
+            format!("<= {} deg", n.max_bearing_deg),
         );
     }
     if let Some(t) = &c.max_travel_after {
@@ -631,6 +657,8 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         final_position_error_m: scorer.final_err,
         position_error_rms_m: (scorer.err_n > 0).then(|| (scorer.err_sq_sum / scorer.err_n as f64).sqrt()),
         canister_stowed: canister_stowed(&t),
+        canister_distance_m: canister_from_rover(&t).map(|c| c.0),
+        canister_bearing_deg: canister_from_rover(&t).map(|c| c.1),
         collisions: t.collisions(),
         self_collisions: t.self_collisions(),
         grasp_position_error_m: t.grasp_truth().map(|g| g.position_error_m),

@@ -324,9 +324,21 @@ pub struct Criteria {
     /// The canister must (or must not) end in its stowage slot.
     #[serde(default)]
     pub canister_stowed: Option<bool>,
+    /// Where the rover (truth) must end relative to the canister (truth): near it, facing it.
+    pub near_canister: Option<NearCanister>,
     /// The rover (truth) must move less than this after `after_s`, m (it stopped on a fault).
     #[serde(default)]
     pub max_travel_after: Option<TravelAfter>,
+}
+
+/// How near the canister the rover must end, and how straight it must face it.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct NearCanister {
+    /// Largest horizontal distance from `base_link` to the canister, m.
+    pub max_distance_m: f64,
+    /// Largest angle between the rover's heading and the direction to the canister, degrees.
+    pub max_bearing_deg: f64,
 }
 
 /// A travel limit after a time.

@@ -66,6 +66,12 @@ pub struct Metrics {
     pub position_error_rms_m: Option<f64>,
     /// The canister ends in its stowage slot.
     pub canister_stowed: bool,
+    /// Horizontal distance from the rover's `base_link` to the canister at the end, m.
+    #[serde(default)]
+    pub canister_distance_m: Option<f64>,
+    /// Angle between the rover's final heading and the direction to the canister, degrees.
+    #[serde(default)]
+    pub canister_bearing_deg: Option<f64>,
     /// Collisions of rover links with rocks or objects.
     pub collisions: u64,
     /// Self-collisions: the arm, the gripper or a held canister against the rover's body.

@@ -326,6 +326,8 @@ pub const METRICS: &[Metric] = &[
     ("final_position_error_m", |s| optional(s.metrics.final_position_error_m)),
     ("position_error_rms_m", |s| optional(s.metrics.position_error_rms_m)),
     ("canister_stowed", |s| s.metrics.canister_stowed.to_string()),
+    ("canister_distance_m", |s| optional(s.metrics.canister_distance_m)),
+    ("canister_bearing_deg", |s| optional(s.metrics.canister_bearing_deg)),
     ("collisions", |s| s.metrics.collisions.to_string()),
     ("self_collisions", |s| s.metrics.self_collisions.to_string()),
     ("grasp_position_error_m", |s| optional(s.metrics.grasp_position_error_m)),

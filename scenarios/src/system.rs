@@ -40,11 +40,12 @@ pub const MODULES: &[&str] = &[
     "traversability",
     "path_planning",
     "navigator",
+    "visual_tracking",
     faults::NAME,
 ];
 
 /// The modules that track in the head camera's images.
-const HEAD_TRACKING: &[&str] = &["tracking_marker", "tracking_target"];
+const HEAD_TRACKING: &[&str] = &["tracking_marker", "tracking_target", "visual_tracking"];
 
 /// The navigation chain's modules (they need the ToF cameras).
 const NAVIGATION: &[&str] =
@@ -133,7 +134,11 @@ pub(crate) fn build_system(
             continue;
         }
         let config = module_config(name, s, p, start_params(name))?;
-        let wiring = Wiring { visual: visual_enabled(s), operator: s.operator.select_target && cameras };
+        let wiring = Wiring {
+            visual: visual_enabled(s),
+            operator: s.operator.select_target && cameras,
+            navigation: navigation_enabled(s),
+        };
         add_module(&mut b, name, &map, twin, model.clone(), config, wiring)?;
     }
     if s.operator.select_target && cameras {
@@ -144,7 +149,12 @@ pub(crate) fn build_system(
         );
         b.add(
             crate::operator::NAME,
-            crate::operator::Operator::new(twin.clone(), "head_stereo", truth),
+            crate::operator::Operator::new(
+                twin.clone(),
+                "head_stereo",
+                truth,
+                framework::Time::from_secs_f64(s.run.settle_s),
+            ),
             source,
         );
     }
@@ -224,6 +234,8 @@ struct Wiring {
     visual: bool,
     /// The scripted operator, whose target selections the target tracker then reads.
     operator: bool,
+    /// The navigation chain, which the visual-tracking coordinator then drives approaches with.
+    navigation: bool,
 }
 
 /// Registers module `name` of the runner's system, with its devices from `map`.
@@ -333,6 +345,31 @@ fn add_module(
             ),
             config,
         ),
+        "visual_tracking" => {
+            let left = map.stereo_camera("head_stereo")?.calibration().left.clone();
+            let camera = gnc::tracking::pointing::PanTiltCamera::new(
+                map.mechanism()?,
+                &left.mount,
+                left.mount_from_optical,
+                "ptu_pan_joint",
+                "ptu_tilt_joint",
+            )
+            .map_err(|e| anyhow!("the head camera on the pan-tilt unit: {e}"))?;
+            b.add(
+                name,
+                gnc::visual_tracking::CoordinatorVisualTracking::new(
+                    gnc::visual_tracking::VisualTrackingPeers {
+                        tracker: "tracking_target".into(),
+                        ptu: "ptu".into(),
+                        locomotion: "locomotion".into(),
+                        navigator: wiring.navigation.then(|| "navigator".to_string()),
+                    },
+                    camera,
+                    POSE_SLOT,
+                ),
+                config,
+            )
+        }
         other => return Err(anyhow!("no module '{other}' in the runner's system")),
     };
     Ok(())

@@ -120,4 +120,7 @@ mod maps;
 mod tracking;
 pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};
-pub use tracking::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, TargetStatus, TargetTrack};
+pub use tracking::{
+    LineOfSight, MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, TargetStatus, TargetTrack,
+    VisualTrackingState,
+};

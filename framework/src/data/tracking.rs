@@ -2,7 +2,7 @@
 //! they give, and the operator-selected target as a tracker follows it.
 
 use crate::time::Time;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// One fiducial marker found in an image.
@@ -91,6 +91,22 @@ pub enum TargetStatus {
     Lost,
 }
 
+/// A ray in `map`: from a camera's centre through a point of its image, at the image's stamp.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LineOfSight {
+    /// The camera's optical centre, m.
+    pub origin: Point3<f64>,
+    /// Unit direction.
+    pub direction: Vector3<f64>,
+}
+
+impl LineOfSight {
+    /// The point `range` metres along the ray.
+    pub fn at(&self, range: f64) -> Point3<f64> {
+        self.origin + self.direction * range
+    }
+}
+
 /// An operator-selected target as a tracker follows it (seed 000, 8.1): where it is in the image,
 /// and where it is in the world as stereo locates it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -118,4 +134,34 @@ pub struct TargetTrack {
     pub measured: Option<Point3<f64>>,
     /// Images located so far.
     pub located: u32,
+    /// The line of sight through the box's centre (the last known one when lost); None while the
+    /// camera cannot be placed. Where the target is seen before stereo can range it.
+    pub line_of_sight: Option<LineOfSight>,
+}
+
+/// What a visual-tracking coordinator is doing (seed 000, 8.1): its command, where the command is,
+/// and where it points the head.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct VisualTrackingState {
+    /// The command in progress (`point_locate`, `point_locate_approach`,
+    /// `point_locate_approach_track`).
+    pub command: Option<String>,
+    /// Where it is: `idle`, `await_target`, `locate`, `approach`, `face`.
+    pub step: String,
+    /// Whether the pan-tilt unit follows the target.
+    pub pursuing: bool,
+    /// Whether the pursuit is paused while another module (the navigator's scans) uses the unit.
+    pub yielding: bool,
+    /// The pan and tilt last commanded, rad.
+    pub pan_tilt: Option<[f64; 2]>,
+    /// The point the head is aimed at (`map`), m.
+    pub aim: Option<Point3<f64>>,
+    /// The goal (x, y) of the approach leg in progress (`map`), m.
+    pub goal: Option<[f64; 2]>,
+    /// Horizontal distance from the rover to the target's estimate, m.
+    pub distance_m: Option<f64>,
+    /// Approach legs driven by the command in progress.
+    pub legs: u32,
+    /// How the last command ended.
+    pub last_outcome: Option<String>,
 }

@@ -294,7 +294,20 @@ impl TemplateTracker {
         let Some(last) = self.bbox else {
             return TrackResult { bbox: [0.0; 4], confidence: 0.0, status: TrackStatus::Lost };
         };
-        let found = if self.lost {
+        // A lost target is looked for first where the caller predicts it (its 3D estimate's
+        // projection), over the re-detection scales (it may have come nearer while lost), then
+        // over the whole image; either must pass the re-detection threshold (a small target's
+        // neighbourhood holds look-alikes: a lower one locks onto them).
+        let guided = match (self.lost, predicted) {
+            (true, Some((cx, cy))) => self
+                .search_scales(img, cx, cy, &self.params.redetect_scales)
+                .filter(|f| f.0 >= self.params.redetect_threshold)
+                .map(|(c, b, s)| (c, b, s, TrackStatus::Redetected)),
+            _ => None,
+        };
+        let found = if guided.is_some() {
+            guided
+        } else if self.lost {
             self.redetect(img).map(|(c, b, s)| (c, b, s, TrackStatus::Redetected))
         } else {
             let (cx, cy) = predicted.unwrap_or_else(|| centre(&last));
@@ -319,11 +332,22 @@ impl TemplateTracker {
     /// The best match of the newest template around (cx, cy), over the configured scales:
     /// (confidence against all templates, box, region).
     fn search(&self, img: &GreyImage, cx: f64, cy: f64) -> Option<(f64, BBox, (f64, f64))> {
+        self.search_scales(img, cx, cy, &self.params.scales)
+    }
+
+    /// [`Self::search`] over `scales` of the last box.
+    fn search_scales(
+        &self,
+        img: &GreyImage,
+        cx: f64,
+        cy: f64,
+        scales: &[f64],
+    ) -> Option<(f64, BBox, (f64, f64))> {
         let last = self.bbox?;
         let newest = self.templates.last()?;
         let m = self.params.search_cells;
         let mut best: Option<(f64, f64, f64, f64)> = None; // score, cx, cy, scale
-        for &s in &self.params.scales {
+        for &s in scales {
             let step = self.region.0 * s / newest.w as f64;
             if let Some((score, x, y)) = search_around(img, newest, cx, cy, step, m)
                 && best.is_none_or(|b| score > b.0)
@@ -346,6 +370,22 @@ impl TemplateTracker {
     fn confidence(&self, img: &GreyImage, x: f64, y: f64, region: (f64, f64)) -> f64 {
         let (_, _, p) = self.patch(img, x, y, region);
         self.templates.iter().filter(|t| t.data.len() == p.len()).map(|t| t.ncc(&p)).fold(-1.0, f64::max)
+    }
+
+    /// Declares the current box not the target (someone else knows better): the next update
+    /// re-detects it.
+    pub fn reject(&mut self) {
+        self.lost = true;
+    }
+
+    /// Learns the target's current box in `img` (the image of the last `update`) when someone
+    /// else confirms it is the target (stereo put it where the target's 3D estimate is): its
+    /// appearance changes as the rover approaches, faster than confident matches alone would
+    /// teach. Nothing while lost.
+    pub fn confirm(&mut self, img: &GreyImage) {
+        if let (false, Some(bbox)) = (self.lost, self.bbox) {
+            self.learn(img, &bbox, self.region, 1.0);
+        }
     }
 
     /// Learns the patch at `bbox` when confident and unlike the stored templates.

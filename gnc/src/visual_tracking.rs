@@ -1,0 +1,728 @@
+//! CoordinatorVisualTracking (seed 000, 8.1): keeps the tracked target in the head camera's view
+//! with the pan-tilt unit, and offers the operator's three commands of increasing autonomy:
+//!
+//! - `point_locate {max_sigma_m?}`: points the head at the target and has TrackingTarget locate it;
+//!   completes with its position in `map`, its uncertainty and its distance from the rover;
+//! - `point_locate_approach {boundary_m, max_sigma_m?}`: the same, then hands the navigator a goal on
+//!   the line from the rover to the target, inside the boundary, and turns the rover to face the
+//!   target; completes within `boundary_m` of the target's estimate;
+//! - `point_locate_approach_track {max_distance_m, max_sigma_m?}`: repeats point, locate and
+//!   approach in legs (each ending at a fraction of the distance left, where stereo ranges the
+//!   target better, so the first uncertain estimate is refined on the way; a moving target's
+//!   estimate follows it) until the rover is within `max_distance_m`, then faces it;
+//! - `stop`: ends the command in progress (the navigation it started is cancelled) and the pursuit.
+//!
+//! Pursuit: from a command until `stop`, each cycle aims the head camera's optical axis at the
+//! target (its fused stereo position once located; before that, its line of sight at the last or an
+//! assumed range), through the believed mechanism and the current pose estimate, so the target
+//! stays in view while the rover drives and turns. The pan-tilt unit is shared: while the navigator
+//! scans the terrain with it (its `scan` phase) the pursuit yields and resumes after.
+//! Progress is published on `tracking/visual` ([`VisualTrackingState`]).
+
+use crate::tracking::pointing::PanTiltCamera;
+use framework::data::{JointStates, NavigationState, PoseEstimate, TargetTrack, VisualTrackingState};
+use framework::message::{AckStatus, MessageId};
+use framework::module::Request;
+use framework::prelude::*;
+use nalgebra::Point3;
+use serde::{Deserialize, Serialize};
+
+/// The slot of the coordinator's state.
+pub const SLOT: &str = "tracking/visual";
+
+/// CoordinatorVisualTracking parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VisualTrackingParams {
+    /// The pan-tilt unit is re-commanded at most this often, s.
+    pub command_period_s: f64,
+    /// ... and only when the aim moved more than this, rad.
+    pub deadband_rad: f64,
+    /// Pan-tilt speed of the pursuit, fraction of the joints' limits.
+    pub ptu_speed: f64,
+    /// Range assumed along the line of sight before stereo ranged the target, m.
+    pub sight_range_m: f64,
+    /// Default accuracy `locate` is asked for (1 sigma, horizontal), m.
+    pub max_sigma_m: f64,
+    /// Approach-and-track legs: the accuracy asked before a leg, as a fraction of the distance.
+    pub leg_sigma_fraction: f64,
+    /// A leg ends at this fraction of the distance to the target ...
+    pub leg_fraction: f64,
+    /// ... and at most this far from where it starts, m.
+    pub max_leg_m: f64,
+    /// The approach's goal lies at this fraction of the boundary from the target.
+    pub standoff_fraction: f64,
+    /// Arrival tolerance of an intermediate leg, m.
+    pub leg_tolerance_m: f64,
+    /// Most legs of one `point_locate_approach_track`.
+    pub max_legs: u32,
+    /// Longest wait for TrackingTarget to locate the target to the asked accuracy, s.
+    pub locate_timeout_s: f64,
+    /// Longest wait for a target to be tracked at all when a command starts, s.
+    pub target_wait_s: f64,
+}
+
+impl Default for VisualTrackingParams {
+    fn default() -> Self {
+        VisualTrackingParams {
+            command_period_s: 0.5,
+            deadband_rad: 0.01,
+            ptu_speed: 0.5,
+            sight_range_m: 20.0,
+            max_sigma_m: 0.3,
+            leg_sigma_fraction: 0.08,
+            leg_fraction: 0.5,
+            max_leg_m: 8.0,
+            standoff_fraction: 0.7,
+            leg_tolerance_m: 0.5,
+            max_legs: 10,
+            locate_timeout_s: 90.0,
+            target_wait_s: 10.0,
+        }
+    }
+}
+
+/// Arguments of `point_locate`.
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointLocateArgs {
+    /// Accuracy to locate to, 1 sigma, m (default: configured).
+    #[serde(default)]
+    pub max_sigma_m: Option<f64>,
+}
+
+/// Arguments of `point_locate_approach`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ApproachArgs {
+    /// The rover stops within this distance of the target, m.
+    pub boundary_m: f64,
+    /// Accuracy to locate to before approaching, 1 sigma, m (default: configured).
+    #[serde(default)]
+    pub max_sigma_m: Option<f64>,
+}
+
+/// Arguments of `point_locate_approach_track`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ApproachTrackArgs {
+    /// The loop ends within this distance of the target, m.
+    pub max_distance_m: f64,
+    /// Accuracy of the last locate, 1 sigma, m (default: configured).
+    #[serde(default)]
+    pub max_sigma_m: Option<f64>,
+}
+
+/// Which command a job carries out.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Kind {
+    PointLocate,
+    Approach { boundary: f64 },
+    Track { max_distance: f64 },
+}
+
+impl Kind {
+    fn name(&self) -> &'static str {
+        match self {
+            Kind::PointLocate => "point_locate",
+            Kind::Approach { .. } => "point_locate_approach",
+            Kind::Track { .. } => "point_locate_approach_track",
+        }
+    }
+}
+
+/// Where a job is.
+#[derive(Clone, Debug)]
+enum Step {
+    /// Waiting for the target to be tracked, since.
+    AwaitTarget(Time),
+    /// Asked TrackingTarget to locate (message, since, accuracy).
+    Locate(MessageId, Time, f64),
+    /// Driving to a goal.
+    Approach(MessageId, [f64; 2]),
+    /// Turning to face the target.
+    Face(MessageId),
+}
+
+impl Step {
+    fn name(&self) -> &'static str {
+        match self {
+            Step::AwaitTarget(_) => "await_target",
+            Step::Locate(..) => "locate",
+            Step::Approach(..) => "approach",
+            Step::Face(_) => "face",
+        }
+    }
+}
+
+/// A command in progress.
+struct Job {
+    request: Request,
+    kind: Kind,
+    step: Step,
+    max_sigma: f64,
+    legs: u32,
+}
+
+/// Names of the modules the coordinator commands.
+#[derive(Clone, Debug)]
+pub struct VisualTrackingPeers {
+    /// TrackingTarget.
+    pub tracker: String,
+    /// The pan-tilt unit's joint group.
+    pub ptu: String,
+    /// Locomotion (turning to face the target).
+    pub locomotion: String,
+    /// CoordinatorNavigator, when the system navigates (approaches need it).
+    pub navigator: Option<String>,
+}
+
+/// What to do after a locate: where the next leg ends, or that the rover is there.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Leg {
+    /// Drive to a goal within a tolerance.
+    Drive {
+        /// The goal (x, y) in `map`, m.
+        goal: [f64; 2],
+        /// Arrival tolerance, m.
+        tolerance: f64,
+    },
+    /// Close enough: turn to face the target.
+    Arrived,
+}
+
+/// The next leg of an approach from `rover` to `target` (both in `map`, m) that must end within
+/// `boundary` of it: when farther than `boundary` (and `track` asks for legs), a goal on the line
+/// between them at `leg_fraction` of the distance (at most `max_leg_m` nearer), never nearer than
+/// the stand-off; the final leg ends at the stand-off with a tolerance that keeps it inside.
+pub fn next_leg(
+    rover: [f64; 2],
+    target: [f64; 2],
+    boundary: f64,
+    track: bool,
+    p: &VisualTrackingParams,
+) -> Leg {
+    let (dx, dy) = (target[0] - rover[0], target[1] - rover[1]);
+    let d = dx.hypot(dy);
+    if d <= boundary {
+        return Leg::Arrived;
+    }
+    let standoff = boundary * p.standoff_fraction;
+    let final_tolerance = 0.8 * (boundary - standoff);
+    let mut stop_at = standoff;
+    if track {
+        let leg = (d * p.leg_fraction).max(d - p.max_leg_m);
+        // A leg that would end near the stand-off anyway goes all the way.
+        if leg > standoff + p.leg_tolerance_m + final_tolerance {
+            stop_at = leg;
+        }
+    }
+    let f = stop_at / d;
+    let goal = [target[0] - f * dx, target[1] - f * dy];
+    let tolerance = if stop_at == standoff { final_tolerance } else { p.leg_tolerance_m };
+    Leg::Drive { goal, tolerance }
+}
+
+/// The CoordinatorVisualTracking module.
+pub struct CoordinatorVisualTracking {
+    peers: VisualTrackingPeers,
+    camera: PanTiltCamera,
+    pose_slot: String,
+    track: Option<Reader<TargetTrack>>,
+    pose: Option<Reader<PoseEstimate>>,
+    joints: Option<Reader<JointStates>>,
+    navigation: Option<Reader<NavigationState>>,
+    out: Option<Writer<VisualTrackingState>>,
+    params: VisualTrackingParams,
+    job: Option<Job>,
+    pursuing: bool,
+    /// The last pan and tilt commanded and when.
+    commanded: Option<([f64; 2], Time)>,
+    /// Where the head was last aimed (`map`).
+    aim: Option<Point3<f64>>,
+    yielding: bool,
+    /// The last job's outcome, for the state.
+    last: Option<String>,
+}
+
+impl CoordinatorVisualTracking {
+    /// A coordinator of `peers` pointing `camera` (the tracking camera on the pan-tilt unit), with
+    /// the rover's pose estimate from `pose_slot`.
+    pub fn new(peers: VisualTrackingPeers, camera: PanTiltCamera, pose_slot: &str) -> Self {
+        CoordinatorVisualTracking {
+            peers,
+            camera,
+            pose_slot: pose_slot.to_string(),
+            track: None,
+            pose: None,
+            joints: None,
+            navigation: None,
+            out: None,
+            params: VisualTrackingParams::default(),
+            job: None,
+            pursuing: false,
+            commanded: None,
+            aim: None,
+            yielding: false,
+            last: None,
+        }
+    }
+
+    /// The target's track, once a target is being tracked.
+    fn track(&self, ctx: &Ctx<'_>) -> Option<TargetTrack> {
+        self.track
+            .as_ref()
+            .and_then(|r| ctx.read(r))
+            .map(|t| t.value.clone())
+            .filter(|t| !t.target.is_empty())
+    }
+
+    fn pose(&self, ctx: &Ctx<'_>) -> Option<PoseEstimate> {
+        self.pose.as_ref().and_then(|r| ctx.read(r)).map(|p| p.value.clone())
+    }
+
+    /// Where to look: the fused position, else the line of sight at the last or assumed range.
+    fn aim_point(&self, track: &TargetTrack) -> Option<Point3<f64>> {
+        track
+            .position
+            .or_else(|| track.line_of_sight.map(|s| s.at(track.range_m.unwrap_or(self.params.sight_range_m))))
+    }
+
+    /// One pursuit step: re-aims the pan-tilt unit at the target when it moved off the axis.
+    fn pursue(&mut self, ctx: &mut Ctx<'_>) {
+        let scanning =
+            self.navigation.as_ref().and_then(|r| ctx.read(r)).is_some_and(|s| s.value.phase == "scan");
+        if scanning {
+            if !self.yielding {
+                ctx.note("pursuit paused: the navigator scans with the pan-tilt unit");
+            }
+            self.yielding = true;
+            // Re-command when the scan ends, wherever the unit was left.
+            self.commanded = None;
+            return;
+        }
+        self.yielding = false;
+        let (Some(track), Some(pose)) = (self.track(ctx), self.pose(ctx)) else { return };
+        let Some(aim) = self.aim_point(&track) else { return };
+        self.aim = Some(aim);
+        let now = ctx.now();
+        if let Some((_, at)) = self.commanded
+            && (now - at).as_secs_f64() < self.params.command_period_s
+        {
+            return;
+        }
+        let current = self
+            .joints
+            .as_ref()
+            .and_then(|r| ctx.read(r))
+            .and_then(|j| {
+                let at = |name: &str| j.value.joints.iter().find(|s| s.name == name).map(|s| s.position);
+                let [pan, tilt] = self.camera.joint_names();
+                Some([at(pan)?, at(tilt)?])
+            })
+            .unwrap_or([0.0, 0.0]);
+        let in_base = pose.pose.inverse() * aim;
+        let from = self.commanded.map_or(current, |(q, _)| q);
+        let want = match self.camera.aim(from, &in_base) {
+            Ok(q) => q,
+            Err(e) => {
+                ctx.note(format!("cannot point at the target: {e}"));
+                return;
+            }
+        };
+        let off = (want[0] - current[0]).abs().max((want[1] - current[1]).abs());
+        let changed =
+            self.commanded.is_none_or(|(q, _)| (want[0] - q[0]).abs().max((want[1] - q[1]).abs()) > 1e-4);
+        if off <= self.params.deadband_rad || !changed {
+            return;
+        }
+        let args = serde_json::json!({ "positions": want, "speed": self.params.ptu_speed });
+        match ctx.send(Command::new(&self.peers.ptu, "move").json(args)) {
+            Ok(_) => self.commanded = Some((want, now)),
+            Err(e) => ctx.note(format!("cannot command '{}': {e}", self.peers.ptu)),
+        }
+    }
+
+    fn send(ctx: &mut Ctx<'_>, to: &str, name: &str, args: serde_json::Value) -> Result<MessageId, String> {
+        ctx.send(Command::new(to, name).json(args)).map_err(|e| format!("cannot command '{to}': {e}"))
+    }
+
+    /// Asks TrackingTarget to locate to the accuracy the job's next step needs.
+    fn locate(&self, ctx: &mut Ctx<'_>, job: &Job) -> Result<Step, String> {
+        let sigma = match job.kind {
+            Kind::Track { max_distance } => {
+                // A far target first to the accuracy its leg needs, the last leg's to the asked one.
+                let d = self.track(ctx).and_then(|t| {
+                    let p = t.position?;
+                    let r = self.pose(ctx)?.pose.translation.vector;
+                    Some((p.x - r.x).hypot(p.y - r.y))
+                });
+                let range = d
+                    .or_else(|| self.track(ctx).and_then(|t| t.range_m))
+                    .unwrap_or(self.params.sight_range_m);
+                if range > max_distance / self.params.leg_fraction {
+                    job.max_sigma.max(self.params.leg_sigma_fraction * range)
+                } else {
+                    job.max_sigma
+                }
+            }
+            _ => job.max_sigma,
+        };
+        let id = Self::send(ctx, &self.peers.tracker, "locate", serde_json::json!({ "max_sigma_m": sigma }))?;
+        Ok(Step::Locate(id, ctx.now(), sigma))
+    }
+
+    /// The target's located position and the rover's, in `map`.
+    fn positions(&self, ctx: &Ctx<'_>) -> Result<(Point3<f64>, [f64; 2], TargetTrack), String> {
+        let track = self.track(ctx).ok_or("no target tracked")?;
+        let target = track.position.ok_or("the target is not located")?;
+        let pose = self.pose(ctx).ok_or_else(|| format!("no pose estimate on '{}'", self.pose_slot))?;
+        let r = pose.pose.translation.vector;
+        Ok((target, [r.x, r.y], track))
+    }
+
+    /// What a job does after a locate or an arrival: the next leg, facing, or the result.
+    fn after_locate(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<Outcome>, String> {
+        let (target, rover, _) = self.positions(ctx)?;
+        let (boundary, track) = match job.kind {
+            Kind::PointLocate => return Ok(Some(Outcome::Completed(self.result(ctx, job)?))),
+            Kind::Approach { boundary } => (boundary, false),
+            Kind::Track { max_distance } => (max_distance, true),
+        };
+        match next_leg(rover, [target.x, target.y], boundary, track, &self.params) {
+            Leg::Arrived => {
+                let yaw = (target.y - rover[1]).atan2(target.x - rover[0]);
+                let id = Self::send(
+                    ctx,
+                    &self.peers.locomotion,
+                    "turn_to",
+                    serde_json::json!({ "yaw_deg": yaw.to_degrees() }),
+                )?;
+                job.step = Step::Face(id);
+            }
+            Leg::Drive { goal, tolerance } => {
+                if job.legs >= self.params.max_legs {
+                    return Err(format!(
+                        "still {:.2} m from the target after {} legs",
+                        dist(rover, &target),
+                        job.legs
+                    ));
+                }
+                let nav =
+                    self.peers.navigator.clone().ok_or("no navigator in this system: cannot approach")?;
+                let args = serde_json::json!({ "x": goal[0], "y": goal[1], "tolerance_m": tolerance });
+                let id = Self::send(ctx, &nav, "navigate_to", args)?;
+                job.legs += 1;
+                ctx.note(format!(
+                    "{} leg {}: to ({:.2}, {:.2}), {:.2} m from the target's estimate",
+                    job.kind.name(),
+                    job.legs,
+                    goal[0],
+                    goal[1],
+                    (goal[0] - target.x).hypot(goal[1] - target.y)
+                ));
+                job.step = Step::Approach(id, goal);
+            }
+        }
+        Ok(None)
+    }
+
+    /// A completed job's result.
+    fn result(&self, ctx: &Ctx<'_>, job: &Job) -> Result<serde_json::Value, String> {
+        let (target, rover, track) = self.positions(ctx)?;
+        let pose = self.pose(ctx).ok_or("no pose estimate")?;
+        let c = track.covariance;
+        let bearing = (target.y - rover[1]).atan2(target.x - rover[0]);
+        let (_, _, yaw) = pose.pose.rotation.euler_angles();
+        Ok(serde_json::json!({
+            "target": track.target,
+            "position": [target.x, target.y, target.z],
+            "sigma_m": [c[(0, 0)].sqrt(), c[(1, 1)].sqrt(), c[(2, 2)].sqrt()],
+            "distance_m": dist(rover, &target),
+            "bearing_off_heading_deg": framework::angle::wrap(bearing - yaw).to_degrees(),
+            "legs": job.legs,
+        }))
+    }
+
+    /// Advances the job in progress; its outcome once it ends.
+    fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<Outcome>, String> {
+        let now = ctx.now();
+        match job.step.clone() {
+            Step::AwaitTarget(since) => {
+                if self.track(ctx).is_some() {
+                    job.step = self.locate(ctx, job)?;
+                } else if (now - since).as_secs_f64() > self.params.target_wait_s {
+                    return Err(format!(
+                        "no target tracked after {} s: the operator must select one",
+                        self.params.target_wait_s
+                    ));
+                }
+            }
+            Step::Locate(id, since, sigma) => match ctx.ack_status(id) {
+                Some(AckStatus::Completed(_)) => return self.after_locate(ctx, job),
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                    return Err(format!("locate failed: {r}"));
+                }
+                _ if (now - since).as_secs_f64() > self.params.locate_timeout_s => {
+                    let _ = ctx.send(Command::new(&self.peers.tracker, "stop"));
+                    return Err(format!(
+                        "the target was not located to {sigma:.2} m within {} s",
+                        self.params.locate_timeout_s
+                    ));
+                }
+                _ => {}
+            },
+            Step::Approach(id, _) => match ctx.ack_status(id) {
+                Some(AckStatus::Completed(_)) => {
+                    // Locate again from here: nearer, the estimate sharpens (or follows a moving
+                    // target) before the next leg or the final check.
+                    job.step = self.locate(ctx, job)?;
+                }
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                    return Err(format!("approach failed: {r}"));
+                }
+                _ => {}
+            },
+            Step::Face(id) => match ctx.ack_status(id) {
+                Some(AckStatus::Completed(_)) => {
+                    let result = self.result(ctx, job)?;
+                    let boundary = match job.kind {
+                        Kind::Approach { boundary } => Some(boundary),
+                        Kind::Track { max_distance } => Some(max_distance),
+                        Kind::PointLocate => None,
+                    };
+                    let d = result["distance_m"].as_f64().unwrap_or(f64::INFINITY);
+                    if let Some(b) = boundary
+                        && d > b
+                    {
+                        return Err(format!(
+                            "stopped {d:.2} m from the target, outside the {b:.2} m boundary"
+                        ));
+                    }
+                    return Ok(Some(Outcome::Completed(result)));
+                }
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                    return Err(format!("turning to face the target failed: {r}"));
+                }
+                _ => {}
+            },
+        }
+        Ok(None)
+    }
+
+    fn start(&mut self, ctx: &mut Ctx<'_>, kind: Kind, max_sigma: Option<f64>) -> Outcome {
+        let max_sigma = max_sigma.unwrap_or(self.params.max_sigma_m);
+        if !(max_sigma.is_finite() && max_sigma > 0.0) {
+            return Outcome::reject(format!("max_sigma_m must be positive, got {max_sigma}"));
+        }
+        if !matches!(kind, Kind::PointLocate) && self.peers.navigator.is_none() {
+            return Outcome::reject("no navigator in this system: cannot approach");
+        }
+        let Some(request) = ctx.request() else {
+            return Outcome::reject(format!("{} must come as a command", kind.name()));
+        };
+        self.cancel(ctx, &format!("superseded by {}", kind.name()));
+        self.pursuing = true;
+        self.job = Some(Job { request, kind, step: Step::AwaitTarget(ctx.now()), max_sigma, legs: 0 });
+        Outcome::Accepted
+    }
+
+    /// Ends the job in progress, if any, with `reason`, stopping what it commanded.
+    fn cancel(&mut self, ctx: &mut Ctx<'_>, reason: &str) {
+        let Some(job) = self.job.take() else { return };
+        match job.step {
+            Step::Locate(..) => {
+                let _ = ctx.send(Command::new(&self.peers.tracker, "stop"));
+            }
+            Step::Approach(..) => {
+                if let Some(nav) = &self.peers.navigator {
+                    let _ = ctx.send(Command::new(nav, "cancel"));
+                }
+            }
+            Step::Face(_) => {
+                let _ = ctx.send(Command::new(&self.peers.locomotion, "stop"));
+            }
+            Step::AwaitTarget(_) => {}
+        }
+        self.last = Some(format!("{}: {reason}", job.kind.name()));
+        ctx.reply(&job.request, Outcome::fail(reason));
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        if self.pursuing {
+            self.pursue(ctx);
+        }
+        if let Some(mut job) = self.job.take() {
+            match self.advance(ctx, &mut job) {
+                Ok(None) => self.job = Some(job),
+                Ok(Some(outcome)) => {
+                    self.last = Some(format!("{}: completed", job.kind.name()));
+                    ctx.note(format!("{} completed after {} legs", job.kind.name(), job.legs));
+                    ctx.reply(&job.request, outcome);
+                }
+                Err(reason) => {
+                    self.last = Some(format!("{}: {reason}", job.kind.name()));
+                    ctx.note(format!("{} failed: {reason}", job.kind.name()));
+                    ctx.reply(&job.request, Outcome::fail(reason));
+                }
+            }
+        }
+        self.publish(ctx);
+        Ok(())
+    }
+
+    fn publish(&self, ctx: &mut Ctx<'_>) {
+        let distance = self.track(ctx).and_then(|t| {
+            let p = t.position?;
+            let r = self.pose(ctx)?.pose.translation.vector;
+            Some((p.x - r.x).hypot(p.y - r.y))
+        });
+        let state = VisualTrackingState {
+            command: self.job.as_ref().map(|j| j.kind.name().to_string()),
+            step: self.job.as_ref().map_or("idle", |j| j.step.name()).to_string(),
+            pursuing: self.pursuing,
+            yielding: self.yielding,
+            pan_tilt: self.commanded.map(|(q, _)| q),
+            aim: self.aim,
+            goal: self.job.as_ref().and_then(|j| match j.step {
+                Step::Approach(_, g) => Some(g),
+                _ => None,
+            }),
+            distance_m: distance,
+            legs: self.job.as_ref().map_or(0, |j| j.legs),
+            last_outcome: self.last.clone(),
+        };
+        if let Some(w) = &self.out {
+            ctx.write(w, state);
+        }
+    }
+}
+
+fn dist(rover: [f64; 2], target: &Point3<f64>) -> f64 {
+    (target.x - rover[0]).hypot(target.y - rover[1])
+}
+
+impl Module for CoordinatorVisualTracking {
+    type Params = VisualTrackingParams;
+    const KIND: ModuleKind = ModuleKind::Coordination;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        self.track = Some(d.reads(crate::tracking_target::SLOT));
+        self.pose = Some(d.reads(&self.pose_slot));
+        self.joints = Some(d.reads(&format!("{}/joints", self.peers.ptu)));
+        if self.peers.navigator.is_some() {
+            self.navigation = Some(d.reads("navigation/state"));
+        }
+        self.out = Some(d.writes(SLOT));
+        d.sends_to(&self.peers.tracker).sends_to(&self.peers.ptu).sends_to(&self.peers.locomotion);
+        if let Some(nav) = &self.peers.navigator {
+            d.sends_to(nav);
+        }
+        d.context_switchable();
+        d.state("active", |m, ctx| m.cycle(ctx));
+        d.command("point_locate", |m, ctx, a: PointLocateArgs| {
+            m.start(ctx, Kind::PointLocate, a.max_sigma_m)
+        });
+        d.command("point_locate_approach", |m, ctx, a: ApproachArgs| {
+            if !(a.boundary_m.is_finite() && a.boundary_m > 0.0) {
+                return Outcome::reject(format!("boundary_m must be positive, got {}", a.boundary_m));
+            }
+            m.start(ctx, Kind::Approach { boundary: a.boundary_m }, a.max_sigma_m)
+        });
+        d.command("point_locate_approach_track", |m, ctx, a: ApproachTrackArgs| {
+            if !(a.max_distance_m.is_finite() && a.max_distance_m > 0.0) {
+                return Outcome::reject(format!("max_distance_m must be positive, got {}", a.max_distance_m));
+            }
+            m.start(ctx, Kind::Track { max_distance: a.max_distance_m }, a.max_sigma_m)
+        });
+        d.command("stop", |m, ctx, _: ()| {
+            m.cancel(ctx, "stopped by command");
+            m.pursuing = false;
+            m.commanded = None;
+            Outcome::done()
+        });
+    }
+
+    fn configure(&mut self, p: &VisualTrackingParams) -> Result<(), String> {
+        crate::params::require_positive(&[
+            ("command_period_s", p.command_period_s),
+            ("deadband_rad", p.deadband_rad),
+            ("ptu_speed", p.ptu_speed),
+            ("sight_range_m", p.sight_range_m),
+            ("max_sigma_m", p.max_sigma_m),
+            ("leg_sigma_fraction", p.leg_sigma_fraction),
+            ("max_leg_m", p.max_leg_m),
+            ("leg_tolerance_m", p.leg_tolerance_m),
+            ("max_legs", p.max_legs as f64),
+            ("locate_timeout_s", p.locate_timeout_s),
+            ("target_wait_s", p.target_wait_s),
+        ])?;
+        if p.ptu_speed > 1.0 {
+            return Err(format!("ptu_speed must be in (0, 1], got {}", p.ptu_speed));
+        }
+        for (name, v) in [("leg_fraction", p.leg_fraction), ("standoff_fraction", p.standoff_fraction)] {
+            if !(v > 0.0 && v < 1.0) {
+                return Err(format!("{name} must be in (0, 1), got {v}"));
+            }
+        }
+        self.params = p.clone();
+        Ok(())
+    }
+
+    fn on_transition(&mut self, ctx: &mut Ctx<'_>, _from: Lifecycle, to: Lifecycle) -> Result<(), String> {
+        if matches!(to, Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown) {
+            self.cancel(ctx, &format!("'{}' left Run for {to}", ctx.name()));
+            self.pursuing = false;
+            self.commanded = None;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn drive(leg: Leg) -> ([f64; 2], f64) {
+        match leg {
+            Leg::Drive { goal, tolerance } => (goal, tolerance),
+            Leg::Arrived => panic!("arrived"),
+        }
+    }
+
+    #[test]
+    fn an_approach_ends_inside_the_boundary_on_the_line_to_the_target() {
+        let p = VisualTrackingParams::default();
+        let (goal, tol) = drive(next_leg([0.0, 0.0], [10.0, 0.0], 2.0, false, &p));
+        let d = 10.0 - goal[0];
+        assert!((goal[1]).abs() < 1e-12);
+        assert!(d + tol < 2.0 && d - tol > 0.5, "goal {d} m from the target, tolerance {tol}");
+        assert_eq!(next_leg([8.5, 0.0], [10.0, 0.0], 2.0, false, &p), Leg::Arrived);
+    }
+
+    #[test]
+    fn tracking_legs_shrink_the_distance_geometrically_then_stop_at_the_standoff() {
+        let p = VisualTrackingParams::default();
+        let target = [3.0, -4.0];
+        let mut rover = [-15.0, 10.0];
+        let mut distances = Vec::new();
+        for _ in 0..p.max_legs {
+            match next_leg(rover, target, 1.5, true, &p) {
+                Leg::Arrived => break,
+                Leg::Drive { goal, .. } => {
+                    rover = goal;
+                    distances.push((goal[0] - target[0]).hypot(goal[1] - target[1]));
+                }
+            }
+        }
+        assert!(distances.len() >= 3, "{distances:?}");
+        // No leg longer than max_leg_m, each nearer than the last, the last at the stand-off.
+        let mut from = (-15.0f64 - 3.0).hypot(10.0 + 4.0);
+        for d in &distances {
+            assert!(*d < from && from - d <= p.max_leg_m + 1e-9, "{distances:?}");
+            from = *d;
+        }
+        assert!((from - 1.5 * p.standoff_fraction).abs() < 1e-9, "{distances:?}");
+        assert_eq!(next_leg(rover, target, 1.5, true, &p), Leg::Arrived);
+    }
+}

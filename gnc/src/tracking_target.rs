@@ -13,13 +13,15 @@
 //! Published every image: `tracking/target` ([`TargetTrack`]).
 //!
 //! Commands: `select {bbox, image_stamp_s?}` (a box in a held image, the newest by default),
-//! `forget`, `stop` (a pending `locate` fails; tracking goes on), and `locate {max_sigma_m?}`, which completes once the target's position is known to
+//! `forget`, `stop` (a pending `locate` fails; tracking goes on), and `locate {max_sigma_m?}`,
+//! which completes once the target's position (its uncertainty grown by the target's wander since
+//! it was last located) is known to
 //! `max_sigma_m` (1 sigma, horizontal) and fails if the target is lost for `lost_timeout_s` or
 //! nothing is selected.
 
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
-use crate::tracking::estimate::{RESTART_AFTER, TargetEstimate};
+use crate::tracking::estimate::TargetEstimate;
 use crate::tracking::locate::{LocateParams, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, TrackerParams};
@@ -32,7 +34,8 @@ use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
-/// Locations fused after which one that agrees with the estimate confirms the box's look.
+/// Locations fused since the estimate (re)started after which it is established: one that agrees
+/// confirms the box's look, disagreeing ones no longer restart it.
 const CONFIRM_AFTER: u32 = 3;
 
 /// Disagreeing locations in a row after which the tracker is taken to be on something else.
@@ -276,7 +279,22 @@ impl TrackingTarget {
                     .and_then(|p| self.rect.model.left.project(&(map_from_rect.inverse() * p)))
                     .map(|p| (p.x, p.y))
             });
-            tracker.update(&h.left, predicted)
+            // Where the estimate says the target is out of the image (the head looks elsewhere:
+            // a scan), there is nothing to track, and a search would only find look-alikes: the
+            // tracker waits for it to come back into view where the estimate projects.
+            let (w, ht) = (h.left.width as f64, h.left.height as f64);
+            let out_of_view = self.estimate.position().is_some()
+                && placed.is_ok()
+                && predicted.is_none_or(|(u, v)| !(0.0..w).contains(&u) || !(0.0..ht).contains(&v));
+            if out_of_view {
+                crate::tracking::template::TrackResult {
+                    bbox: tracker.bbox().unwrap_or([0.0; 4]),
+                    confidence: 0.0,
+                    status: TrackStatus::Lost,
+                }
+            } else {
+                tracker.update(&h.left, predicted)
+            }
         } else {
             crate::tracking::template::TrackResult {
                 bbox: tracker.bbox().unwrap_or([0.0; 4]),
@@ -311,12 +329,11 @@ impl TrackingTarget {
                 // Once established (confirmed locations), the estimate is not restarted by
                 // disagreeing locations: they mean the tracker is on something else. Before, a
                 // wrong first location must not lock out the right ones.
-                let established = self.located >= CONFIRM_AFTER;
-                let restarts = !established && self.estimate.rejected() + 1 >= RESTART_AFTER;
+                let established = self.estimate.count() >= CONFIRM_AFTER;
                 if self.estimate.fuse(p, cov, bias, stamp, walk, gate, !established) {
-                    // Where the estimate holds it (not a first or restarted location), the box
-                    // is the target: its look is learnt.
-                    if established && !restarts {
+                    // Where an established estimate holds it, the box is the target: its look is
+                    // learnt.
+                    if established {
                         tracker.confirm(&h.left);
                     }
                     measured = Some(p);
@@ -423,7 +440,13 @@ impl TrackingTarget {
     /// Answers a pending `locate` when it can.
     fn settle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
         let Some((_, max_sigma)) = &self.pending else { return Ok(()) };
-        let outcome = if let (Some(p), Some(c)) = (self.estimate.position(), self.estimate.covariance())
+        // The estimate ages: a target that may wander is known less well the longer ago it was
+        // last located.
+        let aged = self.estimate.covariance().zip(self.estimate.stamp()).map(|(c, t)| {
+            let age = (ctx.now() - t).as_secs_f64().max(0.0);
+            c + Matrix3::identity() * self.params.target_walk.powi(2) * age
+        });
+        let outcome = if let (Some(p), Some(c)) = (self.estimate.position(), aged)
             && c[(0, 0)].max(c[(1, 1)]).sqrt() <= *max_sigma
         {
             Some(Outcome::Completed(serde_json::json!({

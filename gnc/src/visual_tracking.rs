@@ -27,6 +27,9 @@ use framework::prelude::*;
 use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
+/// A pan-tilt command unchanged is sent again after this many command periods off target.
+const RESEND_PERIODS: f64 = 4.0;
+
 /// The slot of the coordinator's state.
 pub const SLOT: &str = "tracking/visual";
 
@@ -331,9 +334,13 @@ impl CoordinatorVisualTracking {
             }
         };
         let off = (want[0] - current[0]).abs().max((want[1] - current[1]).abs());
-        let changed =
-            self.commanded.is_none_or(|(q, _)| (want[0] - q[0]).abs().max((want[1] - q[1]).abs()) > 1e-4);
-        if off <= self.params.deadband_rad || !changed {
+        // The same command again only once the last had time to complete (a move can be refused
+        // or superseded: the unit must not stay where it stopped).
+        let repeat = self.commanded.is_some_and(|(q, at)| {
+            (want[0] - q[0]).abs().max((want[1] - q[1]).abs()) <= 1e-4
+                && (now - at).as_secs_f64() < RESEND_PERIODS * self.params.command_period_s
+        });
+        if off <= self.params.deadband_rad || repeat {
             return;
         }
         let args = serde_json::json!({ "positions": want, "speed": self.params.ptu_speed });
@@ -660,10 +667,12 @@ impl Module for CoordinatorVisualTracking {
         if p.ptu_speed > 1.0 {
             return Err(format!("ptu_speed must be in (0, 1], got {}", p.ptu_speed));
         }
-        for (name, v) in [("leg_fraction", p.leg_fraction), ("standoff_fraction", p.standoff_fraction)] {
-            if !(v > 0.0 && v < 1.0) {
-                return Err(format!("{name} must be in (0, 1), got {v}"));
-            }
+        if !(p.leg_fraction > 0.0 && p.leg_fraction < 1.0) {
+            return Err(format!("leg_fraction must be in (0, 1), got {}", p.leg_fraction));
+        }
+        // The final tolerance, 0.8 (1 - f) of the boundary, must not reach past the target.
+        if !(p.standoff_fraction >= 0.5 && p.standoff_fraction < 1.0) {
+            return Err(format!("standoff_fraction must be in [0.5, 1), got {}", p.standoff_fraction));
         }
         self.params = p.clone();
         Ok(())

@@ -16,8 +16,9 @@ struct Fused {
     position: Point3<f64>,
     /// The covariance of the images' noise, averaged.
     noise: Matrix3<f64>,
-    /// The covariance of the biases the images share.
-    bias: Matrix3<f64>,
+    /// A square root of the covariance of the biases the images share: the bias is
+    /// `bias_root * z` for one unknown standard normal `z` common to all images.
+    bias_root: Matrix3<f64>,
     stamp: Time,
 }
 
@@ -26,6 +27,8 @@ struct Fused {
 pub struct TargetEstimate {
     fused: Option<Fused>,
     rejected: u32,
+    /// Locations fused since the estimate (re)started.
+    count: u32,
 }
 
 impl TargetEstimate {
@@ -36,12 +39,22 @@ impl TargetEstimate {
 
     /// The whole covariance (noise and bias), once located.
     pub fn covariance(&self) -> Option<Matrix3<f64>> {
-        self.fused.as_ref().map(|f| f.noise + f.bias)
+        self.fused.as_ref().map(|f| f.noise + f.bias_root * f.bias_root.transpose())
     }
 
     /// The bias part of the covariance, once located.
     pub fn bias(&self) -> Option<Matrix3<f64>> {
-        self.fused.as_ref().map(|f| f.bias)
+        self.fused.as_ref().map(|f| f.bias_root * f.bias_root.transpose())
+    }
+
+    /// Locations fused since the estimate (re)started.
+    pub fn count(&self) -> u32 {
+        self.count
+    }
+
+    /// Capture time of the newest fused location.
+    pub fn stamp(&self) -> Option<Time> {
+        self.fused.as_ref().map(|f| f.stamp)
     }
 
     /// Locations rejected in a row since the last accepted one.
@@ -68,38 +81,40 @@ impl TargetEstimate {
             return false;
         }
         let noise = cov - bias;
-        let fresh = Fused { position: p, noise, bias, stamp };
+        let root = psd_sqrt(&bias);
+        let fresh = Fused { position: p, noise, bias_root: root, stamp };
         let Some(e) = &mut self.fused else {
             self.fused = Some(fresh);
+            self.count = 1;
             return true;
         };
         let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
         let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
-        // Gated on the whole uncertainty; averaged on the noise alone.
+        // The estimate's error is its noise plus bias_root z, this location's its noise plus
+        // root z (one calibration error seen twice): the innovation's covariance holds their
+        // difference, and the gain favours the location whose bias is smaller.
+        let d = e.bias_root - root;
         let innovation = p - e.position;
-        let inside = (prior + e.bias + cov)
-            .try_inverse()
-            .is_some_and(|g| innovation.dot(&(g * innovation)) <= gate.powi(2));
-        if !inside {
+        let s_cov = prior + noise + d * d.transpose();
+        let Some(s_inv) = s_cov.try_inverse() else { return false };
+        if innovation.dot(&(s_inv * innovation)) > gate.powi(2) {
             self.rejected += 1;
             if restart && self.rejected >= RESTART_AFTER {
                 self.fused = Some(fresh);
                 self.rejected = 0;
+                self.count = 1;
                 return true;
             }
             return false;
         }
         self.rejected = 0;
-        let Some(s_inv) = (prior + noise).try_inverse() else { return false };
-        let k = prior * s_inv;
+        self.count += 1;
+        let k = (prior + e.bias_root * d.transpose()) * s_inv;
         let i_k = Matrix3::identity() - k;
         e.position += k * innovation;
-        e.noise = i_k * prior;
+        e.noise = i_k * prior * i_k.transpose() + k * noise * k.transpose();
         e.noise = 0.5 * (e.noise + e.noise.transpose());
-        // The biases of the estimate and of this image are one calibration error seen twice
-        // (fully correlated): the fused bias is the same weighting of their square roots.
-        let root = i_k * psd_sqrt(&e.bias) + k * psd_sqrt(&bias);
-        e.bias = root * root.transpose();
+        e.bias_root = i_k * e.bias_root + k * root;
         e.stamp = stamp;
         true
     }
@@ -164,6 +179,8 @@ mod tests {
         assert_eq!(first as u32, RESTART_AFTER - 1);
         assert!(accepted[first..].iter().all(|a| *a));
         assert!((e.position().unwrap() - right).norm() < 1e-9);
+        // The count restarted with the estimate.
+        assert_eq!(e.count(), accepted.len() as u32 - first as u32);
         // A single outlier now is rejected and does not move the estimate.
         assert!(!e.fuse(Point3::new(20.0, 5.0, 0.0), cov, bias, t(20.0), 0.01, 5.0, true));
         assert!((e.position().unwrap() - right).norm() < 1e-9);
@@ -175,6 +192,35 @@ mod tests {
         assert!((held.position().unwrap() - right).norm() < 1e-9);
         // Non-finite input is refused.
         assert!(!e.fuse(Point3::new(f64::NAN, 0.0, 0.0), cov, bias, t(21.0), 0.01, 5.0, true));
+    }
+
+    #[test]
+    fn a_location_with_a_smaller_bias_takes_over_from_far_ones() {
+        // Far: 1 m of calibration bias along x; near: 5 cm. The near location, though no less
+        // noisy, is what the estimate should follow, and its bias what remains.
+        let far_bias = Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 0.01, 0.01));
+        let near_bias = Matrix3::identity() * 0.05f64.powi(2);
+        let noise = Matrix3::identity() * 0.1f64.powi(2);
+        let mut e = TargetEstimate::default();
+        for k in 0..20 {
+            assert!(e.fuse(
+                Point3::new(1.0, 0.0, 0.0),
+                noise + far_bias,
+                far_bias,
+                t(k as f64),
+                0.0,
+                5.0,
+                true
+            ));
+        }
+        let truth = Point3::new(0.0, 0.0, 0.0);
+        for k in 20..23 {
+            assert!(e.fuse(truth, noise + near_bias, near_bias, t(k as f64), 0.0, 5.0, true));
+        }
+        let x = e.position().unwrap().x;
+        let b = e.bias().unwrap()[(0, 0)].sqrt();
+        assert!(x < 0.15, "estimate {x} m off after three near locations");
+        assert!(b < 0.2, "bias {b} m kept from the far locations");
     }
 
     #[test]

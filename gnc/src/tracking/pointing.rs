@@ -103,7 +103,7 @@ impl PanTiltCamera {
             if in_front && best.is_none_or(|(_, r)| residual < r) {
                 best = Some((q, residual));
             }
-            if best.is_some_and(|(_, r)| r < 1e-9) {
+            if best.is_some_and(|(_, r)| r < 1e-6) {
                 break;
             }
         }

@@ -32,6 +32,7 @@ pub mod navigation;
 pub mod navigator;
 pub mod params;
 pub mod path_planning;
+pub mod peer;
 pub mod perception_fusion;
 pub mod perception_tof;
 pub mod placement;

@@ -16,6 +16,7 @@
 //! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` before
 //! scanning again. Progress is published on `navigation/state`.
 
+use crate::peer::send;
 use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
@@ -177,11 +178,6 @@ impl CoordinatorNavigator {
         self.position(ctx).map(|p| (g.at[0] - p[0]).hypot(g.at[1] - p[1]))
     }
 
-    /// Sends `name` with `args` to `to`; the phase to wait in, or the failure.
-    fn send(ctx: &mut Ctx<'_>, to: &str, name: &str, args: serde_json::Value) -> Result<MessageId, String> {
-        ctx.send(Command::new(to, name).json(args)).map_err(|e| format!("cannot command '{to}': {e}"))
-    }
-
     /// The path to send to locomotion: the whole path, or (stop-and-go) its first `segment_m`.
     fn path_args(&self, path: &Path, whole: bool) -> serde_json::Value {
         let mut points = vec![path.points[0]];
@@ -227,7 +223,7 @@ impl CoordinatorNavigator {
         let Some(g) = self.goal.as_ref() else { return Next::Stay };
         let (at, tol) = (g.at, g.tolerance);
         match g.phase.clone() {
-            Phase::Scan(None) => match Self::send(ctx, &peers.fusion, "scan", serde_json::json!({})) {
+            Phase::Scan(None) => match send(ctx, &peers.fusion, "scan", serde_json::json!({})) {
                 Ok(id) => Next::To(Phase::Scan(Some(id))),
                 Err(e) => Next::Fail(e),
             },
@@ -258,7 +254,7 @@ impl CoordinatorNavigator {
             }
             Phase::Plan(None) => {
                 let args = serde_json::json!({ "x": at[0], "y": at[1], "tolerance_m": tol });
-                match Self::send(ctx, &peers.planner, "plan", args) {
+                match send(ctx, &peers.planner, "plan", args) {
                     Ok(id) => Next::To(Phase::Plan(Some(id))),
                     Err(e) => Next::Fail(e),
                 }
@@ -276,7 +272,7 @@ impl CoordinatorNavigator {
                     }
                     let args = self.path_args(&path.value, continuous);
                     let from = self.distance_to_goal(ctx).unwrap_or(f64::INFINITY);
-                    match Self::send(ctx, &peers.locomotion, "follow_path", args) {
+                    match send(ctx, &peers.locomotion, "follow_path", args) {
                         Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq, from }),
                         Err(e) => Next::Fail(e),
                     }
@@ -284,18 +280,16 @@ impl CoordinatorNavigator {
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Next::Fail(format!("no path: {r}")),
                 _ => Next::Stay,
             },
-            Phase::Recover(None) => {
-                match Self::send(ctx, &peers.locomotion, "recover", serde_json::Value::Null) {
-                    Ok(id) => Next::To(Phase::Recover(Some(id))),
-                    Err(e) => Next::Fail(e),
-                }
-            }
+            Phase::Recover(None) => match send(ctx, &peers.locomotion, "recover", serde_json::Value::Null) {
+                Ok(id) => Next::To(Phase::Recover(Some(id))),
+                Err(e) => Next::Fail(e),
+            },
             Phase::Recover(Some(id)) => match ctx.ack_status(id) {
                 // Rejected: not in fault any more; either way, back off.
                 Some(AckStatus::Completed(_) | AckStatus::Rejected(_)) => {
                     let speed = 0.1;
                     let args = serde_json::json!({ "v": -speed, "omega": 0.0, "duration_s": self.params.back_off_m / speed });
-                    match Self::send(ctx, &peers.locomotion, "drive", args) {
+                    match send(ctx, &peers.locomotion, "drive", args) {
                         Ok(id) => Next::To(Phase::BackOff(id)),
                         Err(e) => Next::Fail(e),
                     }
@@ -344,14 +338,14 @@ impl CoordinatorNavigator {
                             return Next::Stay;
                         }
                         if path.value.points.is_empty() {
-                            let _ = Self::send(ctx, &peers.locomotion, "stop", serde_json::Value::Null);
+                            let _ = send(ctx, &peers.locomotion, "stop", serde_json::Value::Null);
                             return Next::Fail("replanning found no path".into());
                         }
                         if let Some(g) = self.goal.as_mut() {
                             g.plans += 1;
                         }
                         let args = self.path_args(&path.value, true);
-                        match Self::send(ctx, &peers.locomotion, "follow_path", args) {
+                        match send(ctx, &peers.locomotion, "follow_path", args) {
                             Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq, from }),
                             Err(e) => Next::Fail(e),
                         }

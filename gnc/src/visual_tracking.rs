@@ -19,6 +19,7 @@
 //! scans the terrain with it (its `scan` phase) the pursuit yields and resumes after.
 //! Progress is published on `tracking/visual` ([`VisualTrackingState`]).
 
+use crate::peer::send;
 use crate::tracking::pointing::PanTiltCamera;
 use framework::data::{JointStates, NavigationState, PoseEstimate, TargetTrack, VisualTrackingState};
 use framework::message::{AckStatus, MessageId};
@@ -125,6 +126,15 @@ enum Kind {
 }
 
 impl Kind {
+    /// The distance the command must end within, for those that approach.
+    fn boundary(&self) -> Option<f64> {
+        match *self {
+            Kind::PointLocate => None,
+            Kind::Approach { boundary } => Some(boundary),
+            Kind::Track { max_distance } => Some(max_distance),
+        }
+    }
+
     fn name(&self) -> &'static str {
         match self {
             Kind::PointLocate => "point_locate",
@@ -350,21 +360,13 @@ impl CoordinatorVisualTracking {
         }
     }
 
-    fn send(ctx: &mut Ctx<'_>, to: &str, name: &str, args: serde_json::Value) -> Result<MessageId, String> {
-        ctx.send(Command::new(to, name).json(args)).map_err(|e| format!("cannot command '{to}': {e}"))
-    }
-
     /// Asks TrackingTarget to locate to the accuracy the job's next step needs.
     fn locate(&self, ctx: &mut Ctx<'_>, job: &Job) -> Result<Step, String> {
         let sigma = match job.kind {
             Kind::Track { max_distance } => {
                 // A far target first to the accuracy its leg needs, the last leg's to the asked one.
-                let d = self.track(ctx).and_then(|t| {
-                    let p = t.position?;
-                    let r = self.pose(ctx)?.pose.translation.vector;
-                    Some((p.x - r.x).hypot(p.y - r.y))
-                });
-                let range = d
+                let range = self
+                    .distance(ctx)
                     .or_else(|| self.track(ctx).and_then(|t| t.range_m))
                     .unwrap_or(self.params.sight_range_m);
                 if range > max_distance / self.params.leg_fraction {
@@ -375,7 +377,7 @@ impl CoordinatorVisualTracking {
             }
             _ => job.max_sigma,
         };
-        let id = Self::send(ctx, &self.peers.tracker, "locate", serde_json::json!({ "max_sigma_m": sigma }))?;
+        let id = send(ctx, &self.peers.tracker, "locate", serde_json::json!({ "max_sigma_m": sigma }))?;
         Ok(Step::Locate(id, ctx.now(), sigma))
     }
 
@@ -388,18 +390,22 @@ impl CoordinatorVisualTracking {
         Ok((target, [r.x, r.y], track))
     }
 
+    /// Horizontal distance from the rover to the located target, m.
+    fn distance(&self, ctx: &Ctx<'_>) -> Option<f64> {
+        self.positions(ctx).ok().map(|(target, rover, _)| dist(rover, &target))
+    }
+
     /// What a job does after a locate or an arrival: the next leg, facing, or the result.
     fn after_locate(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<Outcome>, String> {
         let (target, rover, _) = self.positions(ctx)?;
-        let (boundary, track) = match job.kind {
-            Kind::PointLocate => return Ok(Some(Outcome::Completed(self.result(ctx, job)?))),
-            Kind::Approach { boundary } => (boundary, false),
-            Kind::Track { max_distance } => (max_distance, true),
+        let Some(boundary) = job.kind.boundary() else {
+            return Ok(Some(Outcome::Completed(self.result(ctx, job)?)));
         };
+        let track = matches!(job.kind, Kind::Track { .. });
         match next_leg(rover, [target.x, target.y], boundary, track, &self.params) {
             Leg::Arrived => {
                 let yaw = (target.y - rover[1]).atan2(target.x - rover[0]);
-                let id = Self::send(
+                let id = send(
                     ctx,
                     &self.peers.locomotion,
                     "turn_to",
@@ -418,7 +424,7 @@ impl CoordinatorVisualTracking {
                 let nav =
                     self.peers.navigator.clone().ok_or("no navigator in this system: cannot approach")?;
                 let args = serde_json::json!({ "x": goal[0], "y": goal[1], "tolerance_m": tolerance });
-                let id = Self::send(ctx, &nav, "navigate_to", args)?;
+                let id = send(ctx, &nav, "navigate_to", args)?;
                 job.legs += 1;
                 ctx.note(format!(
                     "{} leg {}: to ({:.2}, {:.2}), {:.2} m from the target's estimate",
@@ -492,21 +498,16 @@ impl CoordinatorVisualTracking {
             },
             Step::Face(id) => match ctx.ack_status(id) {
                 Some(AckStatus::Completed(_)) => {
-                    let result = self.result(ctx, job)?;
-                    let boundary = match job.kind {
-                        Kind::Approach { boundary } => Some(boundary),
-                        Kind::Track { max_distance } => Some(max_distance),
-                        Kind::PointLocate => None,
-                    };
-                    let d = result["distance_m"].as_f64().unwrap_or(f64::INFINITY);
-                    if let Some(b) = boundary
+                    let (target, rover, _) = self.positions(ctx)?;
+                    let d = dist(rover, &target);
+                    if let Some(b) = job.kind.boundary()
                         && d > b
                     {
                         return Err(format!(
                             "stopped {d:.2} m from the target, outside the {b:.2} m boundary"
                         ));
                     }
-                    return Ok(Some(Outcome::Completed(result)));
+                    return Ok(Some(Outcome::Completed(self.result(ctx, job)?)));
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     return Err(format!("turning to face the target failed: {r}"));
@@ -579,11 +580,7 @@ impl CoordinatorVisualTracking {
     }
 
     fn publish(&self, ctx: &mut Ctx<'_>) {
-        let distance = self.track(ctx).and_then(|t| {
-            let p = t.position?;
-            let r = self.pose(ctx)?.pose.translation.vector;
-            Some((p.x - r.x).hypot(p.y - r.y))
-        });
+        let distance = self.distance(ctx);
         let state = VisualTrackingState {
             command: self.job.as_ref().map(|j| j.kind.name().to_string()),
             step: self.job.as_ref().map_or("idle", |j| j.step.name()).to_string(),

@@ -10,11 +10,11 @@
 //!   rectified, FAST corners, stereo matching, triangulation); `visual_odometry_drive_11_frames`: a
 //!   drive of 11 frames (the first a keyframe; then the left image rectified, its pyramid, LK forward
 //!   and backward, PnP RANSAC, refinement, and the keyframes the drive brings); its throughput in
-//!   frames per second gives the average frame.
+//!   frames per second gives the average frame. Target: under 20 ms per frame on one core: run
+//!   with `RAYON_NUM_THREADS=1` (kornia's LK tracks points in parallel).
 //! - `pose_filter_step` (one prediction with its gravity correction) and
 //!   `pose_filter_late_relative` (a visual odometry measurement over the last 0.5 s arriving
-//!   0.1 s late: the filter rolls back, clones, re-runs 30 steps and updates). Target: under 50 us. Target: under 20 ms per
-//!   frame on one core: run with `RAYON_NUM_THREADS=1` (kornia's LK tracks points in parallel).
+//!   0.1 s late: the filter rolls back, clones, re-runs 30 steps and updates). Target: under 50 us.
 //! - `marker_detection_640x480` (tag36h11; quads found in the image decimated by 1 or 2) and `marker_table_pose` (each
 //!   marker's own pose and the table's from its 16 corners) on a ray-cast 640 x 480 image of the
 //!   calibration table (four 0.2 m markers) 2 m away over textured ground. Target: both together

@@ -198,13 +198,14 @@ impl CoordinatorNavigator {
             clearance.push(path.clearance_m[k]);
         }
         // Stop near enough the path's end that the goal's tolerance holds: the path may end short
-        // of the goal (when the goal lies in an obstacle) by up to that tolerance.
+        // of the goal (when the goal lies in an obstacle) by up to that tolerance. (Asking for
+        // more than the goal's tolerance only has the rover creep and circle round the end.)
         let (tol, at) =
             self.goal.as_ref().map(|g| (g.tolerance, g.at)).unwrap_or((self.params.tolerance_m, [0.0; 2]));
         let path_end = *path.points.last().expect("a path has points");
         let follow_tol = if points.last() == Some(&path_end) {
             let short = (path_end[0] - at[0]).hypot(path_end[1] - at[1]);
-            self.params.tolerance_m.min(tol - short).max(MIN_FOLLOW_TOLERANCE_M)
+            (tol - short).max(MIN_FOLLOW_TOLERANCE_M)
         } else {
             // A stop-and-go segment ends anywhere on the path.
             self.params.tolerance_m

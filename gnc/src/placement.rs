@@ -95,6 +95,11 @@ impl Placement {
             .ok_or_else(|| format!("no '{}' pose at {stamp}", self.pose_slot))
     }
 
+    /// The newest pose estimate taken in.
+    pub fn newest_pose(&self) -> Option<&PoseEstimate> {
+        self.poses.newest().map(|(_, p)| p)
+    }
+
     /// The mechanism's joint values at `stamp`, from the joint histories.
     pub fn joints_at(&self, stamp: Time) -> Result<Vec<f64>, String> {
         let mut q = vec![0.0; self.mechanism.dof_count()];

@@ -10,6 +10,11 @@
 //! with its covariance. Published: `tracking/markers` ([`MarkerDetections`], every image) and
 //! `tracking/objects` ([`ObjectPoses`], every image with an object in view); both stamped with the
 //! image's capture time.
+//!
+//! Commands: `forget` (every object's track), `locate {object, max_sigma_m?, max_angle_deg?,
+//! frames?}` (completes once `frames` images in a row gave the object's pose in `base_link` to
+//! `max_sigma_m` and `max_angle_deg`, 1 sigma per axis, with that pose and its `map` pose; the arm
+//! needs the first) and `stop` (a pending `locate` fails).
 
 use crate::placement::Placement;
 use crate::tracking::markers::{
@@ -18,6 +23,7 @@ use crate::tracking::markers::{
 use framework::camera::CameraCalibration;
 use framework::data::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, StereoImages};
 use framework::mechanism::MechanismModel;
+use framework::module::Request;
 use framework::objects::{MarkerSlot, ObjectDatabase};
 use framework::prelude::*;
 use nalgebra::Matrix6;
@@ -67,6 +73,40 @@ impl Default for TrackingMarkerParams {
     }
 }
 
+/// Arguments of `locate`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LocateObjectArgs {
+    /// The object kind (`canister`).
+    pub object: String,
+    /// Largest position 1-sigma in `base_link` (each axis), m (default 0.01).
+    #[serde(default = "default_max_sigma_m")]
+    pub max_sigma_m: f64,
+    /// Largest rotation 1-sigma (each axis), degrees (default 2).
+    #[serde(default = "default_max_angle_deg")]
+    pub max_angle_deg: f64,
+    /// Images in a row that must meet both (default 3): one lucky image is not a pose.
+    #[serde(default = "default_frames")]
+    pub frames: u32,
+}
+
+fn default_max_sigma_m() -> f64 {
+    0.01
+}
+fn default_max_angle_deg() -> f64 {
+    2.0
+}
+fn default_frames() -> u32 {
+    3
+}
+
+/// A pending `locate` and the images in a row that met it so far.
+struct PendingLocate {
+    request: Request,
+    args: LocateObjectArgs,
+    met: u32,
+}
+
 /// What the module remembers of an object between images.
 #[derive(Clone, Debug)]
 struct Track {
@@ -88,6 +128,7 @@ pub struct TrackingMarker {
     last_seq: u64,
     tracks: BTreeMap<String, Track>,
     unplaced_noted: bool,
+    pending: Option<PendingLocate>,
 }
 
 /// One object's estimate from one image: its fit and the markers it used.
@@ -188,6 +229,7 @@ impl TrackingMarker {
             last_seq: 0,
             tracks: BTreeMap::new(),
             unplaced_noted: false,
+            pending: None,
         }
     }
 
@@ -224,6 +266,9 @@ impl TrackingMarker {
         }
         let fits: Vec<ObjectFit> = fits.into_iter().filter(|f| f.fit.rmse_px <= p.max_rmse_px).collect();
         if fits.is_empty() {
+            if let Some(pl) = &mut self.pending {
+                pl.met = 0;
+            }
             return Ok(());
         }
         let (pose, base_from_optical) = match self.placement.camera_at(&self.calibration, stamp) {
@@ -269,10 +314,50 @@ impl TrackingMarker {
                 seen_frames: track.seen_frames,
             });
         }
+        self.settle(ctx, &objects);
         if let Some(w) = &self.objects_out {
             ctx.write_stamped(w, ObjectPoses { camera: self.device.clone(), stamp, objects }, stamp);
         }
         Ok(())
+    }
+
+    /// Counts an image towards a pending `locate`, and answers it when enough in a row met it.
+    fn settle(&mut self, ctx: &mut Ctx<'_>, objects: &[ObjectPose]) {
+        let Some(pl) = &mut self.pending else { return };
+        let a = &pl.args;
+        let good = objects.iter().find(|o| o.object == a.object).filter(|o| {
+            let c = &o.base_covariance;
+            (0..3).all(|i| c[(i, i)].sqrt() <= a.max_sigma_m)
+                && (3..6).all(|i| c[(i, i)].sqrt() <= a.max_angle_deg.to_radians())
+        });
+        let Some(o) = good else {
+            pl.met = 0;
+            return;
+        };
+        pl.met += 1;
+        if pl.met < a.frames {
+            return;
+        }
+        let pl = self.pending.take().expect("checked");
+        let sigma =
+            |c: &Matrix6<f64>, r: std::ops::Range<usize>| r.map(|i| c[(i, i)].sqrt()).collect::<Vec<_>>();
+        let t = |i: &nalgebra::Isometry3<f64>| {
+            let (r, p, y) = i.rotation.euler_angles();
+            serde_json::json!({ "xyz": [i.translation.x, i.translation.y, i.translation.z], "rpy": [r, p, y] })
+        };
+        ctx.reply(
+            &pl.request,
+            Outcome::Completed(serde_json::json!({
+                "object": o.object,
+                "markers": o.markers,
+                "base_from_object": t(&o.base_from_object),
+                "base_sigma_m": sigma(&o.base_covariance, 0..3),
+                "base_sigma_rad": sigma(&o.base_covariance, 3..6),
+                "map_from_object": t(&o.map_from_object),
+                "map_sigma_m": sigma(&o.map_covariance, 0..3),
+                "rmse_px": o.rmse_px,
+            })),
+        );
     }
 }
 
@@ -289,6 +374,31 @@ impl Module for TrackingMarker {
         d.state("tracking", |m, ctx| m.cycle(ctx));
         d.command("forget", |m, _ctx, _: ()| {
             m.tracks.clear();
+            Outcome::done()
+        });
+        d.command("locate", |m, ctx, a: LocateObjectArgs| {
+            if !m.db.objects.iter().any(|o| o.kind == a.object) {
+                let known: Vec<&str> = m.db.objects.iter().map(|o| o.kind.as_str()).collect();
+                return Outcome::reject(format!(
+                    "no object '{}' in the database (have: {known:?})",
+                    a.object
+                ));
+            }
+            if !(a.max_sigma_m > 0.0 && a.max_angle_deg > 0.0 && a.frames >= 1) {
+                return Outcome::reject("locate needs max_sigma_m > 0, max_angle_deg > 0 and frames >= 1");
+            }
+            let Some(request) = ctx.request() else {
+                return Outcome::reject("locate needs a request to answer");
+            };
+            if let Some(old) = m.pending.replace(PendingLocate { request, args: a, met: 0 }) {
+                ctx.reply(&old.request, Outcome::fail("superseded by a new locate"));
+            }
+            Outcome::Accepted
+        });
+        d.command("stop", |m, ctx, _: ()| {
+            if let Some(old) = m.pending.take() {
+                ctx.reply(&old.request, Outcome::fail("stopped"));
+            }
             Outcome::done()
         });
     }

@@ -8,9 +8,12 @@
 //! pair is then tracked (around where the target's 3D estimate projects, once it has one) and, when
 //! the target is found, located by [`locate`] in the rectified pair; the location is placed in `map`
 //! through the believed mechanism, the pan-tilt joints and the rover's pose estimate at the image's
-//! capture time, and fused with the earlier ones by a Kalman filter of a slowly wandering point
-//! (a static target's estimate sharpens as the rover approaches; a moving one is followed).
-//! Published every image: `tracking/target` ([`TargetTrack`]).
+//! capture time, and fused with the earlier ones ([`TargetEstimate`]: a slowly wandering point; a
+//! static target's estimate sharpens as the rover approaches, a moving one is followed). Its
+//! covariance is relative to the rover's pose estimate: that estimate's own error moves the rover
+//! and the target alike in `map` and does not hinder an approach; only its drift since the target
+//! was located does, and `locate` counts it. Published every image: `tracking/target`
+//! ([`TargetTrack`]).
 //!
 //! Commands: `select {bbox, image_stamp_s?}` (a box in a held image, the newest by default),
 //! `forget`, `stop` (a pending `locate` fails; tracking goes on), and `locate {max_sigma_m?}`,
@@ -26,11 +29,11 @@ use crate::tracking::locate::{LocateParams, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, TrackerParams};
 use framework::camera::{GreyImage, StereoCalibration};
-use framework::data::{LineOfSight, StereoImages, TargetSelection, TargetStatus, TargetTrack};
+use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
 use framework::prelude::*;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 
@@ -58,6 +61,9 @@ pub struct TrackingTargetParams {
     pub target_walk: f64,
     /// A location further than this many sigmas from the estimate is rejected (a wrong match).
     pub gate_sigma: f64,
+    /// The same for a box re-detected after a loss, where a look-alike is likeliest: one such
+    /// location must not carry an established estimate off.
+    pub redetect_gate_sigma: f64,
     /// `locate` fails when the target has been lost this long, s.
     pub lost_timeout_s: f64,
     /// How long the pose and joint histories reach back, s (more than the camera's latency).
@@ -76,7 +82,8 @@ impl Default for TrackingTargetParams {
             locate: LocateParams::default(),
             held_images: 8,
             target_walk: 0.01,
-            gate_sigma: 5.0,
+            gate_sigma: 3.5,
+            redetect_gate_sigma: 2.5,
             lost_timeout_s: 20.0,
             history_s: 4.0,
             max_extrapolation_s: 0.15,
@@ -141,6 +148,16 @@ pub struct TrackingTarget {
     locate_noted: bool,
     /// The line of sight through the box's centre in the last image it was seen in.
     sight: Option<LineOfSight>,
+    /// The pose estimate's share of the newest fused location's covariance (see `pose_drift`).
+    fix_pose_term: Option<Matrix3<f64>>,
+}
+
+/// The covariance a point `p` in `map` takes from the rover's pose estimate `pose` (its position,
+/// and its rotation's lever arm to the point).
+fn pose_term(pose: &PoseEstimate, p: &Point3<f64>) -> Matrix3<f64> {
+    let in_base = Isometry3::from((pose.pose.inverse() * p).coords);
+    let (_, through_pose) = compose_covariance(&pose.pose, &pose.covariance, &in_base, &Matrix6::zeros());
+    through_pose.fixed_view::<3, 3>(0, 0).into_owned()
 }
 
 /// The transform and its inverse between raw left pixels and rectified left pixels.
@@ -212,6 +229,7 @@ impl TrackingTarget {
             pending: None,
             locate_noted: false,
             sight: None,
+            fix_pose_term: None,
         }
     }
 
@@ -244,6 +262,7 @@ impl TrackingTarget {
         self.locate_noted = false;
         self.last_range = None;
         self.sight = None;
+        self.fix_pose_term = None;
         ctx.note(format!(
             "tracking the {target} selected at {bbox:?} in the image of {}",
             self.held[k].stamp
@@ -317,15 +336,17 @@ impl TrackingTarget {
             (Some(Ok(loc)), Ok((map_from_rect, pose))) => {
                 let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
                 let p = *map_from_rect * loc.position;
-                // The pose's own uncertainty (its position, its rotation's lever arm) is nearly
-                // the same from one image to the next: a bias.
-                let in_base = Isometry3::from((pose.pose.inverse() * p).coords);
-                let (_, through_pose) =
-                    compose_covariance(&pose.pose, &pose.covariance, &in_base, &Matrix6::zeros());
-                let pose_term: Matrix3<f64> = through_pose.fixed_view::<3, 3>(0, 0).into_owned();
-                let cov = r * loc.covariance * r.transpose() + pose_term;
-                let bias = r * loc.bias_covariance * r.transpose() + pose_term;
-                let (walk, gate) = (self.params.target_walk, self.params.gate_sigma);
+                // Relative to the rover's pose estimate: that estimate's own error moves the rover
+                // and the target alike in `map`; what it adds is how far it drifts from the image's
+                // time to when the position is used (`settle`).
+                let cov = r * loc.covariance * r.transpose();
+                let bias = r * loc.bias_covariance * r.transpose();
+                let gate = if result.status == TrackStatus::Redetected {
+                    self.params.redetect_gate_sigma
+                } else {
+                    self.params.gate_sigma
+                };
+                let walk = self.params.target_walk;
                 // Once established (confirmed locations), the estimate is not restarted by
                 // disagreeing locations: they mean the tracker is on something else. Before, a
                 // wrong first location must not lock out the right ones.
@@ -337,6 +358,7 @@ impl TrackingTarget {
                         tracker.confirm(&h.left);
                     }
                     measured = Some(p);
+                    self.fix_pose_term = Some(pose_term(pose, &p));
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
                 } else {
@@ -437,14 +459,28 @@ impl TrackingTarget {
         self.settle(ctx)
     }
 
+    /// How much the rover's pose estimate (position, and heading through the lever arm to the
+    /// target) has grown less certain since the newest fused location: the growth of its
+    /// covariance, the part that did not shrink.
+    fn pose_drift(&self) -> Matrix3<f64> {
+        let (Some(then), Some(p), Some(now)) =
+            (self.fix_pose_term, self.estimate.position(), self.placement.newest_pose())
+        else {
+            return Matrix3::zeros();
+        };
+        let grown = SymmetricEigen::new(pose_term(now, &p) - then);
+        let d = Matrix3::from_diagonal(&grown.eigenvalues.map(|v| v.max(0.0)));
+        grown.eigenvectors * d * grown.eigenvectors.transpose()
+    }
+
     /// Answers a pending `locate` when it can.
     fn settle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
         let Some((_, max_sigma)) = &self.pending else { return Ok(()) };
         // The estimate ages: a target that may wander is known less well the longer ago it was
-        // last located.
+        // last located, and the rover's pose estimate has drifted since.
         let aged = self.estimate.covariance().zip(self.estimate.stamp()).map(|(c, t)| {
             let age = (ctx.now() - t).as_secs_f64().max(0.0);
-            c + Matrix3::identity() * self.params.target_walk.powi(2) * age
+            c + Matrix3::identity() * self.params.target_walk.powi(2) * age + self.pose_drift()
         });
         let outcome = if let (Some(p), Some(c)) = (self.estimate.position(), aged)
             && c[(0, 0)].max(c[(1, 1)]).sqrt() <= *max_sigma
@@ -505,6 +541,7 @@ impl Module for TrackingTarget {
             m.last_range = None;
             m.lost_since = None;
             m.sight = None;
+            m.fix_pose_term = None;
             Outcome::done()
         });
         d.command("locate", |m, ctx, a: LocateArgs| {
@@ -527,6 +564,7 @@ impl Module for TrackingTarget {
         crate::params::require_positive(&[
             ("held_images", p.held_images as f64),
             ("gate_sigma", p.gate_sigma),
+            ("redetect_gate_sigma", p.redetect_gate_sigma),
             ("lost_timeout_s", p.lost_timeout_s),
             ("history_s", p.history_s),
             ("sight_range_m", p.sight_range_m),

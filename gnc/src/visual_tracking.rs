@@ -77,7 +77,7 @@ impl Default for VisualTrackingParams {
             leg_sigma_fraction: 0.08,
             leg_fraction: 0.5,
             max_leg_m: 8.0,
-            standoff_fraction: 0.7,
+            standoff_fraction: 0.6,
             leg_tolerance_m: 0.5,
             max_legs: 10,
             locate_timeout_s: 90.0,
@@ -220,8 +220,11 @@ pub fn next_leg(
     if d <= boundary {
         return Leg::Arrived;
     }
+    // The rover stops as soon as it is within the tolerance, so coming from afar it ends near the
+    // tolerance's far edge: half the room to the boundary keeps the other half for the estimate's
+    // error.
     let standoff = boundary * p.standoff_fraction;
-    let final_tolerance = 0.8 * (boundary - standoff);
+    let final_tolerance = 0.5 * (boundary - standoff);
     let mut stop_at = standoff;
     if track {
         let leg = (d * p.leg_fraction).max(d - p.max_leg_m);

@@ -98,7 +98,26 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
         FidelityName::Kinematic => Fidelity::Kinematic,
     };
     let start = StartPose { x: s.rover.x, y: s.rover.y, yaw: s.rover.yaw_deg.to_radians() };
-    Ok(Twin::new(world, config, &twin::rover_urdf(), start, fid)?)
+    let mut twin = Twin::new(world, config, &twin::rover_urdf(), start, fid)?;
+    if let Some(m) = s.canister.as_ref().and_then(|c| c.motion.as_ref()) {
+        if !(m.velocity_mps.iter().all(|v| v.is_finite())
+            && m.start_s.is_finite()
+            && m.start_s >= 0.0
+            && m.duration_s.is_finite()
+            && m.duration_s > 0.0)
+        {
+            return Err(anyhow!(
+                "{}: [canister.motion] needs a finite velocity_mps, start_s >= 0 and duration_s > 0",
+                loaded.path.display()
+            ));
+        }
+        twin.set_canister_motion(Some(twin::CanisterMotion {
+            velocity: m.velocity_mps,
+            from: Time::from_secs_f64(m.start_s),
+            until: Time::from_secs_f64(m.start_s + m.duration_s),
+        }));
+    }
+    Ok(twin)
 }
 
 #[derive(Debug)]

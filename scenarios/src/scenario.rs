@@ -167,6 +167,23 @@ pub struct CanisterStart {
     /// Heading, degrees.
     #[serde(default)]
     pub yaw_deg: f64,
+    /// A scripted motion over the ground: a moving target (none: it lies still).
+    #[serde(default)]
+    pub motion: Option<CanisterMotionSpec>,
+}
+
+/// The canister carried over the ground at a constant velocity for a while (by something outside
+/// the rover's software: the world's script, not a module).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CanisterMotionSpec {
+    /// Velocity, east and north, m/s.
+    pub velocity_mps: [f64; 2],
+    /// When it starts, s.
+    #[serde(default)]
+    pub start_s: f64,
+    /// How long it moves, s.
+    pub duration_s: f64,
 }
 
 /// The scripted operator: the person at the ground station, scripted.

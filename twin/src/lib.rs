@@ -25,4 +25,4 @@ pub mod truth;
 pub mod visibility;
 
 pub use config::TwinConfig;
-pub use sim::{Fidelity, StartPose, Twin, TwinError, assets_dir, rover_urdf};
+pub use sim::{CanisterMotion, Fidelity, StartPose, Twin, TwinError, assets_dir, rover_urdf};

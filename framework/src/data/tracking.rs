@@ -126,7 +126,8 @@ pub struct TargetTrack {
     pub bbox: [f64; 4],
     /// Its position in `map` (stereo, fused over the images so far), m; None until located.
     pub position: Option<Point3<f64>>,
-    /// Its covariance, m^2.
+    /// Its covariance relative to the rover's pose estimate (whose own error moves the rover and
+    /// the target alike in `map`), m^2.
     pub covariance: Matrix3<f64>,
     /// Distance from the camera at the last location, m.
     pub range_m: Option<f64>,

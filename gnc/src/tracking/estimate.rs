@@ -1,10 +1,18 @@
-//! The located target's position in `map`, fused over the images: a Kalman filter of a slowly
-//! wandering point whose measurements carry two kinds of error, the image's own noise (averaged
-//! away over images) and biases that every image repeats (the pair's calibration, the pose
-//! estimate), which averaging must not shrink.
+//! The located target's position in `map`, fused over the images: a filter of a slowly wandering
+//! point whose measurements carry two kinds of error, the image's own noise (averaged away over
+//! images) and biases that images repeat to an unknown degree (the pair's calibration, the pose
+//! estimate, a far stereo window mixing in the ground around the target), which averaging must
+//! not shrink.
+//!
+//! Fusion is split covariance intersection (Julier and Uhlmann, "General decentralized data fusion
+//! with covariance intersection", 2001; Li, Nashashibi and Yang, 2013): the noise parts fuse as a
+//! Kalman filter's, the bias parts as covariance intersection's, which is consistent whatever the
+//! biases' correlation. Many images from one place leave their shared bias as one image has it;
+//! a location with a smaller bias (nearer) takes over from the ones with larger biases (farther);
+//! the estimate never extrapolates past either.
 
 use framework::prelude::Time;
-use nalgebra::{Matrix3, Point3, SymmetricEigen};
+use nalgebra::{Matrix3, Point3};
 
 /// Locations rejected in a row after which the estimate starts again from the newest (a wrong
 /// first location must not lock out every later right one).
@@ -14,11 +22,10 @@ pub const RESTART_AFTER: u32 = 5;
 #[derive(Clone, Debug)]
 struct Fused {
     position: Point3<f64>,
-    /// The covariance of the images' noise, averaged.
+    /// The covariance of the images' noise, fused.
     noise: Matrix3<f64>,
-    /// A square root of the covariance of the biases the images share: the bias is
-    /// `bias_root * z` for one unknown standard normal `z` common to all images.
-    bias_root: Matrix3<f64>,
+    /// The covariance of the biases, whose correlation between images is unknown.
+    bias: Matrix3<f64>,
     stamp: Time,
 }
 
@@ -31,6 +38,22 @@ pub struct TargetEstimate {
     count: u32,
 }
 
+/// One split covariance intersection of (x1, noise n1, bias b1) and (x2, n2, b2) at weight `w` of
+/// the first's bias: the position, the whole covariance and its noise part.
+#[allow(clippy::type_complexity)]
+fn split_ci(
+    (x1, n1, b1): (&Point3<f64>, &Matrix3<f64>, &Matrix3<f64>),
+    (x2, n2, b2): (&Point3<f64>, &Matrix3<f64>, &Matrix3<f64>),
+    w: f64,
+) -> Option<(Point3<f64>, Matrix3<f64>, Matrix3<f64>)> {
+    let i1 = (b1 / w + n1).try_inverse()?;
+    let i2 = (b2 / (1.0 - w) + n2).try_inverse()?;
+    let p = (i1 + i2).try_inverse()?;
+    let x = p * (i1 * x1.coords + i2 * x2.coords);
+    let n = p * (i1 * n1 * i1.transpose() + i2 * n2 * i2.transpose()) * p.transpose();
+    Some((Point3::from(x), 0.5 * (p + p.transpose()), 0.5 * (n + n.transpose())))
+}
+
 impl TargetEstimate {
     /// The position, once located.
     pub fn position(&self) -> Option<Point3<f64>> {
@@ -39,12 +62,12 @@ impl TargetEstimate {
 
     /// The whole covariance (noise and bias), once located.
     pub fn covariance(&self) -> Option<Matrix3<f64>> {
-        self.fused.as_ref().map(|f| f.noise + f.bias_root * f.bias_root.transpose())
+        self.fused.as_ref().map(|f| f.noise + f.bias)
     }
 
     /// The bias part of the covariance, once located.
     pub fn bias(&self) -> Option<Matrix3<f64>> {
-        self.fused.as_ref().map(|f| f.bias_root * f.bias_root.transpose())
+        self.fused.as_ref().map(|f| f.bias)
     }
 
     /// Locations fused since the estimate (re)started.
@@ -62,8 +85,8 @@ impl TargetEstimate {
         self.rejected
     }
 
-    /// Fuses a location `p` of covariance `cov`, of which `bias` every image repeats, taken at
-    /// `stamp`, for a target wandering `walk` m/sqrt(s); false when it lies more than `gate`
+    /// Fuses a location `p` of covariance `cov`, of which `bias` other images may repeat, taken
+    /// at `stamp`, for a target wandering `walk` m/sqrt(s); false when it lies more than `gate`
     /// sigmas from the estimate (after [`RESTART_AFTER`] such in a row, if `restart` allows, the
     /// estimate restarts from it, and it counts).
     #[allow(clippy::too_many_arguments)]
@@ -81,8 +104,7 @@ impl TargetEstimate {
             return false;
         }
         let noise = cov - bias;
-        let root = psd_sqrt(&bias);
-        let fresh = Fused { position: p, noise, bias_root: root, stamp };
+        let fresh = Fused { position: p, noise, bias, stamp };
         let Some(e) = &mut self.fused else {
             self.fused = Some(fresh);
             self.count = 1;
@@ -90,14 +112,11 @@ impl TargetEstimate {
         };
         let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
         let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
-        // The estimate's error is its noise plus bias_root z, this location's its noise plus
-        // root z (one calibration error seen twice): the innovation's covariance holds their
-        // difference, and the gain favours the location whose bias is smaller.
-        let d = e.bias_root - root;
+        // The gate allows for both biases in full: it is there to reject a location of something
+        // else, metres away.
         let innovation = p - e.position;
-        let s_cov = prior + noise + d * d.transpose();
-        let Some(s_inv) = s_cov.try_inverse() else { return false };
-        if innovation.dot(&(s_inv * innovation)) > gate.powi(2) {
+        let Some(gate_inv) = (prior + e.bias + cov).try_inverse() else { return false };
+        if innovation.dot(&(gate_inv * innovation)) > gate.powi(2) {
             self.rejected += 1;
             if restart && self.rejected >= RESTART_AFTER {
                 self.fused = Some(fresh);
@@ -107,25 +126,32 @@ impl TargetEstimate {
             }
             return false;
         }
+        // The bias weight minimizing the fused covariance's trace (convex in it): golden section.
+        let (a, b) = ((e.position, prior, e.bias), (p, noise, bias));
+        let trace = |w: f64| {
+            split_ci((&a.0, &a.1, &a.2), (&b.0, &b.1, &b.2), w).map_or(f64::INFINITY, |(_, c, _)| c.trace())
+        };
+        let (mut lo, mut hi) = (1e-4, 1.0 - 1e-4);
+        let g = 0.5 * (5f64.sqrt() - 1.0);
+        for _ in 0..40 {
+            let (m1, m2) = (hi - g * (hi - lo), lo + g * (hi - lo));
+            if trace(m1) <= trace(m2) {
+                hi = m2;
+            } else {
+                lo = m1;
+            }
+        }
+        let Some((x, c, n)) = split_ci((&a.0, &a.1, &a.2), (&b.0, &b.1, &b.2), 0.5 * (lo + hi)) else {
+            return false;
+        };
         self.rejected = 0;
         self.count += 1;
-        let k = (prior + e.bias_root * d.transpose()) * s_inv;
-        let i_k = Matrix3::identity() - k;
-        e.position += k * innovation;
-        e.noise = i_k * prior * i_k.transpose() + k * noise * k.transpose();
-        e.noise = 0.5 * (e.noise + e.noise.transpose());
-        e.bias_root = i_k * e.bias_root + k * root;
+        e.position = x;
+        e.noise = n;
+        e.bias = c - n;
         e.stamp = stamp;
         true
     }
-}
-
-/// The symmetric square root of a positive semi-definite matrix (negative eigenvalues, from
-/// rounding, taken as zero).
-fn psd_sqrt(m: &Matrix3<f64>) -> Matrix3<f64> {
-    let e = SymmetricEigen::new(0.5 * (m + m.transpose()));
-    let d = Matrix3::from_diagonal(&e.eigenvalues.map(|v| v.max(0.0).sqrt()));
-    e.eigenvectors * d * e.eigenvectors.transpose()
 }
 
 #[cfg(test)]
@@ -221,6 +247,36 @@ mod tests {
         let b = e.bias().unwrap()[(0, 0)].sqrt();
         assert!(x < 0.15, "estimate {x} m off after three near locations");
         assert!(b < 0.2, "bias {b} m kept from the far locations");
+    }
+
+    #[test]
+    fn a_far_estimate_off_by_its_bias_lets_the_right_locations_in() {
+        // Five images from one place far away, all 1.6 m off along the line of sight (twice the
+        // 0.8 m that place's stereo window can err by): the estimate is confidently wrong in its
+        // noise, and only its bias says how wrong it may be.
+        let along = |s: f64| Matrix3::from_diagonal(&nalgebra::Vector3::new(s * s, 0.01, 0.01));
+        let noise = Matrix3::identity() * 0.1f64.powi(2);
+        let mut e = TargetEstimate::default();
+        for k in 0..5 {
+            assert!(e.fuse(
+                Point3::new(1.6, 0.0, 0.0),
+                noise + along(0.8),
+                along(0.8),
+                t(k as f64),
+                0.0,
+                5.0,
+                true
+            ));
+        }
+        // From a little nearer (a bias of about the same size, but another window's), the right
+        // location is within the gate, and so are the nearer ones that then pull the estimate in.
+        let truth = Point3::origin();
+        assert!(e.fuse(truth, noise + along(0.7), along(0.7), t(5.0), 0.0, 5.0, false));
+        for (k, b) in [0.4, 0.2, 0.1, 0.05].iter().enumerate() {
+            assert!(e.fuse(truth, noise + along(*b), along(*b), t(6.0 + k as f64), 0.0, 5.0, false));
+        }
+        let x = e.position().unwrap().x;
+        assert!(x.abs() < 0.25, "estimate still {x} m off");
     }
 
     #[test]

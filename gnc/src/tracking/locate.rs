@@ -18,6 +18,10 @@ use crate::localization::features::{FeatureParams, match_disparity};
 use framework::camera::{GreyImage, StereoModel};
 use nalgebra::{Matrix3, Point3};
 
+/// Pixels of the box that must match within a pixel of the whole box's match for it to stand
+/// for a target too small for clusters.
+const MIN_SUPPORT: usize = 2;
+
 /// Stereo locate parameters.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -274,15 +278,24 @@ pub fn locate(
         samples.iter().zip(&members).filter(|(_, m)| **m).map(|(s, _)| *s).collect();
     // Too few pixels for k-means (a target of a few pixels): the whole box's match, as one
     // measurement at the box's centre.
+    // The whole box's match stands only where pixels of the box match near it: a window of a
+    // few pixels matched alone can lock onto anything along the row.
+    let support = whole.map_or(0, |d| samples.iter().filter(|s| (s.2 - d).abs() <= 1.0).count());
     let (fore, fallback) = if fore.len() >= p.min_points {
         (fore, false)
-    } else if let Some(d) = whole {
+    } else if let Some(d) = whole
+        && support >= MIN_SUPPORT
+    {
         (vec![(cu, cv, d, 0.0)], true)
     } else {
         return Err(format!(
-            "only {} foreground points of {} matched, and no match of the whole box",
+            "only {} foreground points of {} matched, and {}",
             fore.len(),
-            samples.len()
+            samples.len(),
+            match whole {
+                Some(d) => format!("{support} pixels support the whole box's match at {d:.1} px"),
+                None => "no match of the whole box".to_string(),
+            }
         ));
     };
     let n = fore.len() as f64;
@@ -298,8 +311,9 @@ pub fn locate(
     let var_v = fore.iter().map(|s| (s.1 - mv).powi(2)).sum::<f64>() / n / n + 0.25;
     // A whole-box match of a few pixels spans whatever depths its window covers (far away, the
     // ground in a 9-pixel window reaches metres nearer and farther): its disparity is uncertain by
-    // the spread of the box's own matches, or by half itself without any.
-    let var_d = if fallback {
+    // the spread of the box's own matches, or by half itself without any. That mixing is the
+    // scene's, not the image noise's: every image from about here repeats it (a bias).
+    let (var_d, var_mix) = if fallback {
         let all: Vec<f64> = samples.iter().map(|s| s.2).collect();
         let m = all.iter().sum::<f64>() / all.len().max(1) as f64;
         let spread = if all.len() >= 2 {
@@ -307,9 +321,9 @@ pub fn locate(
         } else {
             (0.5 * md).powi(2)
         };
-        p.disparity_sigma_px.powi(2) + spread
+        (p.disparity_sigma_px.powi(2), spread)
     } else {
-        p.disparity_sigma_px.powi(2) / n
+        (p.disparity_sigma_px.powi(2) / n, 0.0)
     };
     // The box's centre as the target's centre: its pixel is known to a quarter of the box.
     let (var_u, var_v) =
@@ -318,7 +332,7 @@ pub fn locate(
     let j = Matrix3::new(z / k.fx, 0.0, -position.x / md, 0.0, z / k.fy, -position.y / md, 0.0, 0.0, -z / md);
     let through =
         |u: f64, v: f64, d: f64| j * Matrix3::from_diagonal(&nalgebra::Vector3::new(u, v, d)) * j.transpose();
-    let bias_covariance = through(0.0, 0.0, p.disparity_floor_px.powi(2))
+    let bias_covariance = through(0.0, 0.0, p.disparity_floor_px.powi(2) + var_mix)
         + Matrix3::identity() * p.target_radius_m.powi(2)
         + Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 1.0, 0.0))
             * (p.pointing_sigma_deg.to_radians() * position.coords.norm()).powi(2);

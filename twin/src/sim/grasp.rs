@@ -7,7 +7,69 @@
 
 use super::*;
 
+/// A scripted motion of the canister: carried over the ground at a constant velocity, upright, from
+/// one time until another (a moving target, moved by something outside the rover's software). In
+/// full dynamics it is a kinematic body meanwhile (it pushes what it meets; nothing pushes it),
+/// and falls to rest after.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CanisterMotion {
+    /// Velocity over the ground, east and north, m/s.
+    pub velocity: [f64; 2],
+    /// When it starts moving.
+    pub from: Time,
+    /// When it stops.
+    pub until: Time,
+}
+
 impl Twin {
+    /// Moves the canister by `motion` (None: stops a motion in progress). A held canister does
+    /// not move by it.
+    pub fn set_canister_motion(&mut self, motion: Option<CanisterMotion>) {
+        if motion.is_none() {
+            self.end_canister_motion();
+        }
+        self.canister_motion = motion;
+    }
+
+    fn end_canister_motion(&mut self) {
+        if let (Engine::Dynamic(ph), Some(b)) =
+            (&mut self.engine, self.canister.as_ref().and_then(|c| c.body))
+            && ph.bodies[b].body_type() != RigidBodyType::Dynamic
+        {
+            ph.bodies[b].set_body_type(RigidBodyType::Dynamic, true);
+        }
+    }
+
+    /// Called every step: carries the canister on by its motion.
+    pub(super) fn update_canister_motion(&mut self) {
+        let Some(m) = self.canister_motion else { return };
+        if self.time < m.from {
+            return;
+        }
+        if self.time >= m.until || self.holding_canister() {
+            self.end_canister_motion();
+            self.canister_motion = None;
+            return;
+        }
+        let Some(pose) = self.canister_pose() else { return };
+        let dt = self.dt.as_secs_f64();
+        let (x, y) = (pose.translation.x + m.velocity[0] * dt, pose.translation.y + m.velocity[1] * dt);
+        let yaw = pose.rotation.euler_angles().2;
+        let next = Isometry3::from_parts(
+            Translation3::new(x, y, self.world.ground_height(x, y)),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, yaw),
+        );
+        let Some(c) = self.canister.as_mut() else { return };
+        c.pose = next;
+        if let (Engine::Dynamic(ph), Some(b)) = (&mut self.engine, c.body) {
+            let body = &mut ph.bodies[b];
+            if body.body_type() != RigidBodyType::KinematicPositionBased {
+                body.set_body_type(RigidBodyType::KinematicPositionBased, true);
+            }
+            body.set_next_kinematic_position(pose_to_rapier(&next));
+        }
+    }
+
     /// World pose of the gripper's tool centre point.
     pub(super) fn tcp_pose(&self) -> Option<Isometry3<f64>> {
         let li = self.mech.link("gripper_tcp").ok()?;

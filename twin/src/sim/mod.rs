@@ -18,7 +18,7 @@
 //! | building the world, the rover and the canister; the locomotor model | `sim/build.rs` |
 //! | joint servos, moves and the motor state machine | `sim/servos.rs` |
 //! | the dynamic and kinematic engines, measurements, collisions | `sim/engines.rs` |
-//! | the gripper latch and the canister | `sim/grasp.rs` |
+//! | the gripper latch and the canister, its scripted motion | `sim/grasp.rs` |
 
 use crate::config::TwinConfig;
 use crate::convert::*;
@@ -44,6 +44,7 @@ mod servos;
 pub use build::CollisionGrid;
 use build::locomotor_model;
 use engines::active_pairs;
+pub use grasp::CanisterMotion;
 use servos::servo_gains;
 
 /// Fidelity level of the simulation.
@@ -284,6 +285,8 @@ pub struct Twin {
     grasp: Option<crate::truth::GraspTruth>,
     /// Kinematic fidelity: a released canister resting in the stowage cradle, its pose there.
     stowed_kinematic: Option<Isometry3<f64>>,
+    /// A scripted motion of the canister over the ground (a moving target).
+    canister_motion: Option<CanisterMotion>,
     /// The robot's collision shapes (self-collision tests in kinematic fidelity, lines of sight).
     self_shapes: Option<selfcollision::SelfShapes>,
     /// Rocks and objects as shapes, for lines of sight.
@@ -356,6 +359,7 @@ impl Twin {
             self_touching: Default::default(),
             grasp: None,
             stowed_kinematic: None,
+            canister_motion: None,
             self_shapes: None,
             occluders: Default::default(),
             obstacles: Default::default(),
@@ -524,6 +528,7 @@ impl Twin {
         );
         self.update_moves(dt);
         self.update_latch();
+        self.update_canister_motion();
     }
 
     fn link_pose_index(&self, li: usize) -> Isometry3<f64> {

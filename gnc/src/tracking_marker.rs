@@ -100,11 +100,13 @@ fn default_frames() -> u32 {
     3
 }
 
-/// A pending `locate` and the images in a row that met it so far.
+/// A pending `locate` and the images in a row that met it so far (`met`; while an image is
+/// processed, `before` holds the count up to it and `met` is 0 unless the image meets it too).
 struct PendingLocate {
     request: Request,
     args: LocateObjectArgs,
     met: u32,
+    before: u32,
 }
 
 /// What the module remembers of an object between images.
@@ -240,6 +242,11 @@ impl TrackingMarker {
             return Ok(());
         }
         self.last_seq = frame.seq;
+        // Whatever ends this image's processing early (no markers, no pose, not placed) breaks
+        // a pending locate's run of images.
+        if let Some(pl) = &mut self.pending {
+            pl.before = std::mem::take(&mut pl.met);
+        }
         let img = &frame.value.left;
         let stamp = img.stamp;
         let p = &self.params;
@@ -266,9 +273,6 @@ impl TrackingMarker {
         }
         let fits: Vec<ObjectFit> = fits.into_iter().filter(|f| f.fit.rmse_px <= p.max_rmse_px).collect();
         if fits.is_empty() {
-            if let Some(pl) = &mut self.pending {
-                pl.met = 0;
-            }
             return Ok(());
         }
         let (pose, base_from_optical) = match self.placement.camera_at(&self.calibration, stamp) {
@@ -330,11 +334,8 @@ impl TrackingMarker {
             (0..3).all(|i| c[(i, i)].sqrt() <= a.max_sigma_m)
                 && (3..6).all(|i| c[(i, i)].sqrt() <= a.max_angle_deg.to_radians())
         });
-        let Some(o) = good else {
-            pl.met = 0;
-            return;
-        };
-        pl.met += 1;
+        let Some(o) = good else { return };
+        pl.met = pl.before + 1;
         if pl.met < a.frames {
             return;
         }
@@ -390,7 +391,7 @@ impl Module for TrackingMarker {
             let Some(request) = ctx.request() else {
                 return Outcome::reject("locate needs a request to answer");
             };
-            if let Some(old) = m.pending.replace(PendingLocate { request, args: a, met: 0 }) {
+            if let Some(old) = m.pending.replace(PendingLocate { request, args: a, met: 0, before: 0 }) {
                 ctx.reply(&old.request, Outcome::fail("superseded by a new locate"));
             }
             Outcome::Accepted

@@ -160,6 +160,17 @@ fn pose_term(pose: &PoseEstimate, p: &Point3<f64>) -> Matrix3<f64> {
     through_pose.fixed_view::<3, 3>(0, 0).into_owned()
 }
 
+/// How far the rover's pose estimate `now` (its position, and its heading through the lever arm to
+/// the point `p`) may have drifted since the pose term `then` of the newest fused location.
+fn pose_drift(then: Option<Matrix3<f64>>, now: &PoseEstimate, p: &Point3<f64>) -> Matrix3<f64> {
+    let Some(then) = then else { return Matrix3::zeros() };
+    // The error between the two is e_then - e_now: its covariance is about the difference of
+    // theirs, grown or (after a correction) shrunk; either way its size.
+    let change = SymmetricEigen::new(pose_term(now, p) - then);
+    let d = Matrix3::from_diagonal(&change.eigenvalues.map(f64::abs));
+    change.eigenvectors * d * change.eigenvectors.transpose()
+}
+
 /// The transform and its inverse between raw left pixels and rectified left pixels.
 fn raw_to_rect(rect: &Rectification, cal: &StereoCalibration, uv: &Point2<f64>) -> Option<Point2<f64>> {
     let r = cal.left.model.ray(uv);
@@ -337,9 +348,10 @@ impl TrackingTarget {
                 let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
                 let p = *map_from_rect * loc.position;
                 // Relative to the rover's pose estimate: that estimate's own error moves the rover
-                // and the target alike in `map`; what it adds is how far it drifts from the image's
-                // time to when the position is used (`settle`).
-                let cov = r * loc.covariance * r.transpose();
+                // and the target alike in `map`; what it adds is how far it drifts between the
+                // images (counted as this location's noise) and until the position is used
+                // (`settle`).
+                let cov = r * loc.covariance * r.transpose() + pose_drift(self.fix_pose_term, pose, &p);
                 let bias = r * loc.bias_covariance * r.transpose();
                 let gate = if result.status == TrackStatus::Redetected {
                     self.params.redetect_gate_sigma
@@ -459,20 +471,6 @@ impl TrackingTarget {
         self.settle(ctx)
     }
 
-    /// How much the rover's pose estimate (position, and heading through the lever arm to the
-    /// target) has grown less certain since the newest fused location: the growth of its
-    /// covariance, the part that did not shrink.
-    fn pose_drift(&self) -> Matrix3<f64> {
-        let (Some(then), Some(p), Some(now)) =
-            (self.fix_pose_term, self.estimate.position(), self.placement.newest_pose())
-        else {
-            return Matrix3::zeros();
-        };
-        let grown = SymmetricEigen::new(pose_term(now, &p) - then);
-        let d = Matrix3::from_diagonal(&grown.eigenvalues.map(|v| v.max(0.0)));
-        grown.eigenvectors * d * grown.eigenvectors.transpose()
-    }
-
     /// Answers a pending `locate` when it can.
     fn settle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
         let Some((_, max_sigma)) = &self.pending else { return Ok(()) };
@@ -480,7 +478,11 @@ impl TrackingTarget {
         // last located, and the rover's pose estimate has drifted since.
         let aged = self.estimate.covariance().zip(self.estimate.stamp()).map(|(c, t)| {
             let age = (ctx.now() - t).as_secs_f64().max(0.0);
-            c + Matrix3::identity() * self.params.target_walk.powi(2) * age + self.pose_drift()
+            let drift = match (self.placement.newest_pose(), self.estimate.position()) {
+                (Some(now), Some(p)) => pose_drift(self.fix_pose_term, now, &p),
+                _ => Matrix3::zeros(),
+            };
+            c + Matrix3::identity() * self.params.target_walk.powi(2) * age + drift
         });
         let outcome = if let (Some(p), Some(c)) = (self.estimate.position(), aged)
             && c[(0, 0)].max(c[(1, 1)]).sqrt() <= *max_sigma
@@ -572,6 +574,12 @@ impl Module for TrackingTarget {
             ("tracker.redetect_threshold", p.tracker.redetect_threshold),
             ("locate.disparity_sigma_px", p.locate.disparity_sigma_px),
         ])?;
+        if p.redetect_gate_sigma > p.gate_sigma {
+            return Err(format!(
+                "redetect_gate_sigma ({}) must not exceed gate_sigma ({})",
+                p.redetect_gate_sigma, p.gate_sigma
+            ));
+        }
         if p.tracker.scales.is_empty() || p.tracker.redetect_scales.is_empty() {
             return Err("tracker.scales and tracker.redetect_scales must not be empty".into());
         }

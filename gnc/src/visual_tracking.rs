@@ -670,7 +670,8 @@ impl Module for CoordinatorVisualTracking {
         if !(p.leg_fraction > 0.0 && p.leg_fraction < 1.0) {
             return Err(format!("leg_fraction must be in (0, 1), got {}", p.leg_fraction));
         }
-        // The final tolerance, 0.8 (1 - f) of the boundary, must not reach past the target.
+        // The final tolerance, 0.5 (1 - f) of the boundary, must not reach past the target (and
+        // the stand-off keeps the rover clear of it).
         if !(p.standoff_fraction >= 0.5 && p.standoff_fraction < 1.0) {
             return Err(format!("standoff_fraction must be in [0.5, 1), got {}", p.standoff_fraction));
         }

@@ -70,6 +70,18 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     world.keep_clear(s.rover.x, s.rover.y, START_CLEARANCE_M);
     if let Some(c) = &s.canister {
         world.keep_clear(c.x, c.y, CANISTER_CLEARANCE_M);
+        // A moving canister passes through fixed rocks: none along its way either.
+        if let Some(m) = &c.motion {
+            let travel = m.velocity_mps[0].hypot(m.velocity_mps[1]) * m.duration_s.max(0.0);
+            let steps = (travel / (0.5 * CANISTER_CLEARANCE_M)).ceil().min(10_000.0) as usize;
+            for k in 1..=steps {
+                let f = m.duration_s * k as f64 / steps as f64;
+                let (x, y) = (c.x + m.velocity_mps[0] * f, c.y + m.velocity_mps[1] * f);
+                if x.is_finite() && y.is_finite() {
+                    world.keep_clear(x, y, CANISTER_CLEARANCE_M);
+                }
+            }
+        }
     }
     if let Some(c) = &s.canister {
         let z = world.ground_height(c.x, c.y);

@@ -271,9 +271,9 @@ mod tests {
         // From a little nearer (a bias of about the same size, but another window's), the right
         // location is within the gate, and so are the nearer ones that then pull the estimate in.
         let truth = Point3::origin();
-        assert!(e.fuse(truth, noise + along(0.7), along(0.7), t(5.0), 0.0, 5.0, false));
+        assert!(e.fuse(truth, noise + along(0.7), along(0.7), t(5.0), 0.0, 3.5, false));
         for (k, b) in [0.4, 0.2, 0.1, 0.05].iter().enumerate() {
-            assert!(e.fuse(truth, noise + along(*b), along(*b), t(6.0 + k as f64), 0.0, 5.0, false));
+            assert!(e.fuse(truth, noise + along(*b), along(*b), t(6.0 + k as f64), 0.0, 3.5, false));
         }
         let x = e.position().unwrap().x;
         assert!(x.abs() < 0.25, "estimate still {x} m off");

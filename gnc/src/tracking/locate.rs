@@ -9,7 +9,8 @@
 //! structure: the target, however few pixels it covers far away) and the median disparity of the
 //! box's border (what surrounds it); the foreground is the one grown from the first. Its position is
 //! triangulated from the cluster's mean pixel and mean disparity (a target of a few pixels, too
-//! small for clusters, is the whole box's match at the box's centre) (averaging disparities, not
+//! small for clusters, is the whole box's match at the box's centre, where at least two pixels of
+//! the box match near it; the spread of the box's matches is then a bias of that place) (averaging disparities, not
 //! depths, which are biased by their own noise), and its covariance is the pixel and disparity
 //! noise of that mean carried through the triangulation, with a floor on the disparity's (the
 //! calibration's error does not average out).
@@ -311,16 +312,12 @@ pub fn locate(
     let var_v = fore.iter().map(|s| (s.1 - mv).powi(2)).sum::<f64>() / n / n + 0.25;
     // A whole-box match of a few pixels spans whatever depths its window covers (far away, the
     // ground in a 9-pixel window reaches metres nearer and farther): its disparity is uncertain by
-    // the spread of the box's own matches, or by half itself without any. That mixing is the
+    // the spread of the box's own matches (at least MIN_SUPPORT of them). That mixing is the
     // scene's, not the image noise's: every image from about here repeats it (a bias).
     let (var_d, var_mix) = if fallback {
         let all: Vec<f64> = samples.iter().map(|s| s.2).collect();
-        let m = all.iter().sum::<f64>() / all.len().max(1) as f64;
-        let spread = if all.len() >= 2 {
-            all.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (all.len() - 1) as f64
-        } else {
-            (0.5 * md).powi(2)
-        };
+        let m = all.iter().sum::<f64>() / all.len() as f64;
+        let spread = all.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (all.len() - 1) as f64;
         (p.disparity_sigma_px.powi(2), spread)
     } else {
         (p.disparity_sigma_px.powi(2) / n, 0.0)

@@ -9,8 +9,9 @@ use super::*;
 
 /// A scripted motion of the canister: carried over the ground at a constant velocity, upright, from
 /// one time until another (a moving target, moved by something outside the rover's software). In
-/// full dynamics it is a kinematic body meanwhile (it pushes what it meets; nothing pushes it),
-/// and falls to rest after.
+/// full dynamics it is a kinematic body meanwhile (it pushes what it meets, passes through fixed
+/// rocks: the runner clears its path of them; nothing pushes it), and falls to rest after. It
+/// stops early when the gripper holds it or it is stowed.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct CanisterMotion {
     /// Velocity over the ground, east and north, m/s.
@@ -25,9 +26,7 @@ impl Twin {
     /// Moves the canister by `motion` (None: stops a motion in progress). A held canister does
     /// not move by it.
     pub fn set_canister_motion(&mut self, motion: Option<CanisterMotion>) {
-        if motion.is_none() {
-            self.end_canister_motion();
-        }
+        self.end_canister_motion();
         self.canister_motion = motion;
     }
 
@@ -46,7 +45,7 @@ impl Twin {
         if self.time < m.from {
             return;
         }
-        if self.time >= m.until || self.holding_canister() {
+        if self.time >= m.until || self.holding_canister() || self.stowed_kinematic.is_some() {
             self.end_canister_motion();
             self.canister_motion = None;
             return;
@@ -216,8 +215,9 @@ impl Twin {
         self.latch.is_some() || self.latched_kinematic.is_some()
     }
 
-    /// Moves the canister (for tests and scenario set-up) and stops it.
+    /// Moves the canister (for tests and scenario set-up) and stops it (a scripted motion too).
     pub fn place_canister(&mut self, pose: Isometry3<f64>) {
+        self.set_canister_motion(None);
         self.release_latch();
         self.stowed_kinematic = None;
         if let Some(c) = self.canister.as_mut() {

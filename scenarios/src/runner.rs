@@ -65,21 +65,39 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     {
         return Err(anyhow!("{}: {why}", wpath.display()));
     }
+    let motion = match s.canister.as_ref().and_then(|c| c.motion.as_ref()) {
+        Some(m)
+            if !(m.velocity_mps.iter().all(|v| v.is_finite())
+                && m.start_s.is_finite()
+                && m.start_s >= 0.0
+                && m.duration_s.is_finite()
+                && m.duration_s > 0.0) =>
+        {
+            return Err(anyhow!(
+                "{}: [canister.motion] needs a finite velocity_mps, start_s >= 0 and duration_s > 0",
+                loaded.path.display()
+            ));
+        }
+        Some(m) => Some(twin::CanisterMotion {
+            velocity: m.velocity_mps,
+            from: Time::from_secs_f64(m.start_s),
+            until: Time::from_secs_f64(m.start_s + m.duration_s),
+        }),
+        None => None,
+    };
     // Rocks keep out of wherever this scenario (or a sweep's dispersion) puts the rover and the
     // canister: room for the rover's footprint, and for it to stand beside the canister.
     world.keep_clear(s.rover.x, s.rover.y, START_CLEARANCE_M);
     if let Some(c) = &s.canister {
         world.keep_clear(c.x, c.y, CANISTER_CLEARANCE_M);
         // A moving canister passes through fixed rocks: none along its way either.
-        if let Some(m) = &c.motion {
-            let travel = m.velocity_mps[0].hypot(m.velocity_mps[1]) * m.duration_s.max(0.0);
+        if let Some(m) = &motion {
+            let duration = (m.until - m.from).as_secs_f64();
+            let travel = m.velocity[0].hypot(m.velocity[1]) * duration;
             let steps = (travel / (0.5 * CANISTER_CLEARANCE_M)).ceil().min(10_000.0) as usize;
             for k in 1..=steps {
-                let f = m.duration_s * k as f64 / steps as f64;
-                let (x, y) = (c.x + m.velocity_mps[0] * f, c.y + m.velocity_mps[1] * f);
-                if x.is_finite() && y.is_finite() {
-                    world.keep_clear(x, y, CANISTER_CLEARANCE_M);
-                }
+                let f = duration * k as f64 / steps as f64;
+                world.keep_clear(c.x + m.velocity[0] * f, c.y + m.velocity[1] * f, CANISTER_CLEARANCE_M);
             }
         }
     }
@@ -111,24 +129,7 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     };
     let start = StartPose { x: s.rover.x, y: s.rover.y, yaw: s.rover.yaw_deg.to_radians() };
     let mut twin = Twin::new(world, config, &twin::rover_urdf(), start, fid)?;
-    if let Some(m) = s.canister.as_ref().and_then(|c| c.motion.as_ref()) {
-        if !(m.velocity_mps.iter().all(|v| v.is_finite())
-            && m.start_s.is_finite()
-            && m.start_s >= 0.0
-            && m.duration_s.is_finite()
-            && m.duration_s > 0.0)
-        {
-            return Err(anyhow!(
-                "{}: [canister.motion] needs a finite velocity_mps, start_s >= 0 and duration_s > 0",
-                loaded.path.display()
-            ));
-        }
-        twin.set_canister_motion(Some(twin::CanisterMotion {
-            velocity: m.velocity_mps,
-            from: Time::from_secs_f64(m.start_s),
-            until: Time::from_secs_f64(m.start_s + m.duration_s),
-        }));
-    }
+    twin.set_canister_motion(motion);
     Ok(twin)
 }
 

@@ -221,6 +221,28 @@ fn canister_box(cam: &CameraModel, pose: &Isometry3<f64>, can: &Isometry3<f64>) 
     b
 }
 
+/// The head pair at `eye` looking at the canister's `centre` (the design pair, rectified by
+/// `rect`), the box the operator would draw around the canister in the rectified left image (the
+/// design pair is rectified up to the principal point and the distortion), and the true range from
+/// the left camera to `centre`.
+fn canister_pair(
+    r: &mut SensorRenderer,
+    t: &Twin,
+    rect: &gnc::localization::rectify::Rectification,
+    eye: Vector3<f64>,
+    centre: nalgebra::Point3<f64>,
+    seed: u64,
+) -> (GreyImage, GreyImage, [f64; 4], f64) {
+    let left = look_at(eye, centre.coords);
+    let right = left * Isometry3::translation(0.25, 0.0, 0.0);
+    let (cam, photometry) = head();
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let imgs =
+        r.grey_views(t, &[(&cam, left), (&cam, right)], &photometry, Exposure::NOMINAL, &mut rng).unwrap();
+    let b = canister_box(&rect.model.left, &left, &t.canister_truth().unwrap());
+    (rect.left(&imgs[0]), rect.right(&imgs[1]), b, (left.inverse() * centre).coords.norm())
+}
+
 fn iou(a: &[f64; 4], b: &[f64; 4]) -> f64 {
     let i = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0) * (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
     let area = |r: &[f64; 4]| (r[2] - r[0]) * (r[3] - r[1]);
@@ -241,20 +263,9 @@ fn stereo_locate_finds_the_canister_within_five_percent_of_its_range_from_3_to_1
     for (k, range) in [3.0, 5.0, 8.0, 11.0, 15.0].iter().enumerate() {
         // The mast's height, looking at the canister from the south-west.
         let eye = centre.coords + Vector3::new(-0.8, -0.6, 0.0).normalize() * *range + Vector3::z() * 1.4;
-        let left = look_at(eye, centre.coords);
-        let right = left * Isometry3::translation(0.25, 0.0, 0.0);
-        let (cam, photometry) = head();
-        let mut rng = Pcg64Mcg::seed_from_u64(20 + k as u64);
-        let imgs = r
-            .grey_views(&t, &[(&cam, left), (&cam, right)], &photometry, Exposure::NOMINAL, &mut rng)
-            .unwrap();
-        let (l, rr) = (rect.left(&imgs[0]), rect.right(&imgs[1]));
-        // The box the operator would draw (in the rectified image: the design pair is rectified
-        // up to the principal point and the distortion).
-        let b = canister_box(&rect.model.left, &left, &can);
+        let (l, rr, b, truth) = canister_pair(&mut r, &t, &rect, eye, centre, 20 + k as u64);
         let found = locate(&l, &rr, &rect.model, b, &LocateParams::default())
             .unwrap_or_else(|e| panic!("at {range} m: {e}"));
-        let truth = (left.inverse() * centre).coords.norm();
         let err = (found.position.coords.norm() - truth) / truth;
         println!(
             "{range} m: located at {:.2} m ({:+.1} %), sigma {:.2} m, {} of {} points foreground",
@@ -402,16 +413,7 @@ fn beyond_15_m_a_located_canister_is_within_three_sigmas_or_not_located_at_all()
         let d = Vector3::new(dir.to_radians().cos(), dir.to_radians().sin(), 0.0);
         let mut eye = centre.coords + d * range;
         eye.z = world.ground_height(eye.x, eye.y) + 1.4;
-        let left = look_at(eye, centre.coords);
-        let right = left * Isometry3::translation(0.25, 0.0, 0.0);
-        let (cam, photometry) = head();
-        let mut rng = Pcg64Mcg::seed_from_u64(20 + k as u64);
-        let imgs = r
-            .grey_views(&t, &[(&cam, left), (&cam, right)], &photometry, Exposure::NOMINAL, &mut rng)
-            .unwrap();
-        let (l, rr) = (rect.left(&imgs[0]), rect.right(&imgs[1]));
-        let b = canister_box(&rect.model.left, &left, &can);
-        let truth = (left.inverse() * centre).coords.norm();
+        let (l, rr, b, truth) = canister_pair(&mut r, &t, &rect, eye, centre, 20 + k as u64);
         tried += 1;
         match locate(&l, &rr, &rect.model, b, &LocateParams::default()) {
             Ok(found) => {

@@ -327,6 +327,8 @@ pub trait DeviceMap {
     fn stereo_camera(&self, name: &str) -> Result<Box<dyn StereoCamera>, DeviceError>;
     /// A Time-of-Flight camera by name (`tof_left`, `tof_right`).
     fn tof_camera(&self, name: &str) -> Result<Box<dyn TofCamera>, DeviceError>;
+    /// A single camera by name (`wrist_camera`).
+    fn mono_camera(&self, name: &str) -> Result<Box<dyn MonoCamera>, DeviceError>;
     /// The robot's mechanism model as its calibration gives it (joint zero offsets and link lengths
     /// as measured, which differ from the hardware's by the calibration error).
     fn mechanism(&self) -> Result<crate::mechanism::MechanismModel, DeviceError>;
@@ -360,6 +362,20 @@ pub trait StereoCamera: Send {
     fn capture(
         &mut self,
     ) -> Result<Option<(crate::camera::GreyImage, crate::camera::GreyImage)>, DeviceError>;
+}
+
+/// A single camera (the wrist camera). Its images are raw (distorted); its calibration is what a
+/// calibration file says of it (intrinsics, distortion, its mounting on its link).
+pub trait MonoCamera: Send {
+    /// Device name.
+    fn device(&self) -> &str;
+    /// The camera's calibration.
+    fn calibration(&self) -> &crate::camera::CameraCalibration;
+    /// Sets the frame rate, Hz: at most the camera's own; 0 stops capturing.
+    fn set_rate(&mut self, hz: f64) -> Result<(), DeviceError>;
+    /// The newest image that has arrived since the last call, if any (stamped with its capture
+    /// time; it arrives after the camera's latency).
+    fn capture(&mut self) -> Result<Option<crate::camera::GreyImage>, DeviceError>;
 }
 
 /// A Time-of-Flight depth camera.

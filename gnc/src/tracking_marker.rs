@@ -1,14 +1,17 @@
-//! `TrackingMarker` (seed 000, 8.4): fiducial markers in the head camera's images, and the poses of
-//! the objects that carry them.
+//! `TrackingMarker` (seed 000, 8.4): fiducial markers in one camera's images, and the poses of the
+//! objects that carry them. The runner has two: on the head camera (objects metres away) and on the
+//! wrist camera (the canister at arm's reach, where the head camera sees its markers too small and
+//! too foreshortened).
 //!
-//! Every new image of the camera (the left image of a stereo slot) is searched for tag36h11
+//! Every new image of the camera (the left image of a stereo slot, or a single camera's) is
+//! searched for tag36h11
 //! markers ([`MarkerDetector`]); each marker whose id the object database knows gets its own pose
 //! from its four corners and the believed camera model, and every object with markers in view gets
 //! one pose from all of its visible markers' corners at once (several tables are tracked at once).
-//! The object's pose is placed in `base_link` through the believed mechanism and the pan-tilt
-//! joints at the image's capture time, and in `map` through the rover's pose estimate then, each
-//! with its covariance. Published: `tracking/markers` ([`MarkerDetections`], every image) and
-//! `tracking/objects` ([`ObjectPoses`], every image with an object in view); both stamped with the
+//! The object's pose is placed in `base_link` through the believed mechanism and the joints (pan-tilt
+//! or arm) at the image's capture time, and in `map` through the rover's pose estimate then, each
+//! with its covariance. Published: `<prefix>/markers` ([`MarkerDetections`], every image) and
+//! `<prefix>/objects` ([`ObjectPoses`], every image with an object in view); both stamped with the
 //! image's capture time.
 //!
 //! Commands: `forget` (every object's track), `locate {object, max_sigma_m?, max_angle_deg?,
@@ -20,20 +23,66 @@ use crate::placement::Placement;
 use crate::tracking::markers::{
     Corners, Detected, MarkerDetector, PoseFit, compose_covariance, fit, marker_pose,
 };
-use framework::camera::CameraCalibration;
+use framework::camera::{CameraCalibration, GreyImage};
 use framework::data::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, StereoImages};
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
 use framework::objects::{MarkerSlot, ObjectDatabase};
 use framework::prelude::*;
-use nalgebra::Matrix6;
+use nalgebra::{Isometry3, Matrix6};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
+use std::sync::Arc;
 
-/// The slot of the markers found in each image.
-pub const MARKERS_SLOT: &str = "tracking/markers";
-/// The slot of the object poses.
-pub const OBJECTS_SLOT: &str = "tracking/objects";
+/// The slot prefix of the head camera's instance: `tracking/markers`, `tracking/objects`.
+pub const HEAD_PREFIX: &str = "tracking";
+/// The slot prefix of the wrist camera's instance: `tracking/wrist/markers`, `.../objects`.
+pub const WRIST_PREFIX: &str = "tracking/wrist";
+
+/// The camera a TrackingMarker reads, by the kind of its blackboard slot `cameras/<device>`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum MarkerCamera {
+    /// The left images of a stereo pair.
+    StereoLeft(String),
+    /// A single camera's images.
+    Single(String),
+}
+
+impl MarkerCamera {
+    /// The camera device.
+    pub fn device(&self) -> &str {
+        match self {
+            MarkerCamera::StereoLeft(d) | MarkerCamera::Single(d) => d,
+        }
+    }
+}
+
+/// Where the images come from.
+enum Images {
+    StereoLeft(Reader<StereoImages>),
+    Single(Reader<GreyImage>),
+}
+
+/// One record of the images' slot.
+enum Frame {
+    Pair(Arc<Stamped<StereoImages>>),
+    One(Arc<Stamped<GreyImage>>),
+}
+
+impl Frame {
+    fn seq(&self) -> u64 {
+        match self {
+            Frame::Pair(f) => f.seq,
+            Frame::One(f) => f.seq,
+        }
+    }
+    fn image(&self) -> &GreyImage {
+        match self {
+            Frame::Pair(f) => &f.value.left,
+            Frame::One(f) => &f.value,
+        }
+    }
+}
 
 /// TrackingMarker parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -118,13 +167,14 @@ struct Track {
 
 /// The TrackingMarker module.
 pub struct TrackingMarker {
-    device: String,
+    camera: MarkerCamera,
+    prefix: String,
     calibration: CameraCalibration,
     db: ObjectDatabase,
     placement: Placement,
     params: TrackingMarkerParams,
     detector: Option<MarkerDetector>,
-    images: Option<Reader<StereoImages>>,
+    images: Option<Images>,
     markers_out: Option<Writer<MarkerDetections>>,
     objects_out: Option<Writer<ObjectPoses>>,
     last_seq: u64,
@@ -178,21 +228,26 @@ pub fn measure(
     }
     let mut fits = Vec::new();
     for (kind, seen) in per_object {
-        // Start from the marker whose own pose is best determined (the largest in the image).
-        let start = seen
+        // A small marker seen face-on has two near-equal poses, and the wrong one would make the
+        // others' corners outliers: the fit starts from each marker's own pose and keeps the one
+        // that explains the most corners, then the one with the smallest reprojection error.
+        let starts: Vec<Isometry3<f64>> = seen
             .iter()
-            .filter_map(|(_, slot, own)| own.as_ref().map(|f| (f, slot)))
-            .min_by(|(a, _), (b, _)| {
-                let trace = |f: &PoseFit| f.covariance.fixed_view::<3, 3>(3, 3).trace();
-                trace(a).total_cmp(&trace(b))
-            })
-            .map(|(f, slot)| f.camera_from_object * slot.pose().inverse());
-        let Some(start) = start else { continue };
+            .filter_map(|(_, slot, own)| own.as_ref().map(|f| f.camera_from_object * slot.pose().inverse()))
+            .collect();
+        if starts.is_empty() {
+            continue;
+        }
         let mut corners = Corners::default();
         for (d, slot, _) in &seen {
             corners.add(&slot.pose(), slot.size_m, d);
         }
-        if let Some(f) = fit(model, &corners, &start, sigma_px) {
+        let inliers = |f: &PoseFit| f.inliers.iter().filter(|i| **i).count();
+        let best = starts
+            .iter()
+            .filter_map(|start| fit(model, &corners, start, sigma_px))
+            .max_by(|a, b| inliers(a).cmp(&inliers(b)).then(b.rmse_px.total_cmp(&a.rmse_px)));
+        if let Some(f) = best {
             let markers = seen
                 .iter()
                 .enumerate()
@@ -206,11 +261,13 @@ pub fn measure(
 }
 
 impl TrackingMarker {
-    /// Marker tracking on the left images of stereo slot `cameras/<device>`, whose left camera has
-    /// the believed `calibration`, for the objects of `db`; placed on the robot of the believed
-    /// `mechanism` with the rover's pose from `pose_slot` and joints from `joints_slots`.
+    /// Marker tracking on the images of `camera` (slot `cameras/<device>`), whose believed
+    /// calibration is `calibration` (a pair's left camera's), for the objects of `db`, published
+    /// under `prefix`; placed on the robot of the believed `mechanism` with the rover's pose from
+    /// `pose_slot` and joints from `joints_slots`.
     pub fn new(
-        device: &str,
+        camera: MarkerCamera,
+        prefix: &str,
         calibration: CameraCalibration,
         db: ObjectDatabase,
         mechanism: MechanismModel,
@@ -219,7 +276,8 @@ impl TrackingMarker {
     ) -> Self {
         let p = TrackingMarkerParams::default();
         TrackingMarker {
-            device: device.to_string(),
+            camera,
+            prefix: prefix.to_string(),
             calibration,
             db,
             placement: Placement::new(mechanism, pose_slot, joints_slots, p.history_s),
@@ -237,17 +295,22 @@ impl TrackingMarker {
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
         self.placement.update(ctx);
-        let Some(frame) = self.images.as_ref().and_then(|r| ctx.read(r)) else { return Ok(()) };
-        if frame.seq == self.last_seq {
+        let frame = match &self.images {
+            Some(Images::StereoLeft(r)) => ctx.read(r).map(Frame::Pair),
+            Some(Images::Single(r)) => ctx.read(r).map(Frame::One),
+            None => None,
+        };
+        let Some(frame) = frame else { return Ok(()) };
+        if frame.seq() == self.last_seq {
             return Ok(());
         }
-        self.last_seq = frame.seq;
+        self.last_seq = frame.seq();
         // Whatever ends this image's processing early (no markers, no pose, not placed) breaks
         // a pending locate's run of images.
         if let Some(pl) = &mut self.pending {
             pl.before = std::mem::take(&mut pl.met);
         }
-        let img = &frame.value.left;
+        let img = frame.image();
         let stamp = img.stamp;
         let p = &self.params;
         let detector = match &mut self.detector {
@@ -263,7 +326,7 @@ impl TrackingMarker {
         let (observations, fits) = measure(&self.db, model, &found, p.corner_sigma_px);
         if let Some(w) = &self.markers_out {
             let out = MarkerDetections {
-                camera: self.device.clone(),
+                camera: self.camera.device().to_string(),
                 frame: img.frame.clone(),
                 stamp,
                 size: [img.width, img.height],
@@ -320,7 +383,11 @@ impl TrackingMarker {
         }
         self.settle(ctx, &objects);
         if let Some(w) = &self.objects_out {
-            ctx.write_stamped(w, ObjectPoses { camera: self.device.clone(), stamp, objects }, stamp);
+            ctx.write_stamped(
+                w,
+                ObjectPoses { camera: self.camera.device().to_string(), stamp, objects },
+                stamp,
+            );
         }
         Ok(())
     }
@@ -367,10 +434,14 @@ impl Module for TrackingMarker {
     const KIND: ModuleKind = ModuleKind::Resource;
 
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
-        self.images = Some(d.reads(&format!("cameras/{}", self.device)));
+        let slot = format!("cameras/{}", self.camera.device());
+        self.images = Some(match &self.camera {
+            MarkerCamera::StereoLeft(_) => Images::StereoLeft(d.reads(&slot)),
+            MarkerCamera::Single(_) => Images::Single(d.reads(&slot)),
+        });
         self.placement.declare(d);
-        self.markers_out = Some(d.writes(MARKERS_SLOT));
-        self.objects_out = Some(d.writes(OBJECTS_SLOT));
+        self.markers_out = Some(d.writes(&format!("{}/markers", self.prefix)));
+        self.objects_out = Some(d.writes(&format!("{}/objects", self.prefix)));
         d.context_switchable();
         d.state("tracking", |m, ctx| m.cycle(ctx));
         d.command("forget", |m, _ctx, _: ()| {

@@ -22,7 +22,8 @@ pub fn module_config_dir() -> PathBuf {
 /// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders); the
 /// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate; visual
 /// odometry only with the cameras and a localization stereo rate; the head camera's trackers only
-/// with the cameras and a head stereo rate.
+/// with the cameras and a head stereo rate; the wrist camera's marker tracker with the cameras (it
+/// sees images once a plan or the scenario gives the wrist camera a rate; it is off by default).
 pub const MODULES: &[&str] = &[
     "localization_mechanical",
     "localization_inertial",
@@ -34,6 +35,7 @@ pub const MODULES: &[&str] = &[
     "localization_visual",
     "localization_fusion",
     "tracking_marker",
+    "tracking_marker_wrist",
     "tracking_target",
     "perception_tof",
     "perception_fusion",
@@ -280,18 +282,28 @@ fn add_module(
             name,
             gnc::cameras::Cameras::new(
                 vec![map.stereo_camera("head_stereo")?, map.stereo_camera("loc_stereo")?],
+                vec![map.mono_camera("wrist_camera")?],
                 vec![map.tof_camera("tof_left")?, map.tof_camera("tof_right")?],
             ),
             config,
         ),
-        "tracking_marker" => {
+        "tracking_marker" | "tracking_marker_wrist" => {
+            use gnc::tracking_marker::{HEAD_PREFIX, MarkerCamera, WRIST_PREFIX};
             let db_path = twin::assets_dir().join("objects.toml");
             let db = framework::objects::ObjectDatabase::load(&db_path)?;
+            let (camera, prefix, calibration) = if name == "tracking_marker" {
+                let calibration = map.stereo_camera("head_stereo")?.calibration().left.clone();
+                (MarkerCamera::StereoLeft("head_stereo".into()), HEAD_PREFIX, calibration)
+            } else {
+                let calibration = map.mono_camera("wrist_camera")?.calibration().clone();
+                (MarkerCamera::Single("wrist_camera".into()), WRIST_PREFIX, calibration)
+            };
             b.add(
                 name,
                 gnc::tracking_marker::TrackingMarker::new(
-                    "head_stereo",
-                    map.stereo_camera("head_stereo")?.calibration().left.clone(),
+                    camera,
+                    prefix,
+                    calibration,
                     db,
                     map.mechanism()?,
                     POSE_SLOT,

@@ -189,8 +189,9 @@ fn exit_codes_tell_success_mission_failure_and_bad_input() {
 #[test]
 fn the_flat_mission_finds_and_approaches_the_canister_from_its_cameras() {
     // Point, locate (TrackingTarget on the operator's box), approach in legs
-    // (CoordinatorVisualTracking); the plan names no canister coordinates. The phases after (the
-    // markers' pose, the arm's) do not succeed yet, and are never reported as a success.
+    // (CoordinatorVisualTracking), track (the wrist camera in the arm's look pose, TrackingMarker on
+    // its images); the plan names no canister coordinates. The arm's phases (acquire, stow) do not
+    // succeed yet, and are never reported as a success.
     let dir = tempfile::tempdir().unwrap();
     let o = run(
         &root().join("scenarios/canister_acquisition_flat.toml"),
@@ -201,17 +202,25 @@ fn the_flat_mission_finds_and_approaches_the_canister_from_its_cameras() {
     let s = score(dir.path());
     let phase =
         |name: &str| s["phases"].as_array().unwrap().iter().find(|p| p["name"] == name).unwrap().clone();
-    for name in ["point", "locate", "approach"] {
+    for name in ["point", "locate", "approach", "track"] {
         assert_eq!(phase(name)["status"], "succeeded", "phase {name}: {}", show(&o));
     }
     let acquire = phase("acquire");
     assert_ne!(acquire["status"], "succeeded");
     assert_eq!(acquire["success"], false);
-    // The approach ended within its 1.5 m of the canister (truth), facing it.
-    let m = &s["metrics"];
-    let (d, bearing) =
-        (m["canister_distance_m"].as_f64().unwrap(), m["canister_bearing_deg"].as_f64().unwrap());
-    assert!(d < 1.5 && bearing.abs() < 15.0, "ended {d:.2} m from the canister, {bearing:.1} degrees off");
+    // The approach ended within its 1.5 m of the canister (the true track), the rover then back
+    // at its start (the return phase drove it there).
+    let end = phase("approach")["end_s"].as_f64().unwrap();
+    let track = std::fs::read_to_string(dir.path().join("track.csv")).unwrap();
+    let at_end = track
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap()).collect::<Vec<f64>>())
+        .min_by(|a, b| (a[0] - end).abs().total_cmp(&(b[0] - end).abs()))
+        .unwrap();
+    let d = (at_end[1] - 3.0).hypot(at_end[2]);
+    assert!(d < 1.5, "the approach ended {d:.2} m from the canister");
+    assert_eq!(phase("return")["status"], "succeeded");
     // The fused location agrees with the truth within its uncertainty.
     let topics = read_mcap(&dir.path().join("run.mcap"));
     let targets = &topics["/slots/tracking/target"];
@@ -225,6 +234,38 @@ fn the_flat_mission_finds_and_approaches_the_canister_from_its_cameras() {
         err < 3.0 * sigma + 0.1 && err < 0.3,
         "located {err:.2} m from the canister (sigma {sigma:.2} m)"
     );
+    // The canister's pose from the wrist camera's markers agrees with the truth (3, 0, yaw 180)
+    // within its uncertainty (the pose estimate's included) and a few centimetres.
+    let objects = &topics["/slots/tracking/wrist/objects"];
+    let last = objects.iter().rev().find_map(|r| {
+        r["value"]["objects"].as_array().unwrap().iter().find(|o| o["object"] == "canister").cloned()
+    });
+    let o = last.expect("the canister seen by the wrist camera");
+    let t: Vec<f64> =
+        o["map_from_object"]["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let c = &o["map_covariance"];
+    let sigma = (c[0].as_f64().unwrap() + c[7].as_f64().unwrap()).sqrt();
+    let err = (t[0] - 3.0).hypot(t[1]);
+    assert!(
+        err < 3.0 * sigma + 0.03 && err < 0.15,
+        "markers place the canister {err:.3} m off (sigma {sigma:.3})"
+    );
+    let q: Vec<f64> =
+        o["map_from_object"]["rotation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let yaw = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[3], q[0], q[1], q[2]))
+        .euler_angles()
+        .2
+        .to_degrees();
+    assert!((yaw.abs() - 180.0).abs() < 5.0, "canister yaw {yaw:.1} deg for 180");
+    // Facing it: the markers' canister is ahead of base_link.
+    let b: Vec<f64> = o["base_from_object"]["translation"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let bearing = b[1].atan2(b[0]).to_degrees();
+    assert!(bearing.abs() < 15.0, "the canister {bearing:.1} degrees off the rover's heading");
     // The scripted operator marked the canister in the first head-camera image (operator input).
     let sel = &topics["/slots/operator/target_selection"];
     assert_eq!(sel.len(), 1);
@@ -548,7 +589,7 @@ fn markers_give_a_marker_tables_pose_in_map_and_reach_the_logs() {
     // Drawn: outlines over the image, the pose in 3D.
     let notes = &topics["/sensors/head_stereo/left/markers"];
     assert!(notes.iter().any(|n| n["points"].as_array().unwrap().len() == 4), "no annotations");
-    assert!(topics.contains_key("/tracking/objects/marker_table"));
+    assert!(topics.contains_key("/tracking/objects/head_stereo/marker_table"));
     let ents = rrd_entities(&dir.path().join("run.rrd"));
     for e in ["/sensors/head_stereo/left/markers", "/world/estimate/objects/marker_table"] {
         assert!(ents.contains(e), "{e} missing");

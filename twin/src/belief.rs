@@ -12,7 +12,7 @@
 //! so adding a camera or a key changes no other draw.
 
 use crate::config::{CalibrationConfig, CameraBuildConfig};
-use crate::render::sensors::{StereoConfig, TofConfig, nominal_camera, tof_model};
+use crate::render::sensors::{MonoConfig, StereoConfig, TofConfig, nominal_camera, tof_model};
 use framework::camera::{CameraCalibration, CameraModel, StereoCalibration};
 use framework::hal::LocomotorModel;
 use framework::mechanism::{JointKind, MechanismModel};
@@ -162,16 +162,56 @@ impl TofBelief {
         cal: &CalibrationConfig,
         seed: u64,
     ) -> Result<Self, String> {
-        let mut d = Draws::new(seed, &format!("camera:{name}"));
-        let truth = build(&tof_model(cfg, frame), build_cfg, false, &mut d);
-        let (mount, mount_optical) = mount_pose(mech, frame)?;
-        let mounting = d.motion(cal.camera_mount_rotation_deg.to_radians(), cal.camera_mount_translation_m);
-        let calibration = CameraCalibration {
-            model: calibrate(&truth.model, cal, &mut d),
-            mount,
-            mount_from_optical: mount_optical * truth.offset * mounting,
-        };
+        let (truth, calibration) = single(name, &tof_model(cfg, frame), false, mech, build_cfg, cal, seed)?;
         Ok(TofBelief { truth, calibration })
+    }
+}
+
+/// A single camera (`nominal`, on the optical link `nominal.frame`) as built and as calibrated;
+/// `lens`: the real lens's distortion differs from the design too.
+fn single(
+    name: &str,
+    nominal: &CameraModel,
+    lens: bool,
+    mech: &MechanismModel,
+    build_cfg: &CameraBuildConfig,
+    cal: &CalibrationConfig,
+    seed: u64,
+) -> Result<(CameraTruth, CameraCalibration), String> {
+    let mut d = Draws::new(seed, &format!("camera:{name}"));
+    let truth = build(nominal, build_cfg, lens, &mut d);
+    let (mount, mount_optical) = mount_pose(mech, &nominal.frame)?;
+    let mounting = d.motion(cal.camera_mount_rotation_deg.to_radians(), cal.camera_mount_translation_m);
+    let calibration = CameraCalibration {
+        model: calibrate(&truth.model, cal, &mut d),
+        mount,
+        mount_from_optical: mount_optical * truth.offset * mounting,
+    };
+    Ok((truth, calibration))
+}
+
+/// A single passive camera (the wrist camera) as built and as calibrated.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MonoBelief {
+    /// The camera as built.
+    pub truth: CameraTruth,
+    /// What the software is told.
+    pub calibration: CameraCalibration,
+}
+
+impl MonoBelief {
+    /// Draws camera `name` of configuration `cfg` on the robot `mech` (the true mechanism).
+    pub fn draw(
+        name: &str,
+        cfg: &MonoConfig,
+        mech: &MechanismModel,
+        build_cfg: &CameraBuildConfig,
+        cal: &CalibrationConfig,
+        seed: u64,
+    ) -> Result<Self, String> {
+        let nominal = nominal_camera(&cfg.as_stereo(), &cfg.frame);
+        let (truth, calibration) = single(name, &nominal, true, mech, build_cfg, cal, seed)?;
+        Ok(MonoBelief { truth, calibration })
     }
 }
 

@@ -74,14 +74,18 @@ impl MarkerDetector {
             .iter()
             .filter(|d| u32::from(d.hamming) <= max_hamming)
             .map(|d| {
-                // kornia's order is [TR, BR, BL, TL] in the image (y down) of the upright tag; its
-                // coordinates put a pixel's centre at +0.5, as framework::camera does (the rendered
-                // test pins this down).
-                let c =
-                    |k: usize| Point2::new(f64::from(d.quad.corners[k].x), f64::from(d.quad.corners[k].y));
+                // The quad's corners are in the order the quad was found in, whatever the tag's
+                // rotation; its homography is turned by the decoded rotation (tag coordinates
+                // (-1, -1) ... (1, 1), y down as printed), so the printed corners are projected
+                // through it. Coordinates put a pixel's centre at +0.5, as framework::camera does
+                // (the rendered tests pin this down).
+                let c = |x: f32, y: f32| {
+                    let p = d.quad.homography_project(x, y);
+                    Point2::new(f64::from(p.x), f64::from(p.y))
+                };
                 Detected {
                     id: u32::from(d.id),
-                    corners: [c(3), c(0), c(1), c(2)],
+                    corners: [c(-1.0, -1.0), c(1.0, -1.0), c(1.0, 1.0), c(-1.0, 1.0)],
                     decision_margin: f64::from(d.decision_margin),
                     hamming: u32::from(d.hamming),
                 }

@@ -4,7 +4,7 @@
 use framework::Stamped;
 use framework::Time;
 use framework::blackboard::SlotCell;
-use framework::camera::TofFrame;
+use framework::camera::{GreyImage, TofFrame};
 use framework::data::{
     ElevationMap, JointStates, LocomotionState, MarkerDetections, NavigationMap, ObjectPoses, PoseEstimate,
     StereoImages, TargetSelection, TargetTrack, VisualOdometry,
@@ -20,6 +20,8 @@ pub(super) enum Known {
     /// The state with the ground height under its goal.
     Locomotion(LocomotionState, Option<f64>),
     Stereo(Arc<Stamped<StereoImages>>),
+    /// A single camera's image.
+    Mono(Arc<Stamped<GreyImage>>),
     Tof(Arc<Stamped<TofFrame>>),
     Target(TargetSelection),
     Elevation(Time, Arc<Stamped<ElevationMap>>),
@@ -52,6 +54,8 @@ pub(super) fn classify(any: &dyn Any, twin: &Twin) -> Known {
         Known::Target(s.value.clone())
     } else if let Some(s) = latest::<StereoImages>(any) {
         Known::Stereo(s)
+    } else if let Some(s) = latest::<GreyImage>(any) {
+        Known::Mono(s)
     } else if let Some(s) = latest::<TofFrame>(any) {
         Known::Tof(s)
     } else if let Some(s) = latest::<ElevationMap>(any) {

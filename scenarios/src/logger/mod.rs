@@ -114,6 +114,16 @@ pub struct RunLogger {
     events_seen: usize,
 }
 
+/// The entity (Rerun) and topic (MCAP, with a leading `/`) of camera `camera`'s image that
+/// overlays are drawn on: a stereo pair's left image, a single camera's image.
+pub(super) fn image_entity(camera: &str) -> String {
+    if twin::devices::MONO_CAMERAS.contains(&camera) {
+        format!("sensors/{camera}/image")
+    } else {
+        format!("sensors/{camera}/left")
+    }
+}
+
 fn period(hz: f64) -> Option<Duration> {
     (hz > 0.0).then(|| Duration::from_hz(hz))
 }
@@ -280,7 +290,7 @@ impl RunLogger {
                 out.push(SlotRecord { name, type_name: slot.type_name(), json: None, known });
                 continue;
             }
-            if matches!(known, Known::Stereo(_) | Known::Tof(_)) {
+            if matches!(known, Known::Stereo(_) | Known::Mono(_) | Known::Tof(_)) {
                 // Images: at their own rate, never as JSON.
                 let Some(p) = period(self.settings.images_hz) else { continue };
                 if self.next_image.get(&name).is_some_and(|t| now < *t) {
@@ -594,6 +604,10 @@ impl Writer {
                     let name = r.name.trim_start_matches("cameras/").to_string();
                     self.grey(&format!("sensors/{name}/left"), &img.value.left)?;
                     self.grey(&format!("sensors/{name}/right"), &img.value.right)?;
+                }
+                Known::Mono(img) => {
+                    let name = r.name.trim_start_matches("cameras/");
+                    self.grey(&image_entity(name), &img.value)?;
                 }
                 Known::Tof(f) => {
                     let name = r.name.trim_start_matches("cameras/").to_string();

@@ -35,6 +35,9 @@ pub(super) fn blueprint() -> rerun::blueprint::Blueprint {
                             Spatial2DView::new("Head camera").with_origin("/sensors/head_stereo/left"),
                         ),
                         ContainerLike::from(
+                            Spatial2DView::new("Wrist camera").with_origin("/sensors/wrist_camera/image"),
+                        ),
+                        ContainerLike::from(
                             Spatial2DView::new("ToF depth").with_origin("/sensors/tof_left/depth"),
                         ),
                         ContainerLike::from(

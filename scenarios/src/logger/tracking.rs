@@ -33,7 +33,7 @@ fn annotation(stamp: framework::Time, corners: &[[f32; 2]], colour: [u8; 3], tex
 }
 
 impl Writer {
-    /// The markers of one image, drawn over its (downsampled) left image.
+    /// The markers of one image, drawn over its (downsampled) image.
     pub(super) fn markers(&mut self, m: &MarkerDetections) -> Result<()> {
         let k = f64::from(self.downsample.max(1));
         let outline = |corners: &[[f64; 2]; 4]| -> Vec<[f32; 2]> {
@@ -43,7 +43,7 @@ impl Writer {
                 .map(|c| [(c[0] / k) as f32, (c[1] / k) as f32])
                 .collect()
         };
-        let path = format!("sensors/{}/left/markers", m.camera);
+        let path = format!("{}/markers", super::image_entity(&m.camera));
         if let Some(rec) = &self.rrd {
             let labels: Vec<String> = m
                 .markers
@@ -79,11 +79,11 @@ impl Writer {
         Ok(())
     }
 
-    /// Object poses in `map`.
+    /// Object poses in `map`, per camera that saw them.
     pub(super) fn objects(&mut self, o: &ObjectPoses) -> Result<()> {
         for p in &o.objects {
             if let Some(rec) = &self.rrd {
-                let base = format!("world/estimate/objects/{}", p.object);
+                let base = format!("world/estimate/objects/{}/{}", o.camera, p.object);
                 rec.log(base.as_str(), &rr_transform(&p.map_from_object))?;
                 let sig = [0, 1, 2].map(|i| 3.0 * p.map_covariance[(i, i)].max(0.0).sqrt() as f32);
                 rec.log(
@@ -106,7 +106,7 @@ impl Writer {
                     "timestamp": stamp_json(p.stamp), "frame_id": "map", "poses": [pose_json(&p.map_from_object)],
                 });
                 mc.foxglove(
-                    &format!("/tracking/objects/{}", p.object),
+                    &format!("/tracking/objects/{}/{}", o.camera, p.object),
                     "foxglove.PosesInFrame",
                     p.stamp,
                     &msg,
@@ -124,7 +124,7 @@ impl Writer {
         let lost = t.status == TargetStatus::Lost;
         let colour: [u8; 3] = if lost { [230, 40, 40] } else { [255, 200, 0] };
         let label = format!("{} {:?} {:.2}", t.target, t.status, t.confidence);
-        let path = format!("sensors/{}/left/track", t.camera);
+        let path = format!("{}/track", super::image_entity(&t.camera));
         if let Some(rec) = &self.rrd {
             rec.log(
                 path.as_str(),

@@ -1,4 +1,5 @@
-//! The Dry-Run cameras: stereo pairs and Time-of-Flight cameras rendered from the twin.
+//! The Dry-Run cameras: stereo pairs, single cameras and Time-of-Flight cameras rendered from the
+//! twin.
 //!
 //! A camera captures on its own clock: when its period has passed at a call to `capture`, it
 //! renders the twin as it is then (the capture time, the images' stamp) and the frame arrives
@@ -11,12 +12,12 @@
 //! calibration. Stereo pairs run auto-exposure on the left image; a pair shares one exposure.
 
 use super::{SharedTwin, arrival};
-use crate::belief::{CameraTruth, StereoBelief, TofBelief};
+use crate::belief::{CameraTruth, MonoBelief, StereoBelief, TofBelief};
 use crate::render::gpu::RenderError;
 use crate::render::sensors::{Exposure, SharedRenderer, StereoConfig, TofConfig};
 use crate::sim::Twin;
 use framework::camera::{CameraCalibration, GreyImage, StereoCalibration, TofFrame};
-use framework::hal::{DeviceError, StereoCamera, TofCamera};
+use framework::hal::{DeviceError, MonoCamera, StereoCamera, TofCamera};
 use framework::time::{Duration, Time};
 use nalgebra::Isometry3;
 use rand::SeedableRng;
@@ -166,6 +167,73 @@ impl StereoCamera for DryRunStereo {
             let mean = left.data.iter().map(|&p| f64::from(p)).sum::<f64>() / left.data.len().max(1) as f64;
             self.exposure = self.exposure.next(&self.cfg.exposure, mean);
             self.pending.push_back((at, (left, right)));
+        }
+        Ok(newest(&mut self.pending, twin.time()))
+    }
+}
+
+/// Dry-Run single camera (the wrist camera), with its own auto-exposure.
+pub struct DryRunMono {
+    twin: SharedTwin,
+    renderer: SharedRenderer,
+    belief: MonoBelief,
+    cfg: StereoConfig,
+    schedule: Schedule,
+    exposure: Exposure,
+    rng: Pcg64Mcg,
+    pending: VecDeque<(Time, GreyImage)>,
+}
+
+impl DryRunMono {
+    /// The camera `name` of configuration `cfg` (as a pair of one camera), built and calibrated as
+    /// `belief`.
+    pub fn new(
+        name: &str,
+        twin: SharedTwin,
+        renderer: SharedRenderer,
+        cfg: &StereoConfig,
+        belief: MonoBelief,
+        seed: u64,
+    ) -> Self {
+        DryRunMono {
+            twin,
+            renderer,
+            belief,
+            cfg: cfg.clone(),
+            schedule: Schedule::new(name, cfg.rate_hz, cfg.latency_s, cfg.jitter_s, seed ^ 0x3c0),
+            exposure: Exposure::NOMINAL,
+            rng: Pcg64Mcg::seed_from_u64(seed),
+            pending: VecDeque::new(),
+        }
+    }
+}
+
+impl MonoCamera for DryRunMono {
+    fn device(&self) -> &str {
+        &self.schedule.name
+    }
+    fn calibration(&self) -> &CameraCalibration {
+        &self.belief.calibration
+    }
+    fn set_rate(&mut self, hz: f64) -> Result<(), DeviceError> {
+        self.schedule.set_rate(hz)
+    }
+    fn capture(&mut self) -> Result<Option<GreyImage>, DeviceError> {
+        let twin = self.twin.lock();
+        if let Some(at) = self.schedule.due(&twin)? {
+            let name = &self.schedule.name;
+            let truth = &self.belief.truth;
+            let cams = [(&truth.model, true_pose(&twin, truth, name)?)];
+            let image = self
+                .renderer
+                .lock()
+                .grey_views(&twin, &cams, &self.cfg.photometry, self.exposure, &mut self.rng)
+                .map_err(render_fault(name))?
+                .pop()
+                .expect("one image");
+            let mean = image.data.iter().map(|&p| f64::from(p)).sum::<f64>() / image.data.len().max(1) as f64;
+            self.exposure = self.exposure.next(&self.cfg.exposure, mean);
+            self.pending.push_back((at, image));
         }
         Ok(newest(&mut self.pending, twin.time()))
     }

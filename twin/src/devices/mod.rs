@@ -20,12 +20,12 @@ pub mod joints;
 pub mod locomotion;
 pub mod proprio;
 
-use crate::belief::{StereoBelief, TofBelief, believed_locomotor, believed_mechanism};
+use crate::belief::{MonoBelief, StereoBelief, TofBelief, believed_locomotor, believed_mechanism};
 use crate::render::sensors::{SensorConfig, SensorRenderer, SharedRenderer};
 use crate::sim::{JOINT_GROUPS, Twin};
 use framework::exec_context::Mode;
 use framework::hal::{
-    DeviceError, DeviceMap, Imu, JointGroup, Locomotor, LocomotorModel, StereoCamera, TofCamera,
+    DeviceError, DeviceMap, Imu, JointGroup, Locomotor, LocomotorModel, MonoCamera, StereoCamera, TofCamera,
     WheelEncoders,
 };
 use framework::mechanism::MechanismModel;
@@ -56,6 +56,9 @@ pub(crate) fn arrival(seed: u64, seq: u64, stamp: Time, latency_s: f64, jitter_s
     let u = (bits >> 11) as f64 / (1u64 << 53) as f64;
     stamp + Duration::from_secs_f64(latency_s + jitter_s * u)
 }
+
+/// The single cameras of the rover ([`DeviceMap::mono_camera`]).
+pub const MONO_CAMERAS: &[&str] = &["wrist_camera"];
 
 /// Builds Dry-Run devices bound to a twin.
 pub struct DryRunDeviceMap {
@@ -147,6 +150,21 @@ impl DryRunDeviceMap {
         let t = self.twin.lock();
         let tc = t.config();
         StereoBelief::draw(name, c, t.mechanism(), &tc.camera_build, &tc.calibration, self.seed)
+            .map_err(|reason| DeviceError::InvalidCommand { device: name.into(), reason })
+    }
+
+    /// Single camera `name` as built and as calibrated in this run.
+    pub fn mono_belief(&self, name: &str) -> Result<MonoBelief, DeviceError> {
+        let cfg = self.sensor_config(name)?;
+        if !MONO_CAMERAS.contains(&name) {
+            return Err(DeviceError::InvalidCommand {
+                device: name.into(),
+                reason: "no such single camera (have: wrist_camera)".into(),
+            });
+        }
+        let t = self.twin.lock();
+        let tc = t.config();
+        MonoBelief::draw(name, &cfg.wrist_camera, t.mechanism(), &tc.camera_build, &tc.calibration, self.seed)
             .map_err(|reason| DeviceError::InvalidCommand { device: name.into(), reason })
     }
 
@@ -255,6 +273,18 @@ impl DeviceMap for DryRunDeviceMap {
             self.twin.clone(),
             self.renderer(name)?,
             cfg,
+            belief,
+            self.device_seed(name),
+        )))
+    }
+    fn mono_camera(&self, name: &str) -> Result<Box<dyn MonoCamera>, DeviceError> {
+        let belief = self.mono_belief(name)?;
+        let cfg = self.sensor_config(name)?.wrist_camera.as_stereo();
+        Ok(Box::new(cameras::DryRunMono::new(
+            name,
+            self.twin.clone(),
+            self.renderer(name)?,
+            &cfg,
             belief,
             self.device_seed(name),
         )))

@@ -51,6 +51,53 @@ pub struct StereoConfig {
     pub exposure: ExposureControl,
 }
 
+/// One camera's parameters (a wrist camera): a stereo pair's, with one optical frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MonoConfig {
+    /// Optical frame (URDF link).
+    pub frame: String,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Horizontal field of view, degrees.
+    pub hfov_deg: f64,
+    /// Frame rate, Hz.
+    pub rate_hz: f64,
+    /// Capture to availability, s.
+    pub latency_s: f64,
+    /// Extra delay per frame, uniform in [0, jitter_s], s.
+    pub jitter_s: f64,
+    /// Lens distortion (nominal; each real camera differs, see `camera_build` in `twin.toml`).
+    #[serde(default)]
+    pub distortion: Distortion,
+    /// How radiance becomes grey levels.
+    pub photometry: Photometry,
+    /// Exposure control.
+    pub exposure: ExposureControl,
+}
+
+impl MonoConfig {
+    /// The same camera described as a pair of two identical cameras in one frame: what the
+    /// validation, the nominal model and the renderer share with stereo pairs.
+    pub fn as_stereo(&self) -> StereoConfig {
+        StereoConfig {
+            left_frame: self.frame.clone(),
+            right_frame: self.frame.clone(),
+            width: self.width,
+            height: self.height,
+            hfov_deg: self.hfov_deg,
+            rate_hz: self.rate_hz,
+            latency_s: self.latency_s,
+            jitter_s: self.jitter_s,
+            distortion: self.distortion,
+            photometry: self.photometry,
+            exposure: self.exposure,
+        }
+    }
+}
+
 /// The photometric model of a camera: the rendered radiance (0-255 at the nominal exposure and
 /// unit gain) becomes electrons, with shot noise (Poisson, as a Gaussian of the same variance) and read
 /// noise, then grey levels through the gain, quantized to 8 bits and saturated.
@@ -180,6 +227,8 @@ pub struct SensorConfig {
     pub head_stereo: StereoConfig,
     /// Localization stereo camera fixed on the body (visual odometry).
     pub loc_stereo: StereoConfig,
+    /// The camera on the gripper (eye-in-hand: markers at arm's reach, visual servoing).
+    pub wrist_camera: MonoConfig,
     /// The Time-of-Flight cameras on the pan-tilt unit.
     pub tof: TofConfig,
 }
@@ -207,7 +256,10 @@ impl SensorConfig {
                 Err(src.error_at_key(k, "latency_s and jitter_s must be finite and >= 0"))
             }
         };
-        for (k, s) in [("head_stereo", &c.head_stereo), ("loc_stereo", &c.loc_stereo)] {
+        let wrist = c.wrist_camera.as_stereo();
+        for (k, s) in
+            [("head_stereo", &c.head_stereo), ("loc_stereo", &c.loc_stereo), ("wrist_camera", &wrist)]
+        {
             if s.width == 0
                 || s.height == 0
                 || !(1.0..179.0).contains(&s.hfov_deg)

@@ -352,8 +352,8 @@ fn tracker_update(b: Bencher<'_, '_>) {
     let (_, frames) = tracking_frames();
     let mut t = TemplateTracker::new(TrackerParams::default());
     t.init(&frames[0].0, TRACK_BOX).unwrap();
-    assert_ne!(t.clone().update(&frames[1].0, None).status, TrackStatus::Lost);
-    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None)));
+    assert_ne!(t.clone().update(&frames[1].0, None, 1.0).status, TrackStatus::Lost);
+    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None, 1.0)));
 }
 
 #[divan::bench(sample_count = 20, sample_size = 1)]
@@ -364,9 +364,9 @@ fn tracker_redetect(b: Bencher<'_, '_>) {
     t.init(&frames[0].0, TRACK_BOX).unwrap();
     let blank =
         framework::camera::GreyImage { data: vec![90; frames[0].0.data.len()], ..frames[0].0.clone() };
-    assert_eq!(t.update(&blank, None).status, TrackStatus::Lost);
-    assert_eq!(t.clone().update(&frames[1].0, None).status, TrackStatus::Redetected);
-    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None)));
+    assert_eq!(t.update(&blank, None, 1.0).status, TrackStatus::Lost);
+    assert_eq!(t.clone().update(&frames[1].0, None, 1.0).status, TrackStatus::Redetected);
+    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None, 1.0)));
 }
 
 #[divan::bench(sample_count = 30, sample_size = 3)]

@@ -323,7 +323,15 @@ impl TrackingTarget {
                     status: TrackStatus::Lost,
                 }
             } else {
-                tracker.update(&h.left, predicted)
+                // A lost target is looked for at the size the estimate's range predicts: the
+                // rover may have come much nearer while it was lost (a scan, a moving target).
+                let scale = match (&placed, expected, self.last_range) {
+                    (Ok((map_from_rect, _)), Some(p), Some(last)) => {
+                        last / (p - Point3::from(map_from_rect.translation.vector)).norm()
+                    }
+                    _ => 1.0,
+                };
+                tracker.update(&h.left, predicted, scale)
             }
         } else {
             crate::tracking::template::TrackResult {

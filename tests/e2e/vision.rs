@@ -307,7 +307,7 @@ fn the_tracker_follows_the_canister_through_a_rendered_approach() {
             tracker.init(&img, truth).unwrap();
             continue;
         }
-        let out = tracker.update(&img, None);
+        let out = tracker.update(&img, None, 1.0);
         let o = iou(&out.bbox, &truth);
         if out.status != TrackStatus::Lost && o > 0.5 {
             good += 1;
@@ -366,7 +366,7 @@ fn the_tracker_loses_the_canister_behind_a_rock_and_redetects_it_after() {
             tracker.init(&img, truth).unwrap();
             continue;
         }
-        let out = tracker.update(&img, None);
+        let out = tracker.update(&img, None, 1.0);
         let o = iou(&out.bbox, &truth);
         println!("{deg:+} deg: visible {visible}, {:?} {:.2}, overlap {o:.2}", out.status, out.confidence);
         if !visible {

@@ -289,8 +289,11 @@ impl TemplateTracker {
     }
 
     /// Follows the target into `img`, searching around `predicted` (the box centre where the
-    /// caller expects it, pixels) or else the last position. Without an `init` it is lost.
-    pub fn update(&mut self, img: &GreyImage, predicted: Option<(f64, f64)>) -> TrackResult {
+    /// caller expects it, pixels) or else the last position. A lost target is looked for at the
+    /// re-detection scales times `scale`: the size the caller expects it at relative to the last
+    /// box (the rover came nearer while it was lost: the ratio of the ranges; 1 when unknown).
+    /// Without an `init` it is lost.
+    pub fn update(&mut self, img: &GreyImage, predicted: Option<(f64, f64)>, scale: f64) -> TrackResult {
         let Some(last) = self.bbox else {
             return TrackResult { bbox: [0.0; 4], confidence: 0.0, status: TrackStatus::Lost };
         };
@@ -298,9 +301,11 @@ impl TemplateTracker {
         // projection), over the re-detection scales (it may have come nearer while lost), then
         // over the whole image; either must pass the re-detection threshold (a small target's
         // neighbourhood holds look-alikes: a lower one locks onto them).
+        let scale = if scale.is_finite() { scale.clamp(0.25, 4.0) } else { 1.0 };
+        let redetect_scales: Vec<f64> = self.params.redetect_scales.iter().map(|s| s * scale).collect();
         let guided = match (self.lost, predicted) {
             (true, Some((cx, cy))) => self
-                .search_scales(img, cx, cy, &self.params.redetect_scales)
+                .search_scales(img, cx, cy, &redetect_scales)
                 .filter(|f| f.0 >= self.params.redetect_threshold)
                 .map(|(c, b, s)| (c, b, s, TrackStatus::Redetected)),
             _ => None,
@@ -308,7 +313,7 @@ impl TemplateTracker {
         let found = if guided.is_some() {
             guided
         } else if self.lost {
-            self.redetect(img).map(|(c, b, s)| (c, b, s, TrackStatus::Redetected))
+            self.redetect(img, &redetect_scales).map(|(c, b, s)| (c, b, s, TrackStatus::Redetected))
         } else {
             let (cx, cy) = predicted.unwrap_or_else(|| centre(&last));
             self.search(img, cx, cy).map(|(c, b, s)| (c, b, s, TrackStatus::Tracking))
@@ -415,7 +420,7 @@ impl TemplateTracker {
     /// three newest learnt ones (a whole-image search costs tens of milliseconds per template and
     /// scale for a small target): coarse (every other cell) over the image, then fine around the
     /// best coarse match.
-    fn redetect(&self, img: &GreyImage) -> Option<(f64, BBox, (f64, f64))> {
+    fn redetect(&self, img: &GreyImage, scales: &[f64]) -> Option<(f64, BBox, (f64, f64))> {
         let last = self.bbox?;
         let n = self.templates.len();
         let chosen: Vec<&Template> = self
@@ -426,7 +431,7 @@ impl TemplateTracker {
             .map(|(_, t)| t)
             .collect();
         let mut best: Option<(f64, f64, f64, f64)> = None;
-        for &s in &self.params.redetect_scales {
+        for &s in scales {
             let region = (self.region.0 * s, self.region.1 * s);
             for t in chosen.iter().copied() {
                 let step = region.0 / t.w as f64;
@@ -515,7 +520,7 @@ mod tests {
         t.init(&scene(x, y, size, false), boxed(x, y, size)).unwrap();
         for _ in 0..30 {
             (x, y, size) = (x + 5.0, y + 2.0, size * 1.03);
-            let r = t.update(&scene(x, y, size, false), None);
+            let r = t.update(&scene(x, y, size, false), None, 1.0);
             assert_eq!(r.status, TrackStatus::Tracking, "{r:?}");
             assert!(overlap(&r.bbox, &boxed(x, y, size)) > 0.6, "{r:?} vs {:?}", boxed(x, y, size));
         }
@@ -526,15 +531,35 @@ mod tests {
     fn it_reports_a_loss_under_occlusion_and_redetects_after() {
         let mut t = TemplateTracker::new(TrackerParams::default());
         t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
-        assert_eq!(t.update(&scene(105.0, 120.0, 16.0, false), None).status, TrackStatus::Tracking);
+        assert_eq!(t.update(&scene(105.0, 120.0, 16.0, false), None, 1.0).status, TrackStatus::Tracking);
         // Behind the occluder (a dark band at u 110-190).
-        let r = t.update(&scene(150.0, 120.0, 16.0, true), None);
+        let r = t.update(&scene(150.0, 120.0, 16.0, true), None, 1.0);
         assert_eq!(r.status, TrackStatus::Lost, "{r:?}");
         // Out again, far from where it was lost.
-        let r = t.update(&scene(230.0, 110.0, 16.0, false), None);
+        let r = t.update(&scene(230.0, 110.0, 16.0, false), None, 1.0);
         assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
         assert!(overlap(&r.bbox, &boxed(230.0, 110.0, 16.0)) > 0.6, "{r:?}");
-        assert_eq!(t.update(&scene(234.0, 110.0, 16.0, false), None).status, TrackStatus::Tracking);
+        assert_eq!(t.update(&scene(234.0, 110.0, 16.0, false), None, 1.0).status, TrackStatus::Tracking);
+    }
+
+    #[test]
+    fn a_target_that_grew_while_lost_is_redetected_at_the_size_the_caller_expects() {
+        // Lost behind the occluder at 16 px, back at 40 px (the rover came 2.5 times nearer):
+        // beyond the re-detection scales of the last box, found at the expected size.
+        let lost = |t: &mut TemplateTracker| {
+            t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
+            assert_eq!(t.update(&scene(150.0, 120.0, 16.0, true), None, 1.0).status, TrackStatus::Lost);
+        };
+        let grown = scene(240.0, 120.0, 40.0, false);
+        let mut t = TemplateTracker::new(TrackerParams::default());
+        lost(&mut t);
+        let r = t.update(&grown, Some((240.0, 120.0)), 2.5);
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+        assert!(overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) > 0.6, "{r:?}");
+        let mut t = TemplateTracker::new(TrackerParams::default());
+        lost(&mut t);
+        let r = t.update(&grown, Some((240.0, 120.0)), 1.0);
+        assert!(r.status == TrackStatus::Lost || overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) < 0.6, "{r:?}");
     }
 
     #[test]

@@ -69,7 +69,8 @@ pub struct Cameras {
     mono: Vec<Channel<dyn MonoCamera, GreyImage>>,
     tof: Vec<Channel<dyn TofCamera, TofFrame>>,
     params: CamerasParams,
-    /// Rates set by `set_rate`, over the configured ones.
+    /// Rates set by `set_rate`, over the configured ones (a reconfiguration keeps them: a plan's
+    /// command outranks the file until the plan sets the rate again).
     overrides: BTreeMap<String, f64>,
     failing: BTreeSet<String>,
 }

@@ -17,7 +17,10 @@
 //! Commands: `forget` (every object's track), `locate {object, max_sigma_m?, max_angle_deg?,
 //! frames?}` (completes once `frames` images in a row gave the object's pose in `base_link` to
 //! `max_sigma_m` and `max_angle_deg`, 1 sigma per axis, with that pose and its `map` pose; the arm
-//! needs the first) and `stop` (a pending `locate` fails).
+//! needs the first) and `stop` (a pending `locate` fails). The `base_link` covariance is the
+//! image's (corner noise through the believed camera model): the mechanism's calibration error (a
+//! few centimetres through the arm for the wrist camera) is not in it, which is why the arm closes
+//! its loop on the camera's own view.
 
 use crate::placement::Placement;
 use crate::tracking::markers::{

@@ -132,6 +132,7 @@ pub(crate) fn build_system(
             || (NAVIGATION.contains(name) && !navigation_enabled(s))
             || (*name == "localization_visual" && !visual_enabled(s))
             || (HEAD_TRACKING.contains(name) && !camera_rate_on(s, "head_stereo_hz"))
+            || (*name == "tracking_marker_wrist" && !cameras)
         {
             continue;
         }
@@ -199,7 +200,7 @@ pub fn known_start(
 }
 
 /// The cameras run when the scenario has a `[modules.cameras]` table with a non-zero rate (sweeps
-/// turn them off by setting both rates to 0).
+/// turn them off by setting the rates to 0; the wrist camera counts only when given a rate).
 fn cameras_enabled(s: &Scenario) -> bool {
     let Some(t) = s.modules.get("cameras") else { return false };
     let rate = |k: &str| {
@@ -207,6 +208,7 @@ fn cameras_enabled(s: &Scenario) -> bool {
     };
     // Absent rates take the module defaults (on).
     ["head_stereo_hz", "loc_stereo_hz", "tof_hz"].iter().any(|k| rate(k).is_none_or(|r| r > 0.0))
+        || rate("wrist_camera_hz").is_some_and(|r| r > 0.0)
 }
 
 /// The cameras run and the scenario's `key` rate of the cameras (absent: the default, on) is

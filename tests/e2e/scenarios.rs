@@ -237,9 +237,11 @@ fn the_flat_mission_finds_and_approaches_the_canister_from_its_cameras() {
     // The canister's pose from the wrist camera's markers agrees with the truth (3, 0, yaw 180)
     // within its uncertainty (the pose estimate's included) and a few centimetres.
     let objects = &topics["/slots/tracking/wrist/objects"];
-    let last = objects.iter().rev().find_map(|r| {
-        r["value"]["objects"].as_array().unwrap().iter().find(|o| o["object"] == "canister").cloned()
-    });
+    let track_end = phase("track")["end_s"].as_f64().unwrap();
+    let last =
+        objects.iter().rev().filter(|r| r["stamp"].as_f64().unwrap() <= track_end * 1e9).find_map(|r| {
+            r["value"]["objects"].as_array().unwrap().iter().find(|o| o["object"] == "canister").cloned()
+        });
     let o = last.expect("the canister seen by the wrist camera");
     let t: Vec<f64> =
         o["map_from_object"]["translation"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
@@ -591,7 +593,7 @@ fn markers_give_a_marker_tables_pose_in_map_and_reach_the_logs() {
     assert!(notes.iter().any(|n| n["points"].as_array().unwrap().len() == 4), "no annotations");
     assert!(topics.contains_key("/tracking/objects/head_stereo/marker_table"));
     let ents = rrd_entities(&dir.path().join("run.rrd"));
-    for e in ["/sensors/head_stereo/left/markers", "/world/estimate/objects/marker_table"] {
+    for e in ["/sensors/head_stereo/left/markers", "/world/estimate/objects/head_stereo/marker_table"] {
         assert!(ents.contains(e), "{e} missing");
     }
 }

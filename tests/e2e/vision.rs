@@ -480,13 +480,17 @@ fn the_wrist_camera_in_the_look_pose_gives_the_canister_pose_at_arms_reach() {
         // Auto-exposure settles over the first frames; the fourth is measured.
         let mut image = None;
         let mut frames = 0;
-        while frames < 4 {
+        for _ in 0..100 {
             t.lock().run_for(framework::Duration::from_secs_f64(0.05));
             if let Some(img) = cam.capture().unwrap() {
                 frames += 1;
                 image = Some(img);
             }
+            if frames == 4 {
+                break;
+            }
         }
+        assert_eq!(frames, 4, "case {k}: the wrist camera delivered {frames} frames in 5 s");
         let image = image.unwrap();
         let mut detector = MarkerDetector::new(image.width, image.height, 2).unwrap();
         let found = detector.detect(&image, 1).unwrap();
@@ -556,7 +560,8 @@ fn a_marker_turned_in_the_image_keeps_its_corners_in_printed_order() {
                 found[0].corners
             );
         }
-        // Turn the image a quarter clockwise (new(u, v) = old(v, side - 1 - u)), and the corners.
+        // Turn the image a quarter counter-clockwise (new(u, v) = old(side - 1 - v, u)), and the
+        // corners with it.
         let mut turned = vec![255u8; data.len()];
         for v in 0..side {
             for u in 0..side {

@@ -348,25 +348,27 @@ const TRACK_BOX: [f64; 4] = [296.0, 276.0, 344.0, 324.0];
 
 #[divan::bench(sample_count = 30, sample_size = 5)]
 fn tracker_update(b: Bencher<'_, '_>) {
-    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
     let (_, frames) = tracking_frames();
     let mut t = TemplateTracker::new(TrackerParams::default());
     t.init(&frames[0].0, TRACK_BOX).unwrap();
-    assert_ne!(t.clone().update(&frames[1].0, None, 1.0).status, TrackStatus::Lost);
-    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None, 1.0)));
+    assert_ne!(t.clone().update(&frames[1].0, &Prior::default()).status, TrackStatus::Lost);
+    b.with_inputs(|| t.clone())
+        .bench_local_values(|mut t| black_box(t.update(&frames[1].0, &Prior::default())));
 }
 
 #[divan::bench(sample_count = 20, sample_size = 1)]
 fn tracker_redetect(b: Bencher<'_, '_>) {
-    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
     let (_, frames) = tracking_frames();
     let mut t = TemplateTracker::new(TrackerParams::default());
     t.init(&frames[0].0, TRACK_BOX).unwrap();
     let blank =
         framework::camera::GreyImage { data: vec![90; frames[0].0.data.len()], ..frames[0].0.clone() };
-    assert_eq!(t.update(&blank, None, 1.0).status, TrackStatus::Lost);
-    assert_eq!(t.clone().update(&frames[1].0, None, 1.0).status, TrackStatus::Redetected);
-    b.with_inputs(|| t.clone()).bench_local_values(|mut t| black_box(t.update(&frames[1].0, None, 1.0)));
+    assert_eq!(t.update(&blank, &Prior::default()).status, TrackStatus::Lost);
+    assert_eq!(t.clone().update(&frames[1].0, &Prior::default()).status, TrackStatus::Redetected);
+    b.with_inputs(|| t.clone())
+        .bench_local_values(|mut t| black_box(t.update(&frames[1].0, &Prior::default())));
 }
 
 #[divan::bench(sample_count = 30, sample_size = 3)]

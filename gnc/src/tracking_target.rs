@@ -5,7 +5,9 @@
 //! raw left image of a given capture time; the module keeps the last few rectified pairs, so it
 //! starts the [`TemplateTracker`] on the very image the box was drawn in (mapped into the
 //! rectified image through the believed calibration) and catches up on the images since. Each new
-//! pair is then tracked (around where the target's 3D estimate projects, once it has one) and, when
+//! pair is then tracked (around where the target's 3D estimate projects, once it has one, at the
+//! size the selected box has at the estimate's range; a lost target of an established estimate is
+//! looked for only within that estimate's uncertainty for a while, not over the whole image) and, when
 //! the target is found, located by [`locate`] in the rectified pair; the location is placed in `map`
 //! through the believed mechanism, the pan-tilt joints and the rover's pose estimate at the image's
 //! capture time, and fused with the earlier ones ([`TargetEstimate`]: a slowly wandering point; a
@@ -18,16 +20,16 @@
 //! Commands: `select {bbox, image_stamp_s?}` (a box in a held image, the newest by default),
 //! `forget`, `stop` (a pending `locate` fails; tracking goes on), and `locate {max_sigma_m?}`,
 //! which completes once the target's position (its uncertainty grown by the target's wander since
-//! it was last located) is known to
-//! `max_sigma_m` (1 sigma, horizontal) and fails if the target is lost for `lost_timeout_s` or
-//! nothing is selected.
+//! it was last located) is known to `max_sigma_m` (1 sigma, horizontal) and fails if the target
+//! is lost for `lost_timeout_s` or nothing is selected.
 
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
 use crate::tracking::estimate::TargetEstimate;
 use crate::tracking::locate::{LocateParams, locate};
 use crate::tracking::markers::compose_covariance;
-use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, TrackerParams};
+use crate::tracking::search::{LostSearch, search_radius_px};
+use crate::tracking::template::{BBox, Prior, TemplateTracker, TrackStatus, TrackerParams};
 use framework::camera::{GreyImage, StereoCalibration};
 use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
 use framework::mechanism::MechanismModel;
@@ -73,6 +75,12 @@ pub struct TrackingTargetParams {
     /// Range assumed along the line of sight of a target not located yet, m: where to look for it
     /// after the camera moved.
     pub sight_range_m: f64,
+    /// A lost target with an established estimate is looked for only within `gate_sigma` of the
+    /// estimate's projection, plus this many pixels (the box's own size is added).
+    pub redetect_margin_px: f64,
+    /// ... until it has been searched for there this long (time with the estimate out of view
+    /// not counted), s; then over the whole image (the estimate may be what is wrong).
+    pub redetect_whole_after_s: f64,
 }
 
 impl Default for TrackingTargetParams {
@@ -88,6 +96,8 @@ impl Default for TrackingTargetParams {
             history_s: 4.0,
             max_extrapolation_s: 0.15,
             sight_range_m: 20.0,
+            redetect_margin_px: 16.0,
+            redetect_whole_after_s: 10.0,
         }
     }
 }
@@ -142,6 +152,8 @@ pub struct TrackingTarget {
     located: u32,
     last_range: Option<f64>,
     lost_since: Option<Time>,
+    /// How long the lost target has been searched for where the estimate projects.
+    searched_lost: LostSearch,
     /// A pending `locate` and its accuracy.
     pending: Option<(Request, f64)>,
     /// A failed stereo location was noted since the selection.
@@ -150,6 +162,9 @@ pub struct TrackingTarget {
     sight: Option<LineOfSight>,
     /// The pose estimate's share of the newest fused location's covariance (see `pose_drift`).
     fix_pose_term: Option<Matrix3<f64>>,
+    /// Where the camera was (`map`) in the selection's image, and the selected box's width there
+    /// (rectified pixels): the box's expected size at any range follows from them.
+    selected_view: Option<(Point3<f64>, f64)>,
 }
 
 /// The covariance a point `p` in `map` takes from the rover's pose estimate `pose` (its position,
@@ -237,10 +252,12 @@ impl TrackingTarget {
             located: 0,
             last_range: None,
             lost_since: None,
+            searched_lost: LostSearch::default(),
             pending: None,
             locate_noted: false,
             sight: None,
             fix_pose_term: None,
+            selected_view: None,
         }
     }
 
@@ -270,10 +287,12 @@ impl TrackingTarget {
         self.estimate = TargetEstimate::default();
         self.located = 0;
         self.lost_since = None;
+        self.searched_lost = LostSearch::default();
         self.locate_noted = false;
         self.last_range = None;
         self.sight = None;
         self.fix_pose_term = None;
+        self.selected_view = None;
         ctx.note(format!(
             "tracking the {target} selected at {bbox:?} in the image of {}",
             self.held[k].stamp
@@ -287,35 +306,87 @@ impl TrackingTarget {
         Ok(())
     }
 
+    /// The estimate's covariance at `now`: grown by the target's wander since it was last located
+    /// and by the drift of the rover's pose estimate (`pose`, when known) since then.
+    fn aged_covariance(&self, now: Time, pose: Option<&PoseEstimate>) -> Option<Matrix3<f64>> {
+        let (c, t, p) = (self.estimate.covariance()?, self.estimate.stamp()?, self.estimate.position()?);
+        let age = (now - t).as_secs_f64().max(0.0);
+        let drift = pose.map_or_else(Matrix3::zeros, |pose| pose_drift(self.fix_pose_term, pose, &p));
+        Some(c + Matrix3::identity() * self.params.target_walk.powi(2) * age + drift)
+    }
+
+    /// What the tracker is told of the target in the image of `stamp`, taken from `placed` (the
+    /// rectified left camera in `map`, and the rover's pose estimate): where the estimate
+    /// projects (else the last line of sight at the last range: the camera may have turned), the
+    /// box's expected width, and, for an established estimate, how far from its projection a lost
+    /// target can be.
+    fn prior(&self, stamp: Time, placed: Option<&(Isometry3<f64>, PoseEstimate)>) -> Prior {
+        let Some((map_from_rect, pose)) = placed else { return Prior::default() };
+        let camera = Point3::from(map_from_rect.translation.vector);
+        let expected = self
+            .estimate
+            .position()
+            .or_else(|| self.sight.map(|s| s.at(self.last_range.unwrap_or(self.params.sight_range_m))));
+        let Some(expected) = expected else { return Prior::default() };
+        let in_camera = map_from_rect.inverse() * expected;
+        let centre = self.rect.model.left.project(&in_camera).map(|uv| (uv.x, uv.y));
+        // Only an established estimate (a wrong first location is allowed for) sizes the box and
+        // bounds the search.
+        let established = self.estimate.count() >= CONFIRM_AFTER;
+        // The selected box's width times the ratio of the ranges then and now, both from the one
+        // estimate (its range error mostly cancels).
+        let width_px = self
+            .estimate
+            .position()
+            .zip(self.selected_view)
+            .filter(|_| established)
+            .map(|(p, (then, w))| w * (p - then).norm() / (p - camera).norm())
+            .filter(|w| w.is_finite());
+        let radius_px = if established && self.searched_lost.searched_s() < self.params.redetect_whole_after_s
+        {
+            self.aged_covariance(stamp, Some(pose)).and_then(|c| {
+                let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
+                // The box at the size it is looked for.
+                let half_box = self.tracker.as_ref().and_then(TemplateTracker::bbox).map_or(0.0, |b| {
+                    let (w, h) = (b[2] - b[0], b[3] - b[1]);
+                    let k = width_px.map_or(1.0, |e| e / w);
+                    0.5 * k * w.hypot(h)
+                });
+                search_radius_px(
+                    &self.rect.model.left.pinhole,
+                    &in_camera,
+                    &(r.transpose() * c * r),
+                    self.params.gate_sigma,
+                    self.params.redetect_margin_px,
+                    half_box,
+                )
+            })
+        } else {
+            None
+        };
+        Prior { centre, radius_px, width_px }
+    }
+
     /// Tracks and locates in the held image of `stamp` (`track`: false for the selection's own
     /// image, which is only located) and publishes the track.
     fn process(&mut self, ctx: &mut Ctx<'_>, stamp: Time, track: bool) {
         let Some(h) = self.held.iter().find(|h| h.stamp == stamp) else { return };
-        let Some(tracker) = &mut self.tracker else { return };
         // Where the camera was: for the prediction and the location (the 2D track goes on without).
         let placed =
             self.placement.camera_at(&self.calibration.left, stamp).map(|(pose, base_from_optical)| {
                 (pose.pose * base_from_optical * self.rect.left_from_rect, pose)
             });
+        let prior = self.prior(stamp, placed.as_ref().ok());
+        let Some(tracker) = &mut self.tracker else { return };
+        let mut searched = false;
         let result = if track {
-            // Search where the estimate projects, when there is one in front of the camera; else
-            // where the last line of sight does at the last range (the camera may have turned).
-            let expected = self
-                .estimate
-                .position()
-                .or_else(|| self.sight.map(|s| s.at(self.last_range.unwrap_or(self.params.sight_range_m))));
-            let predicted = placed.as_ref().ok().and_then(|(map_from_rect, _)| {
-                expected
-                    .and_then(|p| self.rect.model.left.project(&(map_from_rect.inverse() * p)))
-                    .map(|p| (p.x, p.y))
-            });
             // Where the estimate says the target is out of the image (the head looks elsewhere:
             // a scan), there is nothing to track, and a search would only find look-alikes: the
             // tracker waits for it to come back into view where the estimate projects.
             let (w, ht) = (h.left.width as f64, h.left.height as f64);
             let out_of_view = self.estimate.position().is_some()
                 && placed.is_ok()
-                && predicted.is_none_or(|(u, v)| !(0.0..w).contains(&u) || !(0.0..ht).contains(&v));
+                && prior.centre.is_none_or(|(u, v)| !(0.0..w).contains(&u) || !(0.0..ht).contains(&v));
             if out_of_view {
                 crate::tracking::template::TrackResult {
                     bbox: tracker.bbox().unwrap_or([0.0; 4]),
@@ -323,17 +394,23 @@ impl TrackingTarget {
                     status: TrackStatus::Lost,
                 }
             } else {
-                // A lost target is looked for at the size the estimate's range predicts: the
-                // rover may have come much nearer while it was lost (a scan, a moving target).
-                let scale = match (&placed, expected, self.last_range) {
-                    (Ok((map_from_rect, _)), Some(p), Some(last)) => {
-                        last / (p - Point3::from(map_from_rect.translation.vector)).norm()
-                    }
-                    _ => 1.0,
-                };
-                tracker.update(&h.left, predicted, scale)
+                searched = true;
+                let r = tracker.update(&h.left, &prior);
+                // The selection's own image could not be placed: the first placed image where the
+                // target is found stands for it.
+                if self.selected_view.is_none()
+                    && r.status != TrackStatus::Lost
+                    && let Ok((map_from_rect, _)) = &placed
+                {
+                    self.selected_view =
+                        Some((Point3::from(map_from_rect.translation.vector), r.bbox[2] - r.bbox[0]));
+                }
+                r
             }
         } else {
+            if let (Ok((map_from_rect, _)), Some(b)) = (&placed, tracker.bbox()) {
+                self.selected_view = Some((Point3::from(map_from_rect.translation.vector), b[2] - b[0]));
+            }
             crate::tracking::template::TrackResult {
                 bbox: tracker.bbox().unwrap_or([0.0; 4]),
                 confidence: 1.0,
@@ -341,10 +418,12 @@ impl TrackingTarget {
             }
         };
         let mut measured = None;
-        if result.status == TrackStatus::Lost {
-            self.lost_since.get_or_insert(stamp);
-        } else {
+        let found = result.status != TrackStatus::Lost;
+        self.searched_lost.frame(stamp, found, searched);
+        if found {
             self.lost_since = None;
+        } else {
+            self.lost_since.get_or_insert(stamp);
         }
         let located = match (&placed, result.status) {
             (_, TrackStatus::Lost) => None,
@@ -484,14 +563,7 @@ impl TrackingTarget {
         let Some((_, max_sigma)) = &self.pending else { return Ok(()) };
         // The estimate ages: a target that may wander is known less well the longer ago it was
         // last located, and the rover's pose estimate has drifted since.
-        let aged = self.estimate.covariance().zip(self.estimate.stamp()).map(|(c, t)| {
-            let age = (ctx.now() - t).as_secs_f64().max(0.0);
-            let drift = match (self.placement.newest_pose(), self.estimate.position()) {
-                (Some(now), Some(p)) => pose_drift(self.fix_pose_term, now, &p),
-                _ => Matrix3::zeros(),
-            };
-            c + Matrix3::identity() * self.params.target_walk.powi(2) * age + drift
-        });
+        let aged = self.aged_covariance(ctx.now(), self.placement.newest_pose());
         let outcome = if let (Some(p), Some(c)) = (self.estimate.position(), aged)
             && c[(0, 0)].max(c[(1, 1)]).sqrt() <= *max_sigma
         {
@@ -550,8 +622,10 @@ impl Module for TrackingTarget {
             m.located = 0;
             m.last_range = None;
             m.lost_since = None;
+            m.searched_lost = LostSearch::default();
             m.sight = None;
             m.fix_pose_term = None;
+            m.selected_view = None;
             Outcome::done()
         });
         d.command("locate", |m, ctx, a: LocateArgs| {
@@ -578,6 +652,8 @@ impl Module for TrackingTarget {
             ("lost_timeout_s", p.lost_timeout_s),
             ("history_s", p.history_s),
             ("sight_range_m", p.sight_range_m),
+            ("redetect_margin_px", p.redetect_margin_px),
+            ("redetect_whole_after_s", p.redetect_whole_after_s),
             ("tracker.track_threshold", p.tracker.track_threshold),
             ("tracker.redetect_threshold", p.tracker.redetect_threshold),
             ("locate.disparity_sigma_px", p.locate.disparity_sigma_px),

@@ -285,7 +285,7 @@ fn stereo_locate_finds_the_canister_within_five_percent_of_its_range_from_3_to_1
 
 #[test]
 fn the_tracker_follows_the_canister_through_a_rendered_approach() {
-    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
     let t = object_twin("canister", 40.0);
     let mut r = SensorRenderer::new(&t).unwrap();
     let (cam, _) = head();
@@ -307,7 +307,7 @@ fn the_tracker_follows_the_canister_through_a_rendered_approach() {
             tracker.init(&img, truth).unwrap();
             continue;
         }
-        let out = tracker.update(&img, None, 1.0);
+        let out = tracker.update(&img, &Prior::default());
         let o = iou(&out.bbox, &truth);
         if out.status != TrackStatus::Lost && o > 0.5 {
             good += 1;
@@ -322,7 +322,7 @@ fn the_tracker_follows_the_canister_through_a_rendered_approach() {
 
 #[test]
 fn the_tracker_loses_the_canister_behind_a_rock_and_redetects_it_after() {
-    use gnc::tracking::template::{TemplateTracker, TrackStatus, TrackerParams};
+    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
     // The canister, and a 1 m rock half-way between it and the camera's path.
     let text = "name = \"t\"\nseed = 3\n[terrain]\nsize_m = [40.0, 40.0]\nresolution_m = 0.5\n\
                 [[objects]]\nname = \"o\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\nyaw_deg = 40.0\n";
@@ -366,7 +366,7 @@ fn the_tracker_loses_the_canister_behind_a_rock_and_redetects_it_after() {
             tracker.init(&img, truth).unwrap();
             continue;
         }
-        let out = tracker.update(&img, None, 1.0);
+        let out = tracker.update(&img, &Prior::default());
         let o = iou(&out.bbox, &truth);
         println!("{deg:+} deg: visible {visible}, {:?} {:.2}, overlap {o:.2}", out.status, out.confidence);
         if !visible {

@@ -7,7 +7,9 @@
 //! check (the right pixel matched back into the left image) and a parabola for sub-pixel. The two
 //! clusters start from the disparity of the whole box matched as one window (its dominant
 //! structure: the target, however few pixels it covers far away) and the median disparity of the
-//! box's border (what surrounds it); the foreground is the one grown from the first. Its position is
+//! box's border (what surrounds it); the foreground is the one grown from the first, trimmed to the
+//! disparities near the median of its points at the box's centre (the ground just in front of the
+//! target falls on the foreground's side of the split and would pull it nearer). Its position is
 //! triangulated from the cluster's mean pixel and mean disparity (a target of a few pixels, too
 //! small for clusters, is the whole box's match at the box's centre, where at least two pixels of
 //! the box match near it; the spread of the box's matches is then a bias of that place) (averaging disparities, not
@@ -46,6 +48,9 @@ pub struct LocateParams {
     pub disparity_floor_px: f64,
     /// Fewer foreground points than this: the whole box's match stands for the target.
     pub min_points: usize,
+    /// The foreground keeps the disparities within this many `disparity_sigma_px` (or the
+    /// target's own depth, if more) of the median of its points near the box's centre.
+    pub trim_sigma: f64,
     /// The target's radius, m: what is seen is its near surface, not its centre (added to the
     /// covariance, each axis).
     pub target_radius_m: f64,
@@ -66,6 +71,7 @@ impl Default for LocateParams {
             disparity_sigma_px: 0.3,
             disparity_floor_px: 0.4,
             min_points: 8,
+            trim_sigma: 4.0,
             target_radius_m: 0.05,
             pointing_sigma_deg: 0.5,
         }
@@ -277,6 +283,23 @@ pub fn locate(
     }
     let fore: Vec<(f64, f64, f64, f64)> =
         samples.iter().zip(&members).filter(|(_, m)| **m).map(|(s, _)| *s).collect();
+    // The foreground cluster also holds the ground just in front of the target (nearer than it,
+    // so on its side of the split), which would pull the location nearer and lower the more of it
+    // the box shows. The target is what the box's centre shows: the cluster is trimmed to the
+    // disparities within `trim_sigma` match noises of its centre's median, or within the target's
+    // own depth (its diameter) of it, whichever is more.
+    let fb = model.left.pinhole.fx * model.baseline;
+    let fore = {
+        let mut inner: Vec<f64> = fore.iter().filter(|s| s.3 < 0.5).map(|s| s.2).collect();
+        match median(&mut inner) {
+            Some(d) if inner.len() >= p.min_points => {
+                let tol = (p.trim_sigma * p.disparity_sigma_px).max(d * d * 2.0 * p.target_radius_m / fb);
+                let kept: Vec<_> = fore.iter().copied().filter(|s| (s.2 - d).abs() <= tol).collect();
+                if kept.len() >= p.min_points { kept } else { fore }
+            }
+            _ => fore,
+        }
+    };
     // Too few pixels for k-means (a target of a few pixels): the whole box's match, as one
     // measurement at the box's centre.
     // The whole box's match stands only where pixels of the box match near it: a window of a
@@ -304,7 +327,6 @@ pub fn locate(
     let mv = fore.iter().map(|s| s.1).sum::<f64>() / n;
     let md = fore.iter().map(|s| s.2).sum::<f64>() / n;
     let k = &model.left.pinhole;
-    let fb = k.fx * model.baseline;
     let z = fb / md;
     let position = Point3::new((mu - k.cx) * z / k.fx, (mv - k.cy) * z / k.fy, z);
     // The mean pixel's spread, the mean disparity's noise (with its floor).
@@ -410,6 +432,59 @@ mod tests {
             assert!(loc.foreground < loc.matched, "the wall was not separated: {loc:?}");
             assert!(loc.covariance[(2, 2)].sqrt() < 0.1 * z, "{loc:?}");
         }
+    }
+
+    /// A rectified pair of a camera `height` m above flat textured ground, looking level at a
+    /// fronto-parallel textured target standing on it at depth `z` (`w` wide, `h` tall), before a
+    /// wall at 4z; and the target's box in pixels.
+    fn standing(z: f64, height: f64, (w, h): (f64, f64)) -> (StereoModel, GreyImage, GreyImage, [f64; 4]) {
+        let cam = CameraModel::from_hfov(320, 240, 70f64.to_radians(), "l");
+        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
+        let f = model.left.pinhole.fx;
+        let render = |shift: f64| {
+            let mut data = Vec::new();
+            for v in 0..240 {
+                for u in 0..320 {
+                    // Image y down: the ground is at y = height.
+                    let (x, y) = ((u as f64 + 0.5 - 160.0) / f, (v as f64 + 0.5 - 120.0) / f);
+                    let (tx, ty) = (x * z + shift, y * z);
+                    let val = if tx.abs() < w / 2.0 && (height - h..height).contains(&ty) {
+                        255.0 * noise(tx, ty, 0.03, 1)
+                    } else if y > 0.0 && height / y < 4.0 * z {
+                        let d = height / y;
+                        255.0 * noise(x * d + shift, d, 0.06, 3)
+                    } else {
+                        255.0 * noise(x * 4.0 * z + shift, y * 4.0 * z, 0.08, 2)
+                    };
+                    data.push(val as u8);
+                }
+            }
+            GreyImage { stamp: Time::ZERO, frame: "r".into(), width: 320, height: 240, data }
+        };
+        let bbox = [
+            160.0 - 0.5 * w * f / z,
+            120.0 + (height - h) * f / z,
+            160.0 + 0.5 * w * f / z,
+            120.0 + height * f / z,
+        ];
+        (model.clone(), render(0.0), render(model.baseline), bbox)
+    }
+
+    #[test]
+    fn the_ground_in_front_of_a_standing_target_does_not_pull_it_nearer() {
+        // The box half as large again as the target each way (a tracker's box is rarely tight):
+        // its lower part shows the ground in front, nearer than the target.
+        let z = 4.0;
+        let (model, l, r, t) = standing(z, 1.0, (0.3, 0.4));
+        let (mw, mh) = (0.5 * (t[2] - t[0]), 0.5 * (t[3] - t[1]));
+        let bbox = [t[0] - mw, t[1] - mh, t[2] + mw, t[3] + mh];
+        let trimmed = locate(&l, &r, &model, bbox, &LocateParams::default()).unwrap();
+        let untrimmed =
+            locate(&l, &r, &model, bbox, &LocateParams { trim_sigma: 1e9, ..LocateParams::default() })
+                .unwrap();
+        let err = |loc: &Located| (loc.position.z - z).abs();
+        assert!(err(&trimmed) < 0.02 * z, "trimmed: {trimmed:?}");
+        assert!(err(&trimmed) < err(&untrimmed), "trimmed {trimmed:?}, untrimmed {untrimmed:?}");
     }
 
     #[test]

@@ -1,6 +1,6 @@
 //! A target tracker in the spirit of track-learn-detect (seed 000, 8.1): normalized
-//! cross-correlation of learnt templates, with scale adaptation, a confidence, and re-detection over
-//! the whole image after a loss or an occlusion.
+//! cross-correlation of learnt templates, with scale adaptation, a confidence, and re-detection
+//! after a loss or an occlusion.
 //!
 //! A template is the target's box with some context around it (a small target far away is a few
 //! pixels; the ground around it moves with it), resampled to a fixed grid and normalized (zero mean,
@@ -9,8 +9,15 @@
 //! the search area once onto the template's grid so the search is a dense correlation with running
 //! sums. The confidence is the best correlation with any learnt template there; a confident match
 //! that looks unlike every stored template is learnt. Below the tracking threshold the target is
-//! lost, and every later frame is searched whole, coarse to fine, at several scales, with all the
-//! templates, until one matches above the re-detection threshold.
+//! lost, and every later frame is searched, coarse to fine, at several scales, with the operator's
+//! and the newest templates, until one matches above the re-detection threshold: the whole image,
+//! or only where the caller says the target can be (its 3D estimate's projection and uncertainty:
+//! a small target's look-alikes elsewhere are then never taken for it).
+//!
+//! The caller's [`Prior`] may also give the box's expected size (from the target's range): the
+//! scales searched are then centred on it. Scale chosen by correlation alone drifts over a long
+//! approach (a few pixels of target in a context region, each frame's best of three scales), so the
+//! box would end up on a part of the target or on the ground around it.
 
 use framework::camera::GreyImage;
 
@@ -68,7 +75,7 @@ pub type BBox = [f64; 4];
 pub enum TrackStatus {
     /// Followed from the last frame.
     Tracking,
-    /// Found again by a whole-image search after a loss.
+    /// Found again by a search after a loss.
     Redetected,
     /// Not found.
     Lost,
@@ -84,6 +91,23 @@ pub struct TrackResult {
     /// What happened.
     pub status: TrackStatus,
 }
+
+/// What the caller knows of where the target should be in the next frame. `Default`: nothing.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Prior {
+    /// The box's expected centre, pixels (its 3D estimate's projection); the last box's when
+    /// None.
+    pub centre: Option<(f64, f64)>,
+    /// How far from `centre` a lost target can be, pixels (the estimate's uncertainty): it is
+    /// looked for only there. None: the whole image.
+    pub radius_px: Option<f64>,
+    /// The box's expected width, pixels (its size at the range the estimate gives).
+    pub width_px: Option<f64>,
+}
+
+/// Largest change of scale toward the expected size in one frame while tracking: a box far from
+/// it converges over a few frames rather than jumping.
+const MAX_TRACK_RESCALE: f64 = 1.25;
 
 /// A normalized template: zero mean, unit norm, `w` x `h` cells.
 #[derive(Clone, Debug)]
@@ -288,35 +312,42 @@ impl TemplateTracker {
         Ok(())
     }
 
-    /// Follows the target into `img`, searching around `predicted` (the box centre where the
-    /// caller expects it, pixels) or else the last position. A lost target is looked for at the
-    /// re-detection scales times `scale`: the size the caller expects it at relative to the last
-    /// box (the rover came nearer while it was lost: the ratio of the ranges; 1 when unknown).
-    /// Without an `init` it is lost.
-    pub fn update(&mut self, img: &GreyImage, predicted: Option<(f64, f64)>, scale: f64) -> TrackResult {
+    /// Follows the target into `img`, searching around the `prior`'s centre (else the last
+    /// position) at scales centred on its expected size (else the last box's). A lost target is
+    /// looked for there first, then within the prior's radius (else the whole image), at the
+    /// re-detection scales. Without an `init` it is lost.
+    pub fn update(&mut self, img: &GreyImage, prior: &Prior) -> TrackResult {
         let Some(last) = self.bbox else {
             return TrackResult { bbox: [0.0; 4], confidence: 0.0, status: TrackStatus::Lost };
         };
-        // A lost target is looked for first where the caller predicts it (its 3D estimate's
-        // projection), over the re-detection scales (it may have come nearer while lost), then
-        // over the whole image; either must pass the re-detection threshold (a small target's
-        // neighbourhood holds look-alikes: a lower one locks onto them).
-        let scale = if scale.is_finite() { scale.clamp(0.25, 4.0) } else { 1.0 };
-        let redetect_scales: Vec<f64> = self.params.redetect_scales.iter().map(|s| s * scale).collect();
-        let guided = match (self.lost, predicted) {
-            (true, Some((cx, cy))) => self
-                .search_scales(img, cx, cy, &redetect_scales)
-                .filter(|f| f.0 >= self.params.redetect_threshold)
-                .map(|(c, b, s)| (c, b, s, TrackStatus::Redetected)),
-            _ => None,
-        };
-        let found = if guided.is_some() {
+        // The expected size relative to the last box's.
+        let rescale = prior
+            .width_px
+            .map(|w| w / (last[2] - last[0]))
+            .filter(|r| r.is_finite() && *r > 0.0)
+            .unwrap_or(1.0);
+        let found = if self.lost {
+            // Either search must pass the re-detection threshold (a small target's neighbourhood
+            // holds look-alikes: a lower one locks onto them).
+            let rescale = rescale.clamp(0.25, 4.0);
+            let scales: Vec<f64> = self.params.redetect_scales.iter().map(|s| s * rescale).collect();
+            let guided = prior.centre.and_then(|(cx, cy)| {
+                self.search_scales(img, cx, cy, &scales).filter(|f| f.0 >= self.params.redetect_threshold)
+            });
             guided
-        } else if self.lost {
-            self.redetect(img, &redetect_scales).map(|(c, b, s)| (c, b, s, TrackStatus::Redetected))
+                .or_else(|| {
+                    let area = prior
+                        .centre
+                        .zip(prior.radius_px)
+                        .map(|((cx, cy), r)| [cx - r, cy - r, cx + r, cy + r]);
+                    self.redetect(img, &scales, area)
+                })
+                .map(|(c, b, s)| (c, b, s, TrackStatus::Redetected))
         } else {
-            let (cx, cy) = predicted.unwrap_or_else(|| centre(&last));
-            self.search(img, cx, cy).map(|(c, b, s)| (c, b, s, TrackStatus::Tracking))
+            let rescale = rescale.clamp(1.0 / MAX_TRACK_RESCALE, MAX_TRACK_RESCALE);
+            let scales: Vec<f64> = self.params.scales.iter().map(|s| s * rescale).collect();
+            let (cx, cy) = prior.centre.unwrap_or_else(|| centre(&last));
+            self.search_scales(img, cx, cy, &scales).map(|(c, b, s)| (c, b, s, TrackStatus::Tracking))
         };
         let threshold = if self.lost { self.params.redetect_threshold } else { self.params.track_threshold };
         match found {
@@ -334,13 +365,8 @@ impl TemplateTracker {
         }
     }
 
-    /// The best match of the newest template around (cx, cy), over the configured scales:
+    /// The best match of the newest template around (cx, cy), over `scales` of the last box:
     /// (confidence against all templates, box, region).
-    fn search(&self, img: &GreyImage, cx: f64, cy: f64) -> Option<(f64, BBox, (f64, f64))> {
-        self.search_scales(img, cx, cy, &self.params.scales)
-    }
-
-    /// [`Self::search`] over `scales` of the last box.
     fn search_scales(
         &self,
         img: &GreyImage,
@@ -416,12 +442,23 @@ impl TemplateTracker {
         }
     }
 
-    /// Searches the whole image at the re-detection scales with the operator's template and the
-    /// three newest learnt ones (a whole-image search costs tens of milliseconds per template and
-    /// scale for a small target): coarse (every other cell) over the image, then fine around the
-    /// best coarse match.
-    fn redetect(&self, img: &GreyImage, scales: &[f64]) -> Option<(f64, BBox, (f64, f64))> {
+    /// Searches `area` (pixels, [u_min, v_min, u_max, v_max]; None: the whole image) at `scales`
+    /// with the operator's template and the three newest learnt ones (a whole-image search costs
+    /// tens of milliseconds per template and scale for a small target): coarse (every other cell),
+    /// then fine around the best coarse match. The match's centre lies in the area.
+    fn redetect(
+        &self,
+        img: &GreyImage,
+        scales: &[f64],
+        area: Option<BBox>,
+    ) -> Option<(f64, BBox, (f64, f64))> {
         let last = self.bbox?;
+        let (w, h) = (img.width as f64, img.height as f64);
+        let area =
+            area.map_or([0.0, 0.0, w, h], |a| [a[0].max(0.0), a[1].max(0.0), a[2].min(w), a[3].min(h)]);
+        if !(area[2] > area[0] && area[3] > area[1]) {
+            return None;
+        }
         let n = self.templates.len();
         let chosen: Vec<&Template> = self
             .templates
@@ -435,9 +472,6 @@ impl TemplateTracker {
             let region = (self.region.0 * s, self.region.1 * s);
             for t in chosen.iter().copied() {
                 let step = region.0 / t.w as f64;
-                // Coarse: the image and the template at twice the step.
-                let (iw, ih) =
-                    ((img.width as f64 / (2.0 * step)) as usize, (img.height as f64 / (2.0 * step)) as usize);
                 let coarse_t = {
                     let (w2, h2) = (t.w / 2, t.h / 2);
                     let mut d = Vec::with_capacity(w2 * h2);
@@ -450,12 +484,21 @@ impl TemplateTracker {
                     Template::new(w2, h2, d)
                 };
                 let Some(coarse_t) = coarse_t else { continue };
-                let area = resample(img, step, step, 2.0 * step, iw, ih);
-                let Some((_, ox, oy)) = ncc_search(&coarse_t, &area, iw, ih) else { continue };
+                // Coarse: the windows whose centres lie in the area (they reach half a region
+                // beyond it), the image and the template at twice the step.
+                let (x0, y0) = (area[0] - 0.5 * region.0, area[1] - 0.5 * region.1);
+                let (iw, ih) = (
+                    ((area[2] - area[0] + region.0) / (2.0 * step)) as usize,
+                    ((area[3] - area[1] + region.1) / (2.0 * step)) as usize,
+                );
+                let patch = resample(img, x0 + step, y0 + step, 2.0 * step, iw, ih);
+                let Some((_, ox, oy)) = ncc_search(&coarse_t, &patch, iw, ih) else { continue };
                 // Its centre in pixels, then the fine search there.
-                let cx = step + (ox + 0.5 * (coarse_t.w as f64 - 1.0)) * 2.0 * step;
-                let cy = step + (oy + 0.5 * (coarse_t.h as f64 - 1.0)) * 2.0 * step;
+                let cx = x0 + step + (ox + 0.5 * (coarse_t.w as f64 - 1.0)) * 2.0 * step;
+                let cy = y0 + step + (oy + 0.5 * (coarse_t.h as f64 - 1.0)) * 2.0 * step;
                 if let Some((score, x, y)) = search_around(img, t, cx, cy, step, 3)
+                    && (area[0]..=area[2]).contains(&x)
+                    && (area[1]..=area[3]).contains(&y)
                     && best.is_none_or(|b| score > b.0)
                 {
                     best = Some((score, x, y, s));
@@ -520,7 +563,7 @@ mod tests {
         t.init(&scene(x, y, size, false), boxed(x, y, size)).unwrap();
         for _ in 0..30 {
             (x, y, size) = (x + 5.0, y + 2.0, size * 1.03);
-            let r = t.update(&scene(x, y, size, false), None, 1.0);
+            let r = t.update(&scene(x, y, size, false), &Prior::default());
             assert_eq!(r.status, TrackStatus::Tracking, "{r:?}");
             assert!(overlap(&r.bbox, &boxed(x, y, size)) > 0.6, "{r:?} vs {:?}", boxed(x, y, size));
         }
@@ -531,15 +574,21 @@ mod tests {
     fn it_reports_a_loss_under_occlusion_and_redetects_after() {
         let mut t = TemplateTracker::new(TrackerParams::default());
         t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
-        assert_eq!(t.update(&scene(105.0, 120.0, 16.0, false), None, 1.0).status, TrackStatus::Tracking);
+        assert_eq!(
+            t.update(&scene(105.0, 120.0, 16.0, false), &Prior::default()).status,
+            TrackStatus::Tracking
+        );
         // Behind the occluder (a dark band at u 110-190).
-        let r = t.update(&scene(150.0, 120.0, 16.0, true), None, 1.0);
+        let r = t.update(&scene(150.0, 120.0, 16.0, true), &Prior::default());
         assert_eq!(r.status, TrackStatus::Lost, "{r:?}");
         // Out again, far from where it was lost.
-        let r = t.update(&scene(230.0, 110.0, 16.0, false), None, 1.0);
+        let r = t.update(&scene(230.0, 110.0, 16.0, false), &Prior::default());
         assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
         assert!(overlap(&r.bbox, &boxed(230.0, 110.0, 16.0)) > 0.6, "{r:?}");
-        assert_eq!(t.update(&scene(234.0, 110.0, 16.0, false), None, 1.0).status, TrackStatus::Tracking);
+        assert_eq!(
+            t.update(&scene(234.0, 110.0, 16.0, false), &Prior::default()).status,
+            TrackStatus::Tracking
+        );
     }
 
     #[test]
@@ -548,18 +597,70 @@ mod tests {
         // beyond the re-detection scales of the last box, found at the expected size.
         let lost = |t: &mut TemplateTracker| {
             t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
-            assert_eq!(t.update(&scene(150.0, 120.0, 16.0, true), None, 1.0).status, TrackStatus::Lost);
+            assert_eq!(
+                t.update(&scene(150.0, 120.0, 16.0, true), &Prior::default()).status,
+                TrackStatus::Lost
+            );
         };
         let grown = scene(240.0, 120.0, 40.0, false);
         let mut t = TemplateTracker::new(TrackerParams::default());
         lost(&mut t);
-        let r = t.update(&grown, Some((240.0, 120.0)), 2.5);
+        let expected = Prior { centre: Some((240.0, 120.0)), radius_px: None, width_px: Some(40.0) };
+        let r = t.update(&grown, &expected);
         assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
         assert!(overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) > 0.6, "{r:?}");
         let mut t = TemplateTracker::new(TrackerParams::default());
         lost(&mut t);
-        let r = t.update(&grown, Some((240.0, 120.0)), 1.0);
+        let r = t.update(&grown, &Prior { width_px: None, ..expected });
         assert!(r.status == TrackStatus::Lost || overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) < 0.6, "{r:?}");
+    }
+
+    #[test]
+    fn a_lost_target_is_looked_for_only_where_the_caller_says_it_can_be() {
+        let lost = |t: &mut TemplateTracker| {
+            t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
+            assert_eq!(
+                t.update(&scene(150.0, 120.0, 16.0, true), &Prior::default()).status,
+                TrackStatus::Lost
+            );
+        };
+        let back = scene(230.0, 110.0, 16.0, false);
+        // Outside the region the caller allows (its estimate puts the target far from there): not
+        // found, nor anything else.
+        let mut t = TemplateTracker::new(TrackerParams::default());
+        lost(&mut t);
+        let elsewhere = Prior { centre: Some((90.0, 120.0)), radius_px: Some(50.0), width_px: None };
+        let r = t.update(&back, &elsewhere);
+        assert_eq!(r.status, TrackStatus::Lost, "{r:?}");
+        // Inside it, though away from the centre the guided search covers: found.
+        let near = Prior { centre: Some((200.0, 130.0)), radius_px: Some(50.0), width_px: None };
+        let r = t.update(&back, &near);
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+        assert!(overlap(&r.bbox, &boxed(230.0, 110.0, 16.0)) > 0.6, "{r:?}");
+    }
+
+    #[test]
+    fn the_box_keeps_the_size_the_caller_expects_while_the_target_grows_fast() {
+        // Growing 20 % a frame, beyond the tracking scales' 5 %: with the expected width the box
+        // keeps to the target; without, it falls behind.
+        let run = |with_prior: bool| {
+            let mut t = TemplateTracker::new(TrackerParams::default());
+            let (x, y, mut size) = (160.0, 120.0, 12.0);
+            t.init(&scene(x, y, size, false), boxed(x, y, size)).unwrap();
+            let mut worst = 1.0f64;
+            for _ in 0..6 {
+                size *= 1.2;
+                let prior = Prior { width_px: with_prior.then_some(size), ..Prior::default() };
+                let r = t.update(&scene(x, y, size, false), &prior);
+                let o =
+                    if r.status == TrackStatus::Lost { 0.0 } else { overlap(&r.bbox, &boxed(x, y, size)) };
+                worst = worst.min(o);
+            }
+            worst
+        };
+        let (with, without) = (run(true), run(false));
+        assert!(with > 0.7, "with the expected width: worst overlap {with}");
+        assert!(without < 0.5, "without: worst overlap {without}");
     }
 
     #[test]

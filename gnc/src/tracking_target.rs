@@ -25,7 +25,7 @@
 
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
-use crate::tracking::estimate::TargetEstimate;
+use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
 use crate::tracking::locate::{LocateParams, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::search::{LostSearch, search_radius_px};
@@ -42,6 +42,9 @@ use std::collections::VecDeque;
 /// Locations fused since the estimate (re)started after which it is established: one that agrees
 /// confirms the box's look, disagreeing ones no longer restart it.
 const CONFIRM_AFTER: u32 = 3;
+
+/// Locations must span this long for a velocity to be fitted to them, s.
+const MIN_VELOCITY_SPAN_S: f64 = 5.0;
 
 /// Disagreeing locations in a row after which the tracker is taken to be on something else.
 const REJECTS_TO_LOSE: u32 = 2;
@@ -61,6 +64,12 @@ pub struct TrackingTargetParams {
     pub held_images: usize,
     /// The target's wander between images (random walk), m per sqrt(s): 0 for a static target.
     pub target_walk: f64,
+    /// Fastest the target may move, m/s: 0 for a static target. Above 0, its velocity is fitted to
+    /// the locations of the last `velocity_window_s` and the search for it in a new image is
+    /// where that carries the estimate.
+    pub max_target_speed_mps: f64,
+    /// Locations fitted for the velocity, s back from the newest.
+    pub velocity_window_s: f64,
     /// A location further than this many sigmas from the estimate is rejected (a wrong match).
     pub gate_sigma: f64,
     /// The same for a box re-detected after a loss, where a look-alike is likeliest: one such
@@ -90,6 +99,8 @@ impl Default for TrackingTargetParams {
             locate: LocateParams::default(),
             held_images: 8,
             target_walk: 0.01,
+            max_target_speed_mps: 0.0,
+            velocity_window_s: 20.0,
             gate_sigma: 3.5,
             redetect_gate_sigma: 2.5,
             lost_timeout_s: 20.0,
@@ -165,6 +176,8 @@ pub struct TrackingTarget {
     /// Where the camera was (`map`) in the selection's image, and the selected box's width there
     /// (rectified pixels): the box's expected size at any range follows from them.
     selected_view: Option<(Point3<f64>, f64)>,
+    /// The fused locations of the last `velocity_window_s` (capture time s, position in `map`).
+    recent: VecDeque<(f64, Point3<f64>)>,
 }
 
 /// The covariance a point `p` in `map` takes from the rover's pose estimate `pose` (its position,
@@ -258,6 +271,7 @@ impl TrackingTarget {
             sight: None,
             fix_pose_term: None,
             selected_view: None,
+            recent: VecDeque::new(),
         }
     }
 
@@ -293,6 +307,7 @@ impl TrackingTarget {
         self.sight = None;
         self.fix_pose_term = None;
         self.selected_view = None;
+        self.recent.clear();
         ctx.note(format!(
             "tracking the {target} selected at {bbox:?} in the image of {}",
             self.held[k].stamp
@@ -323,9 +338,17 @@ impl TrackingTarget {
     fn prior(&self, stamp: Time, placed: Option<&(Isometry3<f64>, PoseEstimate)>) -> Prior {
         let Some((map_from_rect, pose)) = placed else { return Prior::default() };
         let camera = Point3::from(map_from_rect.translation.vector);
+        // A moving target is carried by its fitted velocity since it was last located.
+        let recent: Vec<_> = self.recent.iter().copied().collect();
+        let v = fitted_velocity(&recent, self.params.max_target_speed_mps, MIN_VELOCITY_SPAN_S);
+        let moved = |p: Point3<f64>| {
+            let age = self.estimate.stamp().map_or(0.0, |t| (stamp - t).as_secs_f64().max(0.0));
+            p + v * age
+        };
         let expected = self
             .estimate
             .position()
+            .map(moved)
             .or_else(|| self.sight.map(|s| s.at(self.last_range.unwrap_or(self.params.sight_range_m))));
         let Some(expected) = expected else { return Prior::default() };
         let in_camera = map_from_rect.inverse() * expected;
@@ -338,6 +361,7 @@ impl TrackingTarget {
         let width_px = self
             .estimate
             .position()
+            .map(moved)
             .zip(self.selected_view)
             .filter(|_| established)
             .map(|(p, (then, w))| w * (p - then).norm() / (p - camera).norm())
@@ -457,6 +481,11 @@ impl TrackingTarget {
                         tracker.confirm(&h.left);
                     }
                     measured = Some(p);
+                    let t = stamp.as_secs_f64();
+                    self.recent.push_back((t, p));
+                    while self.recent.front().is_some_and(|r| r.0 < t - self.params.velocity_window_s) {
+                        self.recent.pop_front();
+                    }
                     self.fix_pose_term = Some(pose_term(pose, &p));
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
@@ -626,6 +655,7 @@ impl Module for TrackingTarget {
             m.sight = None;
             m.fix_pose_term = None;
             m.selected_view = None;
+            m.recent.clear();
             Outcome::done()
         });
         d.command("locate", |m, ctx, a: LocateArgs| {
@@ -654,6 +684,7 @@ impl Module for TrackingTarget {
             ("sight_range_m", p.sight_range_m),
             ("redetect_margin_px", p.redetect_margin_px),
             ("redetect_whole_after_s", p.redetect_whole_after_s),
+            ("velocity_window_s", p.velocity_window_s),
             ("tracker.track_threshold", p.tracker.track_threshold),
             ("tracker.redetect_threshold", p.tracker.redetect_threshold),
             ("locate.disparity_sigma_px", p.locate.disparity_sigma_px),
@@ -674,6 +705,9 @@ impl Module for TrackingTarget {
             return Err(
                 "locate.min_points and locate.max_samples must be >= 1, locate.half_window <= 15".into()
             );
+        }
+        if !(p.max_target_speed_mps.is_finite() && p.max_target_speed_mps >= 0.0) {
+            return Err(format!("max_target_speed_mps must be >= 0, got {}", p.max_target_speed_mps));
         }
         if !(p.target_walk.is_finite() && p.target_walk >= 0.0) {
             return Err(format!("target_walk must be >= 0, got {}", p.target_walk));

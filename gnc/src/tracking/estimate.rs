@@ -12,7 +12,7 @@
 //! the estimate never extrapolates past either.
 
 use framework::prelude::Time;
-use nalgebra::{Matrix3, Point3};
+use nalgebra::{Matrix3, Point3, Vector3};
 
 /// Locations rejected in a row after which the estimate starts again from the newest (a wrong
 /// first location must not lock out every later right one).
@@ -154,6 +154,28 @@ impl TargetEstimate {
     }
 }
 
+/// The horizontal velocity a target's recent `locations` (capture time s, position) fit by least
+/// squares, its speed capped at `max_speed` m/s; zero with fewer than three locations or under
+/// `min_span_s` between the first and the last (noise would pass for motion).
+pub fn fitted_velocity(locations: &[(f64, Point3<f64>)], max_speed: f64, min_span_s: f64) -> Vector3<f64> {
+    let n = locations.len();
+    let span = match (locations.first(), locations.last()) {
+        (Some(a), Some(b)) => b.0 - a.0,
+        _ => 0.0,
+    };
+    if n < 3 || span < min_span_s || max_speed <= 0.0 {
+        return Vector3::zeros();
+    }
+    let mt = locations.iter().map(|l| l.0).sum::<f64>() / n as f64;
+    let mp = locations.iter().fold(Vector3::zeros(), |a, l| a + l.1.coords) / n as f64;
+    let stt = locations.iter().map(|l| (l.0 - mt).powi(2)).sum::<f64>();
+    let stp = locations.iter().fold(Vector3::zeros(), |a, l| a + (l.1.coords - mp) * (l.0 - mt));
+    let mut v = stp / stt;
+    v.z = 0.0;
+    let speed = v.norm();
+    if speed > max_speed { v * (max_speed / speed) } else { v }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -291,5 +313,26 @@ mod tests {
         }
         let x = e.position().unwrap().x;
         assert!((x - 0.05 * 199.0).abs() < 0.5, "estimate {x} behind the target at {}", 0.05 * 199.0);
+    }
+
+    #[test]
+    fn a_moving_target_s_velocity_is_fitted_and_capped() {
+        let track = |v: [f64; 2], k: usize| {
+            (0..k)
+                .map(|i| {
+                    let t = i as f64;
+                    // A metre-scale wobble of noise along the way.
+                    let n = if i % 2 == 0 { 0.05 } else { -0.05 };
+                    (t, Point3::new(6.0 + v[0] * t + n, 5.0 + v[1] * t - n, 0.2 + n))
+                })
+                .collect::<Vec<_>>()
+        };
+        let v = fitted_velocity(&track([-0.03, 0.03], 20), 0.1, 5.0);
+        assert!((v - Vector3::new(-0.03, 0.03, 0.0)).norm() < 0.005, "{v}");
+        // Capped; nothing from too short a span or a static target's setting.
+        let fast = fitted_velocity(&track([0.5, 0.0], 20), 0.1, 5.0);
+        assert!((fast.norm() - 0.1).abs() < 1e-9 && fast.x > 0.0, "{fast}");
+        assert_eq!(fitted_velocity(&track([0.5, 0.0], 3), 0.1, 5.0), Vector3::zeros());
+        assert_eq!(fitted_velocity(&track([0.5, 0.0], 20), 0.0, 5.0), Vector3::zeros());
     }
 }

@@ -177,7 +177,7 @@ pub struct TrackingTarget {
     /// (rectified pixels): the box's expected size at any range follows from them.
     selected_view: Option<(Point3<f64>, f64)>,
     /// The fused locations of the last `velocity_window_s` (capture time s, position in `map`).
-    recent: VecDeque<(f64, Point3<f64>)>,
+    recent: Vec<(f64, Point3<f64>)>,
 }
 
 /// The covariance a point `p` in `map` takes from the rover's pose estimate `pose` (its position,
@@ -271,8 +271,24 @@ impl TrackingTarget {
             sight: None,
             fix_pose_term: None,
             selected_view: None,
-            recent: VecDeque::new(),
+            recent: Vec::new(),
         }
+    }
+
+    /// Forgets everything known of the target; `tracker` (a new selection's, or none) follows it
+    /// from now on.
+    fn start_over(&mut self, tracker: Option<TemplateTracker>) {
+        self.tracker = tracker;
+        self.estimate = TargetEstimate::default();
+        self.located = 0;
+        self.lost_since = None;
+        self.searched_lost = LostSearch::default();
+        self.locate_noted = false;
+        self.last_range = None;
+        self.sight = None;
+        self.fix_pose_term = None;
+        self.selected_view = None;
+        self.recent.clear();
     }
 
     /// Starts tracking the box `bbox` (raw left pixels) of the held image of `stamp` (None: the
@@ -296,18 +312,8 @@ impl TrackingTarget {
             .ok_or_else(|| format!("the box {bbox:?} does not map into the rectified image"))?;
         let mut tracker = TemplateTracker::new(self.params.tracker.clone());
         tracker.init(&self.held[k].left, rect_box)?;
-        self.tracker = Some(tracker);
+        self.start_over(Some(tracker));
         self.target = target.to_string();
-        self.estimate = TargetEstimate::default();
-        self.located = 0;
-        self.lost_since = None;
-        self.searched_lost = LostSearch::default();
-        self.locate_noted = false;
-        self.last_range = None;
-        self.sight = None;
-        self.fix_pose_term = None;
-        self.selected_view = None;
-        self.recent.clear();
         ctx.note(format!(
             "tracking the {target} selected at {bbox:?} in the image of {}",
             self.held[k].stamp
@@ -339,16 +345,12 @@ impl TrackingTarget {
         let Some((map_from_rect, pose)) = placed else { return Prior::default() };
         let camera = Point3::from(map_from_rect.translation.vector);
         // A moving target is carried by its fitted velocity since it was last located.
-        let recent: Vec<_> = self.recent.iter().copied().collect();
-        let v = fitted_velocity(&recent, self.params.max_target_speed_mps, MIN_VELOCITY_SPAN_S);
-        let moved = |p: Point3<f64>| {
+        let v = fitted_velocity(&self.recent, self.params.max_target_speed_mps, MIN_VELOCITY_SPAN_S);
+        let estimate = self.estimate.position().map(|p| {
             let age = self.estimate.stamp().map_or(0.0, |t| (stamp - t).as_secs_f64().max(0.0));
             p + v * age
-        };
-        let expected = self
-            .estimate
-            .position()
-            .map(moved)
+        });
+        let expected = estimate
             .or_else(|| self.sight.map(|s| s.at(self.last_range.unwrap_or(self.params.sight_range_m))));
         let Some(expected) = expected else { return Prior::default() };
         let in_camera = map_from_rect.inverse() * expected;
@@ -358,10 +360,7 @@ impl TrackingTarget {
         let established = self.estimate.count() >= CONFIRM_AFTER;
         // The selected box's width times the ratio of the ranges then and now, both from the one
         // estimate (its range error mostly cancels).
-        let width_px = self
-            .estimate
-            .position()
-            .map(moved)
+        let width_px = estimate
             .zip(self.selected_view)
             .filter(|_| established)
             .map(|(p, (then, w))| w * (p - then).norm() / (p - camera).norm())
@@ -482,10 +481,9 @@ impl TrackingTarget {
                     }
                     measured = Some(p);
                     let t = stamp.as_secs_f64();
-                    self.recent.push_back((t, p));
-                    while self.recent.front().is_some_and(|r| r.0 < t - self.params.velocity_window_s) {
-                        self.recent.pop_front();
-                    }
+                    let window = self.params.velocity_window_s;
+                    self.recent.retain(|r| r.0 >= t - window);
+                    self.recent.push((t, p));
                     self.fix_pose_term = Some(pose_term(pose, &p));
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
@@ -646,16 +644,7 @@ impl Module for TrackingTarget {
             Outcome::done()
         });
         d.command("forget", |m, _ctx, _: ()| {
-            m.tracker = None;
-            m.estimate = TargetEstimate::default();
-            m.located = 0;
-            m.last_range = None;
-            m.lost_since = None;
-            m.searched_lost = LostSearch::default();
-            m.sight = None;
-            m.fix_pose_term = None;
-            m.selected_view = None;
-            m.recent.clear();
+            m.start_over(None);
             Outcome::done()
         });
         d.command("locate", |m, ctx, a: LocateArgs| {

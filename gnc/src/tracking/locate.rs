@@ -390,9 +390,10 @@ mod tests {
         a * (1.0 - ty) + b * ty
     }
 
-    /// A rectified pair of a fronto-parallel textured box at depth `z` (its centre at the image
-    /// centre, `size` m wide) in front of a textured wall at 2z.
-    fn pair(z: f64, size: f64) -> (StereoModel, GreyImage, GreyImage) {
+    /// A rectified 320 x 240 pair (70 deg, 0.25 m baseline) of the scene `shade` paints: the grey
+    /// level (0-1) seen along the ray of normalized image coordinates (x, y) from a camera `shift`
+    /// metres along the baseline (left 0, right the baseline).
+    fn rendered_pair(shade: impl Fn(f64, f64, f64) -> f64) -> (StereoModel, GreyImage, GreyImage) {
         let cam = CameraModel::from_hfov(320, 240, 70f64.to_radians(), "l");
         let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
         let f = model.left.pinhole.fx;
@@ -401,21 +402,28 @@ mod tests {
             for v in 0..240 {
                 for u in 0..320 {
                     let (x, y) = ((u as f64 + 0.5 - 160.0) / f, (v as f64 + 0.5 - 120.0) / f);
-                    // Left camera at x = 0, right at x = shift (metres); the ray's x at depth Z.
-                    let hit = |depth: f64| (x * depth + shift, y * depth);
-                    let (bx, by) = hit(z);
-                    let val = if bx.abs() < size / 2.0 && by.abs() < size / 2.0 {
-                        255.0 * noise(bx, by, 0.03, 1)
-                    } else {
-                        let (wx, wy) = hit(2.0 * z);
-                        255.0 * noise(wx, wy, 0.08, 2)
-                    };
-                    data.push(val as u8);
+                    data.push((255.0 * shade(x, y, shift)) as u8);
                 }
             }
             GreyImage { stamp: Time::ZERO, frame: "r".into(), width: 320, height: 240, data }
         };
         (model.clone(), render(0.0), render(model.baseline))
+    }
+
+    /// A rectified pair of a fronto-parallel textured box at depth `z` (its centre at the image
+    /// centre, `size` m wide) in front of a textured wall at 2z.
+    fn pair(z: f64, size: f64) -> (StereoModel, GreyImage, GreyImage) {
+        rendered_pair(|x, y, shift| {
+            // The ray's x at depth Z from a camera at x = shift (metres).
+            let hit = |depth: f64| (x * depth + shift, y * depth);
+            let (bx, by) = hit(z);
+            if bx.abs() < size / 2.0 && by.abs() < size / 2.0 {
+                noise(bx, by, 0.03, 1)
+            } else {
+                let (wx, wy) = hit(2.0 * z);
+                noise(wx, wy, 0.08, 2)
+            }
+        })
     }
 
     #[test]
@@ -438,36 +446,26 @@ mod tests {
     /// fronto-parallel textured target standing on it at depth `z` (`w` wide, `h` tall), before a
     /// wall at 4z; and the target's box in pixels.
     fn standing(z: f64, height: f64, (w, h): (f64, f64)) -> (StereoModel, GreyImage, GreyImage, [f64; 4]) {
-        let cam = CameraModel::from_hfov(320, 240, 70f64.to_radians(), "l");
-        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
-        let f = model.left.pinhole.fx;
-        let render = |shift: f64| {
-            let mut data = Vec::new();
-            for v in 0..240 {
-                for u in 0..320 {
-                    // Image y down: the ground is at y = height.
-                    let (x, y) = ((u as f64 + 0.5 - 160.0) / f, (v as f64 + 0.5 - 120.0) / f);
-                    let (tx, ty) = (x * z + shift, y * z);
-                    let val = if tx.abs() < w / 2.0 && (height - h..height).contains(&ty) {
-                        255.0 * noise(tx, ty, 0.03, 1)
-                    } else if y > 0.0 && height / y < 4.0 * z {
-                        let d = height / y;
-                        255.0 * noise(x * d + shift, d, 0.06, 3)
-                    } else {
-                        255.0 * noise(x * 4.0 * z + shift, y * 4.0 * z, 0.08, 2)
-                    };
-                    data.push(val as u8);
-                }
+        let (model, l, r) = rendered_pair(|x, y, shift| {
+            // Image y down: the ground is at y = height.
+            let (tx, ty) = (x * z + shift, y * z);
+            if tx.abs() < w / 2.0 && (height - h..height).contains(&ty) {
+                noise(tx, ty, 0.03, 1)
+            } else if y > 0.0 && height / y < 4.0 * z {
+                let d = height / y;
+                noise(x * d + shift, d, 0.06, 3)
+            } else {
+                noise(x * 4.0 * z + shift, y * 4.0 * z, 0.08, 2)
             }
-            GreyImage { stamp: Time::ZERO, frame: "r".into(), width: 320, height: 240, data }
-        };
+        });
+        let f = model.left.pinhole.fx;
         let bbox = [
             160.0 - 0.5 * w * f / z,
             120.0 + (height - h) * f / z,
             160.0 + 0.5 * w * f / z,
             120.0 + height * f / z,
         ];
-        (model.clone(), render(0.0), render(model.baseline), bbox)
+        (model, l, r, bbox)
     }
 
     #[test]

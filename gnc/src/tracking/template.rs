@@ -556,6 +556,14 @@ mod tests {
         i / (area(a) + area(b) - i)
     }
 
+    /// A tracker started on a 16 px target at (100, 120) that then went behind the occluder.
+    fn lost_behind_the_occluder() -> TemplateTracker {
+        let mut t = TemplateTracker::new(TrackerParams::default());
+        t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
+        assert_eq!(t.update(&scene(150.0, 120.0, 16.0, true), &Prior::default()).status, TrackStatus::Lost);
+        t
+    }
+
     #[test]
     fn it_follows_a_target_that_moves_and_grows() {
         let mut t = TemplateTracker::new(TrackerParams::default());
@@ -595,40 +603,23 @@ mod tests {
     fn a_target_that_grew_while_lost_is_redetected_at_the_size_the_caller_expects() {
         // Lost behind the occluder at 16 px, back at 40 px (the rover came 2.5 times nearer):
         // beyond the re-detection scales of the last box, found at the expected size.
-        let lost = |t: &mut TemplateTracker| {
-            t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
-            assert_eq!(
-                t.update(&scene(150.0, 120.0, 16.0, true), &Prior::default()).status,
-                TrackStatus::Lost
-            );
-        };
         let grown = scene(240.0, 120.0, 40.0, false);
-        let mut t = TemplateTracker::new(TrackerParams::default());
-        lost(&mut t);
+        let mut t = lost_behind_the_occluder();
         let expected = Prior { centre: Some((240.0, 120.0)), radius_px: None, width_px: Some(40.0) };
         let r = t.update(&grown, &expected);
         assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
         assert!(overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) > 0.6, "{r:?}");
-        let mut t = TemplateTracker::new(TrackerParams::default());
-        lost(&mut t);
+        let mut t = lost_behind_the_occluder();
         let r = t.update(&grown, &Prior { width_px: None, ..expected });
         assert!(r.status == TrackStatus::Lost || overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) < 0.6, "{r:?}");
     }
 
     #[test]
     fn a_lost_target_is_looked_for_only_where_the_caller_says_it_can_be() {
-        let lost = |t: &mut TemplateTracker| {
-            t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
-            assert_eq!(
-                t.update(&scene(150.0, 120.0, 16.0, true), &Prior::default()).status,
-                TrackStatus::Lost
-            );
-        };
         let back = scene(230.0, 110.0, 16.0, false);
         // Outside the region the caller allows (its estimate puts the target far from there): not
         // found, nor anything else.
-        let mut t = TemplateTracker::new(TrackerParams::default());
-        lost(&mut t);
+        let mut t = lost_behind_the_occluder();
         let elsewhere = Prior { centre: Some((90.0, 120.0)), radius_px: Some(50.0), width_px: None };
         let r = t.update(&back, &elsewhere);
         assert_eq!(r.status, TrackStatus::Lost, "{r:?}");

@@ -15,10 +15,12 @@
 //! - `pose_filter_step` (one prediction with its gravity correction) and
 //!   `pose_filter_late_relative` (a visual odometry measurement over the last 0.5 s arriving
 //!   0.1 s late: the filter rolls back, clones, re-runs 30 steps and updates). Target: under 50 us.
-//! - `marker_detection_640x480` (tag36h11; quads found in the image decimated by 1 or 2) and `marker_table_pose` (each
-//!   marker's own pose and the table's from its 16 corners) on a ray-cast 640 x 480 image of the
-//!   calibration table (four 0.2 m markers) 2 m away over textured ground. Target: both together
-//!   under 10 ms.
+//! - `marker_detection_640x480` (tag36h11; quads found in the whole image decimated by 1 or 2),
+//!   `marker_detection_640x480_with_region` (TrackingMarker's default: the whole image decimated by
+//!   2 and the table's box, grown by half its size, at full resolution) and `marker_table_pose`
+//!   (each marker's own pose and the table's from its 16 corners) on a ray-cast 640 x 480 image of
+//!   the calibration table (four 0.2 m markers) 2 m away over textured ground. Target: detection
+//!   and pose together under 10 ms.
 //! - `tracker_update` (the target's templates searched around its last position at three scales,
 //!   the confidence against every template, learning) and `tracker_redetect` (a lost target
 //!   searched over the whole image, five scales, its learnt templates) on the ray-cast ground
@@ -124,15 +126,35 @@ fn object_database() -> framework::objects::ObjectDatabase {
 #[divan::bench(sample_count = 30, sample_size = 3, args = [1, 2])]
 fn marker_detection_640x480(b: Bencher<'_, '_>, decimate: u32) {
     let (_, img) = marker_image();
-    let mut detector = gnc::tracking::markers::MarkerDetector::new(640, 480, decimate).unwrap();
+    let mut detector = gnc::tracking::marker_detector::MarkerDetector::new(640, 480, decimate).unwrap();
     assert_eq!(detector.detect(&img, 0).unwrap().len(), 4, "the four markers");
     b.bench_local(|| black_box(detector.detect(black_box(&img), 0).unwrap()));
+}
+
+/// TrackingMarker's default search: the whole image decimated by 2, and, at full resolution, the
+/// table's box grown by half its size on each side (the region of an object seen lately).
+#[divan::bench(sample_count = 30, sample_size = 3)]
+fn marker_detection_640x480_with_region(b: Bencher<'_, '_>) {
+    let (_, img) = marker_image();
+    let mut detector = gnc::tracking::marker_detector::MarkerDetector::new(640, 480, 2).unwrap();
+    let found = detector.detect(&img, 0).unwrap();
+    assert_eq!(found.len(), 4, "the four markers");
+    let table = found
+        .iter()
+        .map(|d| d.bbox())
+        .reduce(|a, b| [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])]);
+    let t = table.unwrap();
+    let s = 0.5 * (t[2] - t[0]).max(t[3] - t[1]);
+    let region = [t[0] - s, t[1] - s, t[2] + s, t[3] + s];
+    assert_eq!(detector.detect_in(&img, 0, &[region]).unwrap().0.len(), 4, "the four markers");
+    b.bench_local(|| black_box(detector.detect_in(black_box(&img), 0, &[region]).unwrap()));
 }
 
 #[divan::bench(sample_count = 30, sample_size = 10)]
 fn marker_table_pose(b: Bencher<'_, '_>) {
     let (model, img) = marker_image();
-    let found = gnc::tracking::markers::MarkerDetector::new(640, 480, 2).unwrap().detect(&img, 0).unwrap();
+    let found =
+        gnc::tracking::marker_detector::MarkerDetector::new(640, 480, 2).unwrap().detect(&img, 0).unwrap();
     let db = object_database();
     let (_, fits) = gnc::tracking_marker::measure(&db, &model, &found, 0.3);
     assert_eq!(fits.len(), 1, "the table");

@@ -4,8 +4,11 @@
 //! too foreshortened).
 //!
 //! Every new image of the camera (the left image of a stereo slot, or a single camera's) is
-//! searched for tag36h11
-//! markers ([`MarkerDetector`]); each marker whose id the object database knows gets its own pose
+//! searched for tag36h11 markers ([`MarkerDetector`]): the whole image at `decimate`, and at full
+//! resolution where markers are expected, around each object seen by its markers in the last
+//! `lost_after_s` and around the operator-selected target's box (`tracking/target`, where the
+//! instance is given it), so that small markers are found there without searching the whole image
+//! at full resolution. Each marker whose id the object database knows gets its own pose
 //! from its four corners and the believed camera model, and every object with markers in view gets
 //! one pose from all of its visible markers' corners at once (several tables are tracked at once).
 //! The object's pose is placed in `base_link` through the believed mechanism and the joints (pan-tilt
@@ -23,11 +26,12 @@
 //! its loop on the camera's own view.
 
 use crate::placement::Placement;
-use crate::tracking::markers::{
-    Corners, Detected, MarkerDetector, PoseFit, compose_covariance, fit, marker_pose,
-};
+use crate::tracking::marker_detector::{Detected, MarkerDetector};
+use crate::tracking::markers::{Corners, PoseFit, compose_covariance, fit, marker_pose};
 use framework::camera::{CameraCalibration, GreyImage};
-use framework::data::{MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, StereoImages};
+use framework::data::{
+    MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, StereoImages, TargetStatus, TargetTrack,
+};
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
 use framework::objects::{MarkerSlot, ObjectDatabase};
@@ -93,9 +97,15 @@ impl Frame {
 pub struct TrackingMarkerParams {
     /// Corner position noise (1 sigma), pixels.
     pub corner_sigma_px: f64,
-    /// Quads are searched in the image decimated by this (1: full resolution, markers from ~15
-    /// pixels wide; 2: about three times faster, from ~25 pixels); decoded at full resolution.
+    /// Quads are searched in the whole image decimated by this (1: full resolution, markers from
+    /// ~15 pixels wide; 2: about three times faster, from ~25 pixels); decoded at full resolution.
+    /// Above 1, the regions where markers are expected are searched at full resolution too.
     pub decimate: u32,
+    /// A region searched at full resolution is the expected box grown on each side by this
+    /// fraction of its larger side.
+    pub region_margin: f64,
+    /// The target track's box is searched while it is at most this old against the image, s.
+    pub target_max_age_s: f64,
     /// Markers decoded with more bits corrected are ignored.
     pub max_hamming: u32,
     /// Markers with a smaller decision margin are ignored.
@@ -114,7 +124,9 @@ impl Default for TrackingMarkerParams {
     fn default() -> Self {
         TrackingMarkerParams {
             corner_sigma_px: 0.3,
-            decimate: 1,
+            decimate: 2,
+            region_margin: 0.5,
+            target_max_age_s: 2.0,
             max_hamming: 1,
             min_decision_margin: 15.0,
             max_rmse_px: 2.0,
@@ -166,6 +178,44 @@ struct PendingLocate {
 struct Track {
     last_seen: Time,
     seen_frames: u32,
+    /// Its markers' box in the image where it was last seen, pixels.
+    last_box: [f64; 4],
+    /// Its smallest marker's side there, pixels.
+    smallest_px: f64,
+}
+
+/// Markers narrower than this many pixels per step of decimation may be missed by the decimated
+/// search (measured: from ~25 px at decimation 2): their object's box is searched at full
+/// resolution.
+const SMALL_MARKER_PX_PER_DECIMATION: f64 = 16.0;
+
+/// `regions` with the overlapping ones replaced by the box around them (a window searched once).
+fn merged(mut regions: Vec<[f64; 4]>) -> Vec<[f64; 4]> {
+    let overlap = |a: &[f64; 4], b: &[f64; 4]| a[0] < b[2] && b[0] < a[2] && a[1] < b[3] && b[1] < a[3];
+    let mut k = 0;
+    while k < regions.len() {
+        if let Some(j) = (k + 1..regions.len()).find(|&j| overlap(&regions[k], &regions[j])) {
+            let b = regions.swap_remove(j);
+            let a = &mut regions[k];
+            *a = [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])];
+            // The grown box may now overlap ones already passed: look again from the start.
+            k = 0;
+        } else {
+            k += 1;
+        }
+    }
+    regions
+}
+
+/// `b` ([u_min, v_min, u_max, v_max]) grown on each side by `margin` times its larger side.
+fn grow(b: &[f64; 4], margin: f64) -> [f64; 4] {
+    let s = margin * (b[2] - b[0]).max(b[3] - b[1]);
+    [b[0] - s, b[1] - s, b[2] + s, b[3] + s]
+}
+
+/// The box around all of `boxes`.
+fn union(boxes: impl Iterator<Item = [f64; 4]>) -> Option<[f64; 4]> {
+    boxes.reduce(|a, b| [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])])
 }
 
 /// The TrackingMarker module.
@@ -178,6 +228,8 @@ pub struct TrackingMarker {
     params: TrackingMarkerParams,
     detector: Option<MarkerDetector>,
     images: Option<Images>,
+    target_slot: Option<String>,
+    target: Option<Reader<TargetTrack>>,
     markers_out: Option<Writer<MarkerDetections>>,
     objects_out: Option<Writer<ObjectPoses>>,
     last_seq: u64,
@@ -267,7 +319,9 @@ impl TrackingMarker {
     /// Marker tracking on the images of `camera` (slot `cameras/<device>`), whose believed
     /// calibration is `calibration` (a pair's left camera's), for the objects of `db`, published
     /// under `prefix`; placed on the robot of the believed `mechanism` with the rover's pose from
-    /// `pose_slot` and joints from `joints_slots`.
+    /// `pose_slot` and joints from `joints_slots`; the operator-selected target's track (whose box
+    /// is searched at full resolution when it is in this camera) from `target_slot`, if given.
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         camera: MarkerCamera,
         prefix: &str,
@@ -276,6 +330,7 @@ impl TrackingMarker {
         mechanism: MechanismModel,
         pose_slot: &str,
         joints_slots: &[&str],
+        target_slot: Option<&str>,
     ) -> Self {
         let p = TrackingMarkerParams::default();
         TrackingMarker {
@@ -287,6 +342,8 @@ impl TrackingMarker {
             params: p,
             detector: None,
             images: None,
+            target_slot: target_slot.map(str::to_string),
+            target: None,
             markers_out: None,
             objects_out: None,
             last_seq: 0,
@@ -320,11 +377,32 @@ impl TrackingMarker {
             Some(d) => d,
             None => self.detector.insert(MarkerDetector::new(img.width, img.height, p.decimate)?),
         };
-        let found: Vec<Detected> = detector
-            .detect(img, p.max_hamming)?
-            .into_iter()
-            .filter(|d| d.decision_margin >= p.min_decision_margin)
-            .collect();
+        // Where markers are expected: around the objects seen lately and the target's box.
+        let lost_after = Duration::from_secs_f64(p.lost_after_s);
+        let mut regions: Vec<[f64; 4]> = Vec::new();
+        if p.decimate > 1 {
+            // An object whose markers the decimated search finds anyway needs no region.
+            let small = SMALL_MARKER_PX_PER_DECIMATION * f64::from(p.decimate);
+            regions.extend(
+                self.tracks
+                    .values()
+                    .filter(|t| {
+                        stamp >= t.last_seen && stamp - t.last_seen <= lost_after && t.smallest_px < small
+                    })
+                    .map(|t| grow(&t.last_box, p.region_margin)),
+            );
+            let target = self.target.as_ref().and_then(|r| ctx.read(r));
+            if let Some(t) = target
+                && t.value.camera == self.camera.device()
+                && t.value.status != TargetStatus::Lost
+                && (t.value.stamp.as_secs_f64() - stamp.as_secs_f64()).abs() <= p.target_max_age_s
+            {
+                regions.push(grow(&t.value.bbox, p.region_margin));
+            }
+        }
+        let (found, windows) = detector.detect_in(img, p.max_hamming, &merged(regions))?;
+        let found: Vec<Detected> =
+            found.into_iter().filter(|d| d.decision_margin >= p.min_decision_margin).collect();
         let model = &self.calibration.model;
         let (observations, fits) = measure(&self.db, model, &found, p.corner_sigma_px);
         if let Some(w) = &self.markers_out {
@@ -334,6 +412,7 @@ impl TrackingMarker {
                 stamp,
                 size: [img.width, img.height],
                 markers: observations,
+                regions: windows,
             };
             ctx.write_stamped(w, out, stamp);
         }
@@ -361,12 +440,22 @@ impl TrackingMarker {
             );
             let (map_from_object, map_covariance) =
                 compose_covariance(&pose.pose, &pose.covariance, &base_from_object, &base_covariance);
-            let lost_after = Duration::from_secs_f64(p.lost_after_s);
-            let track =
-                self.tracks.entry(f.object.clone()).or_insert(Track { last_seen: stamp, seen_frames: 0 });
+            let boxes: Vec<[f64; 4]> =
+                found.iter().filter(|d| f.markers.contains(&d.id)).map(Detected::bbox).collect();
+            let last_box = union(boxes.iter().copied()).unwrap_or([f64::NAN; 4]);
+            let smallest_px =
+                boxes.iter().map(|b| (b[2] - b[0]).min(b[3] - b[1])).fold(f64::INFINITY, f64::min);
+            let track = self.tracks.entry(f.object.clone()).or_insert(Track {
+                last_seen: stamp,
+                seen_frames: 0,
+                last_box,
+                smallest_px,
+            });
             if stamp - track.last_seen > lost_after {
                 track.seen_frames = 0;
             }
+            track.last_box = last_box;
+            track.smallest_px = smallest_px;
             if track.seen_frames == 0 {
                 ctx.note(format!("{} seen by its markers {:?}", f.object, f.markers));
             }
@@ -443,6 +532,9 @@ impl Module for TrackingMarker {
             MarkerCamera::Single(_) => Images::Single(d.reads(&slot)),
         });
         self.placement.declare(d);
+        if let Some(slot) = &self.target_slot {
+            self.target = Some(d.reads(slot));
+        }
         self.markers_out = Some(d.writes(&format!("{}/markers", self.prefix)));
         self.objects_out = Some(d.writes(&format!("{}/objects", self.prefix)));
         d.context_switchable();
@@ -488,6 +580,12 @@ impl Module for TrackingMarker {
         if !(1..=4).contains(&p.decimate) {
             return Err(format!("decimate must be 1 to 4, got {}", p.decimate));
         }
+        if !(p.region_margin.is_finite() && p.region_margin >= 0.0) {
+            return Err(format!("region_margin must be >= 0, got {}", p.region_margin));
+        }
+        if !(p.target_max_age_s.is_finite() && p.target_max_age_s >= 0.0) {
+            return Err(format!("target_max_age_s must be >= 0, got {}", p.target_max_age_s));
+        }
         if !(p.min_decision_margin.is_finite() && p.min_decision_margin >= 0.0) {
             return Err(format!("min_decision_margin must be >= 0, got {}", p.min_decision_margin));
         }
@@ -500,5 +598,34 @@ impl Module for TrackingMarker {
         }
         self.params = p.clone();
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn overlapping_regions_merge_into_one_window_and_the_others_stay() {
+        let regions = vec![
+            [0.0, 0.0, 10.0, 10.0],
+            [100.0, 100.0, 120.0, 120.0],
+            [5.0, 5.0, 20.0, 20.0],
+            // Overlaps only the box the first two make together.
+            [18.0, 18.0, 30.0, 30.0],
+        ];
+        let mut m = merged(regions);
+        m.sort_by(|a, b| a[0].total_cmp(&b[0]));
+        assert_eq!(m, vec![[0.0, 0.0, 30.0, 30.0], [100.0, 100.0, 120.0, 120.0]]);
+        assert!(merged(Vec::new()).is_empty());
+    }
+
+    #[test]
+    fn a_grown_box_keeps_its_centre() {
+        assert_eq!(grow(&[10.0, 20.0, 30.0, 60.0], 0.5), [-10.0, 0.0, 50.0, 80.0]);
+        assert_eq!(
+            union([[0.0, 5.0, 1.0, 6.0], [2.0, 1.0, 3.0, 2.0]].into_iter()),
+            Some([0.0, 1.0, 3.0, 6.0])
+        );
     }
 }

@@ -70,6 +70,9 @@ pub struct TrackingTargetParams {
     pub max_target_speed_mps: f64,
     /// Locations fitted for the velocity, s back from the newest.
     pub velocity_window_s: f64,
+    /// The velocity carries the estimate at most this long past its newest location, s (a target
+    /// unseen longer may have stopped or turned; its wander then says how far it may be).
+    pub velocity_horizon_s: f64,
     /// A location further than this many sigmas from the estimate is rejected (a wrong match).
     pub gate_sigma: f64,
     /// The same for a box re-detected after a loss, where a look-alike is likeliest: one such
@@ -101,6 +104,7 @@ impl Default for TrackingTargetParams {
             target_walk: 0.01,
             max_target_speed_mps: 0.0,
             velocity_window_s: 20.0,
+            velocity_horizon_s: 10.0,
             gate_sigma: 3.5,
             redetect_gate_sigma: 2.5,
             lost_timeout_s: 20.0,
@@ -344,12 +348,8 @@ impl TrackingTarget {
     fn prior(&self, stamp: Time, placed: Option<&(Isometry3<f64>, PoseEstimate)>) -> Prior {
         let Some((map_from_rect, pose)) = placed else { return Prior::default() };
         let camera = Point3::from(map_from_rect.translation.vector);
-        // A moving target is carried by its fitted velocity since it was last located.
-        let v = fitted_velocity(&self.recent, self.params.max_target_speed_mps, MIN_VELOCITY_SPAN_S);
-        let estimate = self.estimate.position().map(|p| {
-            let age = self.estimate.stamp().map_or(0.0, |t| (stamp - t).as_secs_f64().max(0.0));
-            p + v * age
-        });
+        // A moving target is carried by its velocity since it was last located.
+        let estimate = self.estimate.position_at(stamp);
         let expected = estimate
             .or_else(|| self.sight.map(|s| s.at(self.last_range.unwrap_or(self.params.sight_range_m))));
         let Some(expected) = expected else { return Prior::default() };
@@ -482,8 +482,15 @@ impl TrackingTarget {
                     measured = Some(p);
                     let t = stamp.as_secs_f64();
                     let window = self.params.velocity_window_s;
+                    if self.estimate.count() == 1 {
+                        // (Re)started: the locations before were of something else.
+                        self.recent.clear();
+                    }
                     self.recent.retain(|r| r.0 >= t - window);
                     self.recent.push((t, p));
+                    let speed = self.params.max_target_speed_mps;
+                    let v = fitted_velocity(&self.recent, speed, MIN_VELOCITY_SPAN_S);
+                    self.estimate.set_velocity(v, self.params.velocity_horizon_s);
                     self.fix_pose_term = Some(pose_term(pose, &p));
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
@@ -535,6 +542,9 @@ impl TrackingTarget {
             confidence: result.confidence,
             bbox,
             position: self.estimate.position(),
+            position_stamp: self.estimate.stamp(),
+            velocity: self.estimate.velocity(),
+            velocity_horizon_s: self.estimate.velocity_horizon_s(),
             covariance: self.estimate.covariance().unwrap_or_else(Matrix3::zeros),
             range_m: self.last_range,
             measured,
@@ -591,7 +601,7 @@ impl TrackingTarget {
         // The estimate ages: a target that may wander is known less well the longer ago it was
         // last located, and the rover's pose estimate has drifted since.
         let aged = self.aged_covariance(ctx.now(), self.placement.newest_pose());
-        let outcome = if let (Some(p), Some(c)) = (self.estimate.position(), aged)
+        let outcome = if let (Some(p), Some(c)) = (self.estimate.position_at(ctx.now()), aged)
             && c[(0, 0)].max(c[(1, 1)]).sqrt() <= *max_sigma
         {
             Some(Outcome::Completed(serde_json::json!({
@@ -674,6 +684,7 @@ impl Module for TrackingTarget {
             ("redetect_margin_px", p.redetect_margin_px),
             ("redetect_whole_after_s", p.redetect_whole_after_s),
             ("velocity_window_s", p.velocity_window_s),
+            ("velocity_horizon_s", p.velocity_horizon_s),
             ("tracker.track_threshold", p.tracker.track_threshold),
             ("tracker.redetect_threshold", p.tracker.redetect_threshold),
             ("locate.disparity_sigma_px", p.locate.disparity_sigma_px),
@@ -694,6 +705,12 @@ impl Module for TrackingTarget {
             return Err(
                 "locate.min_points and locate.max_samples must be >= 1, locate.half_window <= 15".into()
             );
+        }
+        if !(p.tracker.context_weight > 0.0 && p.tracker.context_weight <= 1.0) {
+            return Err(format!(
+                "tracker.context_weight must be in (0, 1], got {}",
+                p.tracker.context_weight
+            ));
         }
         if !(p.max_target_speed_mps.is_finite() && p.max_target_speed_mps >= 0.0) {
             return Err(format!("max_target_speed_mps must be >= 0, got {}", p.max_target_speed_mps));

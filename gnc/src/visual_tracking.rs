@@ -12,6 +12,10 @@
 //!   estimate follows it) until the rover is within `max_distance_m`, then faces it;
 //! - `stop`: ends the command in progress (the navigation it started is cancelled) and the pursuit.
 //!
+//! A turn to face the target that stalls a wheel (turning in place on loose ground) is tried once
+//! more after locomotion's fault is cleared (`recover`); a second stall fails the command.
+//! The target's position is its estimate carried by its velocity to the time it is used.
+//!
 //! Pursuit: from a command until `stop`, each cycle aims the head camera's optical axis at the
 //! target (its fused stereo position once located; before that, its line of sight at the last or an
 //! assumed range), through the believed mechanism and the current pose estimate, so the target
@@ -155,7 +159,13 @@ enum Step {
     Approach(MessageId, [f64; 2]),
     /// Turning to face the target.
     Face(MessageId),
+    /// Clearing locomotion's fault after a wheel stalled in the turn, before turning again.
+    Recover(MessageId),
 }
+
+/// Turns that stalled a wheel and are tried again (after locomotion's fault is cleared) before the
+/// job fails: turning in place on loose ground can bog a wheel down once.
+const FACE_RETRIES: u32 = 1;
 
 impl Step {
     fn name(&self) -> &'static str {
@@ -164,6 +174,7 @@ impl Step {
             Step::Locate(..) => "locate",
             Step::Approach(..) => "approach",
             Step::Face(_) => "face",
+            Step::Recover(_) => "recover",
         }
     }
 }
@@ -175,6 +186,8 @@ struct Job {
     step: Step,
     max_sigma: f64,
     legs: u32,
+    /// Stalled turns tried again so far.
+    face_retries: u32,
 }
 
 /// Names of the modules the coordinator commands.
@@ -297,10 +310,11 @@ impl CoordinatorVisualTracking {
         self.pose.as_ref().and_then(|r| ctx.read(r)).map(|p| p.value.clone())
     }
 
-    /// Where to look: the fused position, else the line of sight at the last or assumed range.
-    fn aim_point(&self, track: &TargetTrack) -> Option<Point3<f64>> {
+    /// Where to look at `now`: the fused position (carried by the target's velocity), else the
+    /// line of sight at the last or assumed range.
+    fn aim_point(&self, track: &TargetTrack, now: Time) -> Option<Point3<f64>> {
         track
-            .position
+            .position_at(now)
             .or_else(|| track.line_of_sight.map(|s| s.at(track.range_m.unwrap_or(self.params.sight_range_m))))
     }
 
@@ -319,9 +333,9 @@ impl CoordinatorVisualTracking {
         }
         self.yielding = false;
         let (Some(track), Some(pose)) = (self.track(ctx), self.pose(ctx)) else { return };
-        let Some(aim) = self.aim_point(&track) else { return };
-        self.aim = Some(aim);
         let now = ctx.now();
+        let Some(aim) = self.aim_point(&track, now) else { return };
+        self.aim = Some(aim);
         if let Some((_, at)) = self.commanded
             && (now - at).as_secs_f64() < self.params.command_period_s
         {
@@ -384,10 +398,10 @@ impl CoordinatorVisualTracking {
         Ok(Step::Locate(id, ctx.now(), sigma))
     }
 
-    /// The target's located position and the rover's, in `map`.
+    /// The target's located position (carried by its velocity to now) and the rover's, in `map`.
     fn positions(&self, ctx: &Ctx<'_>) -> Result<(Point3<f64>, [f64; 2], TargetTrack), String> {
         let track = self.track(ctx).ok_or("no target tracked")?;
-        let target = track.position.ok_or("the target is not located")?;
+        let target = track.position_at(ctx.now()).ok_or("the target is not located")?;
         let pose = self.pose(ctx).ok_or_else(|| format!("no pose estimate on '{}'", self.pose_slot))?;
         let r = pose.pose.translation.vector;
         Ok((target, [r.x, r.y], track))
@@ -406,16 +420,7 @@ impl CoordinatorVisualTracking {
         };
         let track = matches!(job.kind, Kind::Track { .. });
         match next_leg(rover, [target.x, target.y], boundary, track, &self.params) {
-            Leg::Arrived => {
-                let yaw = (target.y - rover[1]).atan2(target.x - rover[0]);
-                let id = send(
-                    ctx,
-                    &self.peers.locomotion,
-                    "turn_to",
-                    serde_json::json!({ "yaw_deg": yaw.to_degrees() }),
-                )?;
-                job.step = Step::Face(id);
-            }
+            Leg::Arrived => job.step = self.face(ctx)?,
             Leg::Drive { goal, tolerance } => {
                 if job.legs >= self.params.max_legs {
                     return Err(format!(
@@ -441,6 +446,14 @@ impl CoordinatorVisualTracking {
             }
         }
         Ok(None)
+    }
+
+    /// Turns the rover to face the target.
+    fn face(&self, ctx: &mut Ctx<'_>) -> Result<Step, String> {
+        let (target, rover, _) = self.positions(ctx)?;
+        let yaw = (target.y - rover[1]).atan2(target.x - rover[0]);
+        let args = serde_json::json!({ "yaw_deg": yaw.to_degrees() });
+        Ok(Step::Face(send(ctx, &self.peers.locomotion, "turn_to", args)?))
     }
 
     /// A completed job's result.
@@ -513,8 +526,27 @@ impl CoordinatorVisualTracking {
                     return Ok(Some(Outcome::Completed(self.result(ctx, job)?)));
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
-                    return Err(format!("turning to face the target failed: {r}"));
+                    if r.contains("stalled") && job.face_retries < FACE_RETRIES {
+                        job.face_retries += 1;
+                        ctx.note(format!(
+                            "turning to face the target failed ({r}): clearing the fault, turning again"
+                        ));
+                        job.step = Step::Recover(send(
+                            ctx,
+                            &self.peers.locomotion,
+                            "recover",
+                            serde_json::Value::Null,
+                        )?);
+                    } else {
+                        return Err(format!("turning to face the target failed: {r}"));
+                    }
                 }
+                _ => {}
+            },
+            Step::Recover(id) => match ctx.ack_status(id) {
+                // Rejected: not in fault any more; either way, turn again.
+                Some(AckStatus::Completed(_) | AckStatus::Rejected(_)) => job.step = self.face(ctx)?,
+                Some(AckStatus::Failed(r)) => return Err(format!("cannot clear locomotion's fault: {r}")),
                 _ => {}
             },
         }
@@ -534,7 +566,14 @@ impl CoordinatorVisualTracking {
         };
         self.cancel(ctx, &format!("superseded by {}", kind.name()));
         self.pursuing = true;
-        self.job = Some(Job { request, kind, step: Step::AwaitTarget(ctx.now()), max_sigma, legs: 0 });
+        self.job = Some(Job {
+            request,
+            kind,
+            step: Step::AwaitTarget(ctx.now()),
+            max_sigma,
+            legs: 0,
+            face_retries: 0,
+        });
         Outcome::Accepted
     }
 
@@ -550,7 +589,7 @@ impl CoordinatorVisualTracking {
                     let _ = ctx.send(Command::new(nav, "cancel"));
                 }
             }
-            Step::Face(_) => {
+            Step::Face(_) | Step::Recover(_) => {
                 let _ = ctx.send(Command::new(&self.peers.locomotion, "stop"));
             }
             Step::AwaitTarget(_) => {}

@@ -293,12 +293,15 @@ fn add_module(
             use gnc::tracking_marker::{HEAD_PREFIX, MarkerCamera, WRIST_PREFIX};
             let db_path = twin::assets_dir().join("objects.toml");
             let db = framework::objects::ObjectDatabase::load(&db_path)?;
-            let (camera, prefix, calibration) = if name == "tracking_marker" {
+            // The head instance also searches the operator-selected target's box at full
+            // resolution (the canister's markers are small in the head images).
+            let (camera, prefix, calibration, target) = if name == "tracking_marker" {
                 let calibration = map.stereo_camera("head_stereo")?.calibration().left.clone();
-                (MarkerCamera::StereoLeft("head_stereo".into()), HEAD_PREFIX, calibration)
+                let target = Some(gnc::tracking_target::SLOT);
+                (MarkerCamera::StereoLeft("head_stereo".into()), HEAD_PREFIX, calibration, target)
             } else {
                 let calibration = map.mono_camera("wrist_camera")?.calibration().clone();
-                (MarkerCamera::Single("wrist_camera".into()), WRIST_PREFIX, calibration)
+                (MarkerCamera::Single("wrist_camera".into()), WRIST_PREFIX, calibration, None)
             };
             b.add(
                 name,
@@ -310,6 +313,7 @@ fn add_module(
                     map.mechanism()?,
                     POSE_SLOT,
                     &["ptu/joints", "arm/joints"],
+                    target,
                 ),
                 config,
             )

@@ -559,7 +559,9 @@ fn camera_frames_reach_the_logs_as_images_and_point_clouds() {
 #[test]
 fn markers_give_a_marker_tables_pose_in_map_and_reach_the_logs() {
     let dir = tempfile::tempdir().unwrap();
-    let o = run(&data("markers.toml"), dir.path(), &[]);
+    // Quads searched at a third of the resolution: the table's 37-47 px markers then count as
+    // small, and once the table is seen its box is also searched at full resolution.
+    let o = run(&data("markers.toml"), dir.path(), &["--set", "modules.tracking_marker.params.decimate=3"]);
     assert_eq!(o.status.code(), Some(0), "{}", show(&o));
     let topics = read_mcap(&dir.path().join("run.mcap"));
     // Once the pan-tilt unit has stopped: the table's four markers, its pose from all of them
@@ -588,12 +590,31 @@ fn markers_give_a_marker_tables_pose_in_map_and_reach_the_logs() {
     let err = estimated.angle_to(&truth).to_degrees();
     assert!(err < 1.0, "table rotation off by {err} deg");
     assert!(table["seen_frames"].as_u64().unwrap() >= 3);
-    // Drawn: outlines over the image, the pose in 3D.
+    // Once seen, the table's box is also searched at full resolution: the window covers its
+    // markers.
+    let detections = &topics["/slots/tracking/markers"];
+    let last = &detections.last().unwrap()["value"];
+    let regions = last["regions"].as_array().unwrap();
+    assert_eq!(regions.len(), 1, "one region, the table's: {regions:?}");
+    let r: Vec<f64> = regions[0].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    for m in last["markers"].as_array().unwrap() {
+        for c in m["corners"].as_array().unwrap() {
+            let (u, v) = (c[0].as_f64().unwrap(), c[1].as_f64().unwrap());
+            assert!(u > r[0] && u < r[2] && v > r[1] && v < r[3], "corner ({u}, {v}) outside {r:?}");
+        }
+    }
+    // Drawn: outlines over the image (four markers, and the region once the table is tracked),
+    // the pose in 3D.
     let notes = &topics["/sensors/head_stereo/left/markers"];
-    assert!(notes.iter().any(|n| n["points"].as_array().unwrap().len() == 4), "no annotations");
+    let last = notes.last().unwrap();
+    assert_eq!(last["points"].as_array().unwrap().len(), 5, "four markers and a region: {last}");
     assert!(topics.contains_key("/tracking/objects/head_stereo/marker_table"));
     let ents = rrd_entities(&dir.path().join("run.rrd"));
-    for e in ["/sensors/head_stereo/left/markers", "/world/estimate/objects/head_stereo/marker_table"] {
+    for e in [
+        "/sensors/head_stereo/left/markers",
+        "/sensors/head_stereo/left/markers/regions",
+        "/world/estimate/objects/head_stereo/marker_table",
+    ] {
         assert!(ents.contains(e), "{e} missing");
     }
 }

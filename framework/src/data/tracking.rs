@@ -38,6 +38,9 @@ pub struct MarkerDetections {
     pub size: [u32; 2],
     /// What was found.
     pub markers: Vec<MarkerObservation>,
+    /// The windows searched at full resolution besides the whole image (around where markers
+    /// were expected), pixels: [u_min, v_min, u_max, v_max].
+    pub regions: Vec<[f64; 4]>,
 }
 
 /// An object's pose from its marker table.
@@ -124,8 +127,17 @@ pub struct TargetTrack {
     /// The target's box in the raw (distorted) left image, pixels: [u_min, v_min, u_max, v_max]
     /// (the last known one when lost).
     pub bbox: [f64; 4],
-    /// Its position in `map` (stereo, fused over the images so far), m; None until located.
+    /// Its position in `map` (stereo, fused over the images so far) at `position_stamp`, m; None
+    /// until located.
     pub position: Option<Point3<f64>>,
+    /// When the target was at `position`: the capture time of the newest location fused.
+    pub position_stamp: Option<Time>,
+    /// Its velocity in `map`, fitted to its recent locations, m/s (zero for a target the tracker is
+    /// told is static).
+    pub velocity: Vector3<f64>,
+    /// How long past `position_stamp` the velocity carries the position, s (a target unseen for
+    /// longer may have stopped or turned: its covariance then says how far it may be).
+    pub velocity_horizon_s: f64,
     /// Its covariance relative to the rover's pose estimate (whose own error moves the rover and
     /// the target alike in `map`), m^2.
     pub covariance: Matrix3<f64>,
@@ -138,6 +150,17 @@ pub struct TargetTrack {
     /// The line of sight through the box's centre (the last known one when lost); None while the
     /// camera cannot be placed. Where the target is seen before stereo can range it.
     pub line_of_sight: Option<LineOfSight>,
+}
+
+impl TargetTrack {
+    /// Where the target is at `t`: its position carried by its velocity from `position_stamp`
+    /// (never backwards, at most `velocity_horizon_s`).
+    pub fn position_at(&self, t: Time) -> Option<Point3<f64>> {
+        let p = self.position?;
+        let age =
+            self.position_stamp.map_or(0.0, |s| (t - s).as_secs_f64().clamp(0.0, self.velocity_horizon_s));
+        Some(p + self.velocity * age)
+    }
 }
 
 /// What a visual-tracking coordinator is doing (seed 000, 8.1): its command, where the command is,

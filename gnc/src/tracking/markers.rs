@@ -1,5 +1,5 @@
-//! Fiducial markers (seed 000, 8.4): AprilTag 36h11 detection (kornia-apriltag) and the 6-DoF pose
-//! of a marker, or of a whole marker table, from its corners.
+//! Fiducial markers (seed 000, 8.4): the 6-DoF pose of a marker, or of a whole marker table, from
+//! the corners [`MarkerDetector`] finds.
 //!
 //! A marker's pose starts from kornia-3d's planar pose of its four corners (both of its solutions
 //! when there are two), then every estimate, one marker's or a table's, is refined by weighted
@@ -8,99 +8,19 @@
 //! when markers on several faces are seen (the canister), which removes the planar ambiguity that
 //! a single small marker suffers from.
 
+use super::marker_detector::Detected;
 use crate::localization::motion::{Correspondence, Intrinsics, RefineParams, refine};
-use framework::camera::{CameraModel, GreyImage};
+use framework::camera::CameraModel;
 use kornia_3d::camera::PinholeCamera;
 use kornia_3d::pose::estimate_planar_pose;
 use kornia_algebra::{Vec2F64, Vec3F64};
-use kornia_apriltag::family::TagFamilyKind;
-use kornia_apriltag::{AprilTagDecoder, DecodeTagsConfig};
-use kornia_image::{Image, ImageSize};
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, Rotation3, Translation3, UnitQuaternion};
-
-/// One decoded marker.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Detected {
-    /// Marker id.
-    pub id: u32,
-    /// Corners in raw image coordinates (pixel centres at +0.5), in [`marker_corners`]' order.
-    pub corners: [Point2<f64>; 4],
-    /// The decoder's decision margin.
-    pub decision_margin: f64,
-    /// Bits corrected.
-    pub hamming: u32,
-}
 
 /// The corners of a square marker of edge `size`, in its own frame (x right, y up as printed), in
 /// the order [`Detected::corners`] holds them: top-left, top-right, bottom-right, bottom-left.
 pub fn marker_corners(size: f64) -> [Point3<f64>; 4] {
     let s = size / 2.0;
     [Point3::new(-s, s, 0.0), Point3::new(s, s, 0.0), Point3::new(s, -s, 0.0), Point3::new(-s, -s, 0.0)]
-}
-
-/// The tag36h11 detector for images of one size.
-pub struct MarkerDetector {
-    decoder: AprilTagDecoder,
-    size: ImageSize,
-}
-
-impl MarkerDetector {
-    /// A detector for `width` x `height` images that finds quads in the image decimated by
-    /// `decimate` (1: full resolution, which finds markers down to ~15 pixels wide; 2: about
-    /// three times faster, from ~25 pixels) and decodes and refines them at full resolution.
-    pub fn new(width: u32, height: u32, decimate: u32) -> Result<Self, String> {
-        if !(1..=4).contains(&decimate) {
-            return Err(format!("decimate must be 1 to 4, got {decimate}"));
-        }
-        let size = ImageSize { width: width as usize, height: height as usize };
-        let mut config = DecodeTagsConfig::new(vec![TagFamilyKind::Tag36H11]).map_err(|e| e.to_string())?;
-        config.min_tag_width = (config.min_tag_width * config.downscale_factor / decimate as usize).max(3);
-        config.downscale_factor = decimate as usize;
-        let decoder = AprilTagDecoder::new(config, size).map_err(|e| e.to_string())?;
-        Ok(MarkerDetector { decoder, size })
-    }
-
-    /// The markers in `img`, at most `max_hamming` bits corrected, sorted by id.
-    pub fn detect(&mut self, img: &GreyImage, max_hamming: u32) -> Result<Vec<Detected>, String> {
-        if (img.width as usize, img.height as usize) != (self.size.width, self.size.height) {
-            return Err(format!(
-                "a {}x{} image for a detector of {}x{}",
-                img.width, img.height, self.size.width, self.size.height
-            ));
-        }
-        let image = Image::<u8, 1>::new(self.size, img.data.clone()).map_err(|e| e.to_string())?;
-        let found = self.decoder.decode(&image).map_err(|e| e.to_string())?;
-        let mut out: Vec<Detected> = found
-            .iter()
-            .filter(|d| u32::from(d.hamming) <= max_hamming)
-            .map(|d| {
-                // The quad's corners are in the order the quad was found in, whatever the tag's
-                // rotation; its homography is turned by the decoded rotation (tag coordinates
-                // (-1, -1) ... (1, 1), y down as printed), so the printed corners are projected
-                // through it. Coordinates put a pixel's centre at +0.5, as framework::camera does
-                // (the rendered tests pin this down).
-                let c = |x: f32, y: f32| {
-                    let p = d.quad.homography_project(x, y);
-                    Point2::new(f64::from(p.x), f64::from(p.y))
-                };
-                Detected {
-                    id: u32::from(d.id),
-                    corners: [c(-1.0, -1.0), c(1.0, -1.0), c(1.0, 1.0), c(-1.0, 1.0)],
-                    decision_margin: f64::from(d.decision_margin),
-                    hamming: u32::from(d.hamming),
-                }
-            })
-            .collect();
-        out.sort_by_key(|d| d.id);
-        // A tag decoded twice (both borders) keeps its most confident reading.
-        out.dedup_by(|b, a| {
-            if a.id == b.id && b.decision_margin > a.decision_margin {
-                std::mem::swap(a, b);
-            }
-            a.id == b.id
-        });
-        Ok(out)
-    }
 }
 
 /// A pose fitted to marker corners.

@@ -29,6 +29,10 @@ pub struct TrackerParams {
     pub template_cells: usize,
     /// Context around the box in a template, as a fraction of the box on each side.
     pub context: f64,
+    /// The context's weight in a template's correlation against the box's 1 (a moving target's
+    /// surroundings stay behind: at full weight, they hold the match back, and what is learnt
+    /// there drifts off the target).
+    pub context_weight: f64,
     /// A template covers at least this many pixels a side (context for tiny targets).
     pub min_region_px: f64,
     /// Search window around the prediction, template cells each way.
@@ -54,6 +58,7 @@ impl Default for TrackerParams {
         TrackerParams {
             template_cells: 24,
             context: 0.5,
+            context_weight: 1.0,
             min_region_px: 24.0,
             search_cells: 10,
             scales: vec![0.95, 1.0, 1.05],
@@ -109,12 +114,58 @@ pub struct Prior {
 /// it converges over a few frames rather than jumping.
 const MAX_TRACK_RESCALE: f64 = 1.25;
 
-/// A normalized template: zero mean, unit norm, `w` x `h` cells.
+/// A template's weights: 1 over the box's cells (`inner`: the cell range [x0, x1) x [y0, y1)),
+/// `context` over the rest.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Weights {
+    inner: [usize; 4],
+    context: f32,
+}
+
+impl Weights {
+    /// The weights of a `w` x `h` grid over a region of `region` pixels around a box of `size`
+    /// pixels (centred), with the context at `context`.
+    fn new(w: usize, h: usize, size: (f64, f64), region: (f64, f64), context: f64) -> Weights {
+        let cells = |n: usize, inside: f64, all: f64| {
+            let k = ((n as f64 * inside / all).round() as usize).clamp(1, n);
+            let start = (n - k) / 2;
+            (start, start + k)
+        };
+        let (x0, x1) = cells(w, size.0, region.0);
+        let (y0, y1) = cells(h, size.1, region.1);
+        Weights { inner: [x0, y0, x1, y1], context: context.clamp(1e-3, 1.0) as f32 }
+    }
+
+    /// All cells at the same weight.
+    fn uniform(w: usize, h: usize) -> Weights {
+        Weights { inner: [0, 0, w, h], context: 1.0 }
+    }
+
+    fn at(&self, i: usize, j: usize) -> f32 {
+        let [x0, y0, x1, y1] = self.inner;
+        if (x0..x1).contains(&i) && (y0..y1).contains(&j) { 1.0 } else { self.context }
+    }
+
+    /// The same weights on the `w` x `h` grid of every other cell in each direction.
+    fn halved(&self, w: usize, h: usize) -> Weights {
+        let [x0, y0, x1, y1] = self.inner;
+        let (x0, y0) = ((x0 / 2).min(w - 1), (y0 / 2).min(h - 1));
+        Weights {
+            inner: [x0, y0, x1.div_ceil(2).clamp(x0 + 1, w), y1.div_ceil(2).clamp(y0 + 1, h)],
+            context: self.context,
+        }
+    }
+}
+
+/// A template normalized for weighted correlation: `w` x `h` cells, each the weight times the
+/// cell's difference from the weighted mean, over the weighted norm (so that its dot product with
+/// a patch, over the patch's weighted deviation, is their weighted correlation).
 #[derive(Clone, Debug)]
 struct Template {
     w: usize,
     h: usize,
     data: Vec<f32>,
+    weights: Weights,
 }
 
 /// The tracker.
@@ -158,21 +209,31 @@ fn resample(img: &GreyImage, x0: f64, y0: f64, step: f64, w: usize, h: usize) ->
 }
 
 impl Template {
-    fn new(w: usize, h: usize, mut data: Vec<f32>) -> Option<Template> {
-        let mean = data.iter().sum::<f32>() / data.len() as f32;
+    fn new(w: usize, h: usize, mut data: Vec<f32>, weights: Weights) -> Option<Template> {
+        let weight = |k: usize| weights.at(k % w, k / w);
+        let total: f32 = (0..data.len()).map(weight).sum();
+        let mean = data.iter().enumerate().map(|(k, v)| weight(k) * v).sum::<f32>() / total;
         data.iter_mut().for_each(|v| *v -= mean);
-        let norm = data.iter().map(|v| v * v).sum::<f32>().sqrt();
-        if norm < 1e-3 * data.len() as f32 {
+        let norm = data.iter().enumerate().map(|(k, v)| weight(k) * v * v).sum::<f32>().sqrt();
+        if norm < 1e-3 * total {
             return None; // a flat patch: nothing to track
         }
-        data.iter_mut().for_each(|v| *v /= norm);
-        Some(Template { w, h, data })
+        data.iter_mut().enumerate().for_each(|(k, v)| *v *= weight(k) / norm);
+        Some(Template { w, h, data, weights })
     }
 
-    /// Correlation with the raw patch `p` (same size).
+    /// Weighted correlation with the raw patch `p` (same size).
     fn ncc(&self, p: &[f32]) -> f64 {
-        Template::new(self.w, self.h, p.to_vec())
-            .map_or(0.0, |t| t.data.iter().zip(&self.data).map(|(a, b)| f64::from(a * b)).sum())
+        let (mut s0, mut s1, mut s2, mut dot) = (0f64, 0f64, 0f64, 0f64);
+        for (k, (v, a)) in p.iter().zip(&self.data).enumerate() {
+            let (wk, v) = (f64::from(self.weights.at(k % self.w, k / self.w)), f64::from(*v));
+            s0 += wk;
+            s1 += wk * v;
+            s2 += wk * v * v;
+            dot += f64::from(*a) * v;
+        }
+        let var = s2 - s1 * s1 / s0;
+        if var <= 1e-6 * s0 { 0.0 } else { dot / var.sqrt() }
     }
 }
 
@@ -197,19 +258,34 @@ fn ncc_search(t: &Template, img: &[f32], iw: usize, ih: usize) -> Option<(f64, f
         }
     }
     let n = (t.w * t.h) as f64;
+    // The box's cells weigh 1, the context's c: a window's weighted sums are c times its sums
+    // plus (1 - c) times its box's.
+    let [bx0, by0, bx1, by1] = t.weights.inner;
+    let c = f64::from(t.weights.context);
+    let total = c * n + (1.0 - c) * ((bx1 - bx0) * (by1 - by0)) as f64;
     let (nx, ny) = (iw - t.w + 1, ih - t.h + 1);
     let mut scores = vec![f64::NEG_INFINITY; nx * ny];
     for y in 0..ny {
         for x in 0..nx {
-            let rect = |s: &[f64]| {
-                s[(y + t.h) * sw + x + t.w] - s[y * sw + x + t.w] - s[(y + t.h) * sw + x] + s[y * sw + x]
+            let rect = |s: &[f64], [x0, y0, x1, y1]: [usize; 4]| {
+                s[(y + y1) * sw + x + x1] - s[(y + y0) * sw + x + x1] - s[(y + y1) * sw + x + x0]
+                    + s[(y + y0) * sw + x + x0]
             };
-            let (a, b) = (rect(&s1), rect(&s2));
-            let var = b - a * a / n;
-            if var <= 1e-6 * n {
+            let all = [0, 0, t.w, t.h];
+            let (a, b) = if c < 1.0 {
+                let inner = t.weights.inner;
+                (
+                    c * rect(&s1, all) + (1.0 - c) * rect(&s1, inner),
+                    c * rect(&s2, all) + (1.0 - c) * rect(&s2, inner),
+                )
+            } else {
+                (rect(&s1, all), rect(&s2, all))
+            };
+            let var = b - a * a / total;
+            if var <= 1e-6 * total {
                 continue;
             }
-            // The template has zero mean, so the window's mean drops out of the dot product.
+            // The template's weighted mean is zero, so the window's drops out of the dot product.
             let mut dot = 0f32;
             for j in 0..t.h {
                 let row = &img[(y + j) * iw + x..(y + j) * iw + x + t.w];
@@ -279,6 +355,14 @@ impl TemplateTracker {
         }
     }
 
+    /// The weights of a `w` x `h` template of `region` around `bbox`.
+    fn weights(&self, w: usize, h: usize, bbox: &BBox, region: (f64, f64)) -> Weights {
+        if self.params.context_weight >= 1.0 {
+            return Weights::uniform(w, h);
+        }
+        Weights::new(w, h, (bbox[2] - bbox[0], bbox[3] - bbox[1]), region, self.params.context_weight)
+    }
+
     /// The region around a box (box plus context, at least `min_region_px`).
     fn region_of(&self, b: &BBox) -> (f64, f64) {
         let k = 1.0 + 2.0 * self.params.context;
@@ -304,7 +388,8 @@ impl TemplateTracker {
         }
         let region = self.region_of(&bbox);
         let (w, h, p) = self.patch(img, cx, cy, region);
-        let t = Template::new(w, h, p).ok_or("the box shows no texture to track")?;
+        let t = Template::new(w, h, p, self.weights(w, h, &bbox, region))
+            .ok_or("the box shows no texture to track")?;
         self.templates = vec![t];
         self.bbox = Some(bbox);
         self.region = region;
@@ -328,11 +413,18 @@ impl TemplateTracker {
             .unwrap_or(1.0);
         let found = if self.lost {
             // Either search must pass the re-detection threshold (a small target's neighbourhood
-            // holds look-alikes: a lower one locks onto them).
+            // holds look-alikes: a lower one locks onto them) with a box wholly in the image.
             let rescale = rescale.clamp(0.25, 4.0);
             let scales: Vec<f64> = self.params.redetect_scales.iter().map(|s| s * rescale).collect();
+            let (w, h) = (img.width as f64, img.height as f64);
             let guided = prior.centre.and_then(|(cx, cy)| {
-                self.search_scales(img, cx, cy, &scales).filter(|f| f.0 >= self.params.redetect_threshold)
+                self.search_scales(img, cx, cy, &scales).filter(|(c, b, _)| {
+                    *c >= self.params.redetect_threshold
+                        && b[0] >= 0.0
+                        && b[1] >= 0.0
+                        && b[2] <= w
+                        && b[3] <= h
+                })
             });
             guided
                 .or_else(|| {
@@ -434,7 +526,7 @@ impl TemplateTracker {
         if !novel {
             return;
         }
-        if let Some(t) = Template::new(w, h, p) {
+        if let Some(t) = Template::new(w, h, p, self.weights(w, h, bbox, region)) {
             if self.templates.len() >= self.params.max_templates.max(2) {
                 self.templates.remove(1);
             }
@@ -470,6 +562,13 @@ impl TemplateTracker {
         let mut best: Option<(f64, f64, f64, f64)> = None;
         for &s in scales {
             let region = (self.region.0 * s, self.region.1 * s);
+            // A re-detected box lies wholly in the image (a box cut by the border is matched
+            // against clamped pixels, and a look-alike there is as good as the target).
+            let (hw, hh) = (0.5 * (last[2] - last[0]) * s, 0.5 * (last[3] - last[1]) * s);
+            let area = [area[0].max(hw), area[1].max(hh), area[2].min(w - hw), area[3].min(h - hh)];
+            if !(area[2] > area[0] && area[3] > area[1]) {
+                continue;
+            }
             for t in chosen.iter().copied() {
                 let step = region.0 / t.w as f64;
                 let coarse_t = {
@@ -477,11 +576,14 @@ impl TemplateTracker {
                     let mut d = Vec::with_capacity(w2 * h2);
                     for j in 0..h2 {
                         for i in 0..w2 {
-                            let k = 2 * j * t.w + 2 * i;
-                            d.push(t.data[k] + t.data[k + 1] + t.data[k + t.w] + t.data[k + t.w + 1]);
+                            // The cells' deviations, unweighted: the coarse template weighs
+                            // them again.
+                            let at = |x: usize, y: usize| t.data[y * t.w + x] / t.weights.at(x, y);
+                            let (x, y) = (2 * i, 2 * j);
+                            d.push(at(x, y) + at(x + 1, y) + at(x, y + 1) + at(x + 1, y + 1));
                         }
                     }
-                    Template::new(w2, h2, d)
+                    Template::new(w2, h2, d, t.weights.halved(w2, h2))
                 };
                 let Some(coarse_t) = coarse_t else { continue };
                 // Coarse: the windows whose centres lie in the area (they reach half a region
@@ -576,6 +678,47 @@ mod tests {
             assert!(overlap(&r.bbox, &boxed(x, y, size)) > 0.6, "{r:?} vs {:?}", boxed(x, y, size));
         }
         assert!(t.templates() > 1, "it learnt nothing");
+    }
+
+    #[test]
+    fn a_weighted_template_correlates_fully_with_its_own_patch_and_finds_it() {
+        let img = scene(100.0, 120.0, 16.0, false);
+        let (cx, cy, step, w, h) = (100.0, 120.0, 1.0, 24, 24);
+        let patch = resample_centred(&img, cx, cy, step, w, h);
+        let weights = Weights::new(w, h, (16.0, 16.0), (24.0, 24.0), 0.3);
+        assert_eq!(weights.inner, [4, 4, 20, 20]);
+        let t = Template::new(w, h, patch.clone(), weights).unwrap();
+        assert!((t.ncc(&patch) - 1.0).abs() < 1e-4, "{}", t.ncc(&patch));
+        // Gain and offset do not matter; the search puts it back where it came from.
+        let brighter: Vec<f32> = patch.iter().map(|v| 1.5 * v + 20.0).collect();
+        assert!((t.ncc(&brighter) - 1.0).abs() < 1e-4);
+        let (score, x, y) = search_around(&img, &t, cx + 3.0, cy - 2.0, step, 6).unwrap();
+        assert!(
+            (score - 1.0).abs() < 1e-3 && (x - cx).abs() < 0.1 && (y - cy).abs() < 0.1,
+            "{score} {x} {y}"
+        );
+        // A lighter context counts the box more: the patch with its context replaced correlates
+        // better under the weights than without them.
+        let mut other = patch.clone();
+        for (k, v) in other.iter_mut().enumerate() {
+            if !(4..20).contains(&(k % w)) || !(4..20).contains(&(k / w)) {
+                *v = ((k * 37) % 101) as f32;
+            }
+        }
+        let uniform = Template::new(w, h, patch, Weights::uniform(w, h)).unwrap();
+        assert!(t.ncc(&other) > uniform.ncc(&other) + 0.02, "{} {}", t.ncc(&other), uniform.ncc(&other));
+    }
+
+    #[test]
+    fn a_target_cut_by_the_image_border_is_not_redetected_until_wholly_in_view() {
+        let mut t = lost_behind_the_occluder();
+        // Half out of the image on the left: not taken.
+        let r = t.update(&scene(2.0, 120.0, 16.0, false), &Prior::default());
+        assert_eq!(r.status, TrackStatus::Lost, "{r:?}");
+        // Wholly in view: re-detected.
+        let r = t.update(&scene(30.0, 120.0, 16.0, false), &Prior::default());
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+        assert!(overlap(&r.bbox, &boxed(30.0, 120.0, 16.0)) > 0.6, "{r:?}");
     }
 
     #[test]

@@ -95,6 +95,8 @@ struct Writer {
     est_track: BTreeMap<String, Vec<[f32; 3]>>,
     next_track: Time,
     last_stats: BTreeMap<String, (u64, i64)>,
+    /// A moving target's velocity arrow is drawn (cleared once it is static again).
+    target_arrow: bool,
 }
 
 /// Records one run. The run loop only takes snapshots (link poses, new blackboard records, new
@@ -156,6 +158,7 @@ impl RunLogger {
             est_track: BTreeMap::new(),
             next_track: Time::ZERO,
             last_stats: BTreeMap::new(),
+            target_arrow: false,
         };
         let world = twin.world().clone();
         let modules: Vec<(String, framework::ModuleKind)> =

@@ -1,5 +1,6 @@
 //! Vision products in the logs: fiducial markers over the image they were found in (Rerun
-//! `LineStrips2D` and labels, MCAP `foxglove.ImageAnnotations`), the object poses they give (Rerun
+//! `LineStrips2D` and labels, MCAP `foxglove.ImageAnnotations`; the regions searched at full
+//! resolution in grey), the object poses they give (Rerun
 //! transforms with axes under `world/estimate/objects`, MCAP `foxglove.PosesInFrame` in `map`), and
 //! the target track (its box over the image, its position in `map`).
 
@@ -13,6 +14,14 @@ use serde_json::{Value, json};
 /// Marker outlines: green for a marker of a known object, orange for an unknown id.
 fn colour(known: bool) -> [u8; 3] {
     if known { [60, 220, 90] } else { [255, 150, 40] }
+}
+
+/// Regions searched at full resolution: grey.
+const REGION: [u8; 3] = [160, 160, 160];
+
+/// The corners of a region [u_min, v_min, u_max, v_max], clockwise from the top-left.
+fn region_corners(r: &[f64; 4]) -> [[f64; 2]; 4] {
+    [[r[0], r[1]], [r[2], r[1]], [r[2], r[3]], [r[0], r[3]]]
 }
 
 /// A `foxglove.ImageAnnotations` line loop through `corners` and a label at its first corner, in
@@ -59,6 +68,11 @@ impl Writer {
                     .with_colors(m.markers.iter().map(|o| colour(o.object.is_some())))
                     .with_labels(labels),
             )?;
+            rec.log(
+                format!("{path}/regions"),
+                &rerun::LineStrips2D::new(m.regions.iter().map(|r| outline(&region_corners(r))))
+                    .with_colors(m.regions.iter().map(|_| REGION)),
+            )?;
         }
         if let Some(mc) = &mut self.mcap {
             let (points, texts): (Vec<_>, Vec<_>) = m
@@ -73,6 +87,11 @@ impl Writer {
                     )
                 })
                 .unzip();
+            let regions = m
+                .regions
+                .iter()
+                .map(|r| annotation(m.stamp, &outline(&region_corners(r))[..4], REGION, "full res").0);
+            let points: Vec<Value> = points.into_iter().chain(regions).collect();
             let msg = json!({ "circles": [], "points": points, "texts": texts });
             mc.foxglove(&format!("/{path}"), "foxglove.ImageAnnotations", m.stamp, &msg)?;
         }
@@ -117,7 +136,7 @@ impl Writer {
     }
 
     /// The target track: its box over the image (yellow while followed, red when lost) and its
-    /// position in `map` with its 3-sigma ellipsoid.
+    /// position in `map` with its 3-sigma ellipsoid (and, moving, an arrow of its next 10 s).
     pub(super) fn target(&mut self, t: &TargetTrack) -> Result<()> {
         let k = f64::from(self.downsample.max(1));
         let [u0, v0, u1, v1] = t.bbox.map(|x| x / k);
@@ -146,6 +165,21 @@ impl Writer {
                     .with_colors([[255u8, 200, 0]])
                     .with_labels([t.target.clone()]),
                 )?;
+                // A moving target: where its velocity takes it in the next 10 s (none once it is
+                // static again).
+                let arrow = "world/estimate/target_velocity";
+                if t.velocity.norm() > 0.0 {
+                    let v = t.velocity * 10.0;
+                    rec.log(
+                        arrow,
+                        &rerun::Arrows3D::from_vectors([[v.x as f32, v.y as f32, v.z as f32]])
+                            .with_origins([[p.x as f32, p.y as f32, p.z as f32]])
+                            .with_colors([[255u8, 200, 0]]),
+                    )?;
+                } else if self.target_arrow {
+                    rec.log(arrow, &rerun::Clear::flat())?;
+                }
+                self.target_arrow = t.velocity.norm() > 0.0;
             }
         }
         if let Some(mc) = &mut self.mcap {

@@ -122,5 +122,5 @@ pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};
 pub use tracking::{
     LineOfSight, MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, TargetStatus, TargetTrack,
-    VisualTrackingState,
+    VisualTrackingState, carried,
 };

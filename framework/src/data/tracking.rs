@@ -152,14 +152,24 @@ pub struct TargetTrack {
     pub line_of_sight: Option<LineOfSight>,
 }
 
+/// A target at `position` at time `from`, moving at `velocity`, carried to `to`: never backwards,
+/// and at most `horizon_s` (a target unseen longer may have stopped or turned).
+pub fn carried(
+    position: &Point3<f64>,
+    velocity: &Vector3<f64>,
+    horizon_s: f64,
+    from: Time,
+    to: Time,
+) -> Point3<f64> {
+    position + velocity * (to - from).as_secs_f64().clamp(0.0, horizon_s)
+}
+
 impl TargetTrack {
     /// Where the target is at `t`: its position carried by its velocity from `position_stamp`
-    /// (never backwards, at most `velocity_horizon_s`).
+    /// (see [`carried`]).
     pub fn position_at(&self, t: Time) -> Option<Point3<f64>> {
         let p = self.position?;
-        let age =
-            self.position_stamp.map_or(0.0, |s| (t - s).as_secs_f64().clamp(0.0, self.velocity_horizon_s));
-        Some(p + self.velocity * age)
+        Some(self.position_stamp.map_or(p, |s| carried(&p, &self.velocity, self.velocity_horizon_s, s, t)))
     }
 }
 

@@ -15,6 +15,7 @@
 //! carries the estimate from one location to the next; the wander allows for that velocity's
 //! error.
 
+use framework::data::carried;
 use framework::prelude::Time;
 use nalgebra::{Matrix3, Point3, Vector3};
 
@@ -117,7 +118,7 @@ impl TargetEstimate {
     /// located.
     pub fn position_at(&self, t: Time) -> Option<Point3<f64>> {
         let f = self.fused.as_ref()?;
-        Some(f.position + self.velocity * (t - f.stamp).as_secs_f64().clamp(0.0, self.horizon_s))
+        Some(carried(&f.position, &self.velocity, self.horizon_s, f.stamp, t))
     }
 
     /// Fuses a location `p` of covariance `cov`, of which `bias` other images may repeat, taken
@@ -146,7 +147,7 @@ impl TargetEstimate {
             return true;
         };
         let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
-        let carried = e.position + self.velocity * dt.min(self.horizon_s);
+        let carried = carried(&e.position, &self.velocity, self.horizon_s, e.stamp, stamp);
         let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
         // The gate allows for both biases in full: it is there to reject a location of something
         // else, metres away.

@@ -188,6 +188,8 @@ struct Job {
     legs: u32,
     /// Stalled turns tried again so far.
     face_retries: u32,
+    /// Times the target was found outside the boundary once faced.
+    refaced: u32,
 }
 
 /// Names of the modules the coordinator commands.
@@ -215,6 +217,29 @@ pub enum Leg {
     },
     /// Close enough: turn to face the target.
     Arrived,
+}
+
+/// What follows a turn to face the target.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Faced {
+    /// The job is done.
+    Done,
+    /// Outside the boundary: locate and approach again.
+    Again,
+    /// Outside the boundary (m), with no more tries: the job fails.
+    Outside(f64),
+}
+
+/// After turning to face a target `d` m away (by its estimate then): done within `boundary` (or
+/// without one); outside it, a tracking job (`track`) that has done so `refaced` times, fewer than
+/// `max`, goes again (the estimate was refined, or the target moved, while the rover turned);
+/// any other fails.
+pub fn faced(d: f64, boundary: Option<f64>, track: bool, refaced: u32, max: u32) -> Faced {
+    match boundary {
+        Some(b) if d > b && track && refaced < max => Faced::Again,
+        Some(b) if d > b => Faced::Outside(b),
+        _ => Faced::Done,
+    }
 }
 
 /// The next leg of an approach from `rover` to `target` (both in `map`, m) that must end within
@@ -516,14 +541,22 @@ impl CoordinatorVisualTracking {
                 Some(AckStatus::Completed(_)) => {
                     let (target, rover, _) = self.positions(ctx)?;
                     let d = dist(rover, &target);
-                    if let Some(b) = job.kind.boundary()
-                        && d > b
-                    {
-                        return Err(format!(
-                            "stopped {d:.2} m from the target, outside the {b:.2} m boundary"
-                        ));
+                    let track = matches!(job.kind, Kind::Track { .. });
+                    match faced(d, job.kind.boundary(), track, job.refaced, self.params.max_legs) {
+                        Faced::Done => return Ok(Some(Outcome::Completed(self.result(ctx, job)?))),
+                        Faced::Again => {
+                            job.refaced += 1;
+                            ctx.note(format!(
+                                "facing the target, {d:.2} m from it: outside the boundary, locating it again"
+                            ));
+                            job.step = self.locate(ctx, job)?;
+                        }
+                        Faced::Outside(b) => {
+                            return Err(format!(
+                                "stopped {d:.2} m from the target, outside the {b:.2} m boundary"
+                            ));
+                        }
                     }
-                    return Ok(Some(Outcome::Completed(self.result(ctx, job)?)));
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     if r.contains("stalled") && job.face_retries < FACE_RETRIES {
@@ -573,6 +606,7 @@ impl CoordinatorVisualTracking {
             max_sigma,
             legs: 0,
             face_retries: 0,
+            refaced: 0,
         });
         Outcome::Accepted
     }
@@ -737,6 +771,15 @@ mod tests {
             Leg::Drive { goal, tolerance } => (goal, tolerance),
             Leg::Arrived => panic!("arrived"),
         }
+    }
+
+    #[test]
+    fn a_tracking_job_faced_outside_the_boundary_goes_again_a_bounded_number_of_times() {
+        assert_eq!(faced(1.9, Some(2.0), true, 0, 10), Faced::Done);
+        assert_eq!(faced(2.03, Some(2.0), true, 0, 10), Faced::Again);
+        assert_eq!(faced(2.03, Some(2.0), true, 10, 10), Faced::Outside(2.0));
+        assert_eq!(faced(2.03, Some(2.0), false, 0, 10), Faced::Outside(2.0));
+        assert_eq!(faced(7.0, None, false, 0, 10), Faced::Done);
     }
 
     #[test]

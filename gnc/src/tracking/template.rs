@@ -8,7 +8,12 @@
 //! position, or where the caller's 3D estimate projects) at a few scales, each scale resampling
 //! the search area once onto the template's grid so the search is a dense correlation with running
 //! sums. The confidence is the best correlation with any learnt template there; a confident match
-//! that looks unlike every stored template is learnt. Below the tracking threshold the target is
+//! that looks unlike every stored template is learnt. What is searched for is the tracking model:
+//! the newest learnt template, or (`model_rate` below 1) the running average of the learnt ones.
+//! The newest alone suits a still target; for a moving one it carries the lag of the frame it was
+//! learnt in (the static ground in it holds each match back a little), and learnt again and again
+//! the lags add up until the box slides off the target. In a running average what moves with the
+//! target stays sharp and the ground it crosses blurs away. Below the tracking threshold the target is
 //! lost, and every later frame is searched, coarse to fine, at several scales, with the operator's
 //! and the newest templates, until one matches above the re-detection threshold: the whole image,
 //! or only where the caller says the target can be (its 3D estimate's projection and uncertainty:
@@ -19,6 +24,9 @@
 //! approach (a few pixels of target in a context region, each frame's best of three scales), so the
 //! box would end up on a part of the target or on the ground around it.
 
+use crate::tracking::correlation::{
+    Template, Weights, ncc_search, resample, resample_centred, search_around,
+};
 use framework::camera::GreyImage;
 
 /// Tracker parameters.
@@ -47,6 +55,10 @@ pub struct TrackerParams {
     pub novelty_threshold: f64,
     /// Templates kept (the first, the operator's, is never dropped).
     pub max_templates: usize,
+    /// How much of each learnt patch the tracking model takes (the rest is the model so far): 1,
+    /// the newest patch alone. Below 1 the model is a running average, in which what moves with
+    /// the target stays sharp and the ground a moving target crosses blurs away.
+    pub model_rate: f64,
     /// A re-detection is accepted above this correlation.
     pub redetect_threshold: f64,
     /// Scale factors tried when re-detecting.
@@ -66,6 +78,7 @@ impl Default for TrackerParams {
             learn_threshold: 0.8,
             novelty_threshold: 0.93,
             max_templates: 12,
+            model_rate: 1.0,
             redetect_threshold: 0.65,
             redetect_scales: vec![0.8, 0.9, 1.0, 1.12, 1.25],
         }
@@ -114,215 +127,17 @@ pub struct Prior {
 /// it converges over a few frames rather than jumping.
 const MAX_TRACK_RESCALE: f64 = 1.25;
 
-/// A template's weights: 1 over the box's cells (`inner`: the cell range [x0, x1) x [y0, y1)),
-/// `context` over the rest.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct Weights {
-    inner: [usize; 4],
-    context: f32,
-}
-
-impl Weights {
-    /// The weights of a `w` x `h` grid over a region of `region` pixels around a box of `size`
-    /// pixels (centred), with the context at `context`.
-    fn new(w: usize, h: usize, size: (f64, f64), region: (f64, f64), context: f64) -> Weights {
-        let cells = |n: usize, inside: f64, all: f64| {
-            let k = ((n as f64 * inside / all).round() as usize).clamp(1, n);
-            let start = (n - k) / 2;
-            (start, start + k)
-        };
-        let (x0, x1) = cells(w, size.0, region.0);
-        let (y0, y1) = cells(h, size.1, region.1);
-        Weights { inner: [x0, y0, x1, y1], context: context.clamp(1e-3, 1.0) as f32 }
-    }
-
-    /// All cells at the same weight.
-    fn uniform(w: usize, h: usize) -> Weights {
-        Weights { inner: [0, 0, w, h], context: 1.0 }
-    }
-
-    fn at(&self, i: usize, j: usize) -> f32 {
-        let [x0, y0, x1, y1] = self.inner;
-        if (x0..x1).contains(&i) && (y0..y1).contains(&j) { 1.0 } else { self.context }
-    }
-
-    /// The same weights on the `w` x `h` grid of every other cell in each direction.
-    fn halved(&self, w: usize, h: usize) -> Weights {
-        let [x0, y0, x1, y1] = self.inner;
-        let (x0, y0) = ((x0 / 2).min(w - 1), (y0 / 2).min(h - 1));
-        Weights {
-            inner: [x0, y0, x1.div_ceil(2).clamp(x0 + 1, w), y1.div_ceil(2).clamp(y0 + 1, h)],
-            context: self.context,
-        }
-    }
-}
-
-/// A template normalized for weighted correlation: `w` x `h` cells, each the weight times the
-/// cell's difference from the weighted mean, over the weighted norm (so that its dot product with
-/// a patch, over the patch's weighted deviation, is their weighted correlation).
-#[derive(Clone, Debug)]
-struct Template {
-    w: usize,
-    h: usize,
-    data: Vec<f32>,
-    weights: Weights,
-}
-
 /// The tracker.
 #[derive(Clone, Debug)]
 pub struct TemplateTracker {
     params: TrackerParams,
     templates: Vec<Template>,
+    /// What the target is followed with: the learnt patches' running average.
+    model: Option<Template>,
     /// The box, and its region's size (box plus context), pixels.
     bbox: Option<BBox>,
     region: (f64, f64),
     lost: bool,
-}
-
-/// Bilinear sample at continuous pixel coordinates (pixel centres at +0.5); edges clamped.
-fn sample(img: &GreyImage, x: f64, y: f64) -> f32 {
-    let (w, h) = (img.width as i64, img.height as i64);
-    let (fx, fy) = (x - 0.5, y - 0.5);
-    let (x0, y0) = (fx.floor(), fy.floor());
-    let (ax, ay) = ((fx - x0) as f32, (fy - y0) as f32);
-    let at = |u: i64, v: i64| f32::from(img.data[(v.clamp(0, h - 1) * w + u.clamp(0, w - 1)) as usize]);
-    let (u, v) = (x0 as i64, y0 as i64);
-    let top = at(u, v) * (1.0 - ax) + at(u + 1, v) * ax;
-    let bottom = at(u, v + 1) * (1.0 - ax) + at(u + 1, v + 1) * ax;
-    top * (1.0 - ay) + bottom * ay
-}
-
-/// `w` x `h` samples centred at (cx, cy), `step` pixels between cells.
-fn resample_centred(img: &GreyImage, cx: f64, cy: f64, step: f64, w: usize, h: usize) -> Vec<f32> {
-    resample(img, cx - 0.5 * (w as f64 - 1.0) * step, cy - 0.5 * (h as f64 - 1.0) * step, step, w, h)
-}
-
-/// `w` x `h` samples with the top-left cell's centre at (x0, y0) and `step` pixels between cells.
-fn resample(img: &GreyImage, x0: f64, y0: f64, step: f64, w: usize, h: usize) -> Vec<f32> {
-    let mut out = Vec::with_capacity(w * h);
-    for j in 0..h {
-        for i in 0..w {
-            out.push(sample(img, x0 + i as f64 * step, y0 + j as f64 * step));
-        }
-    }
-    out
-}
-
-impl Template {
-    fn new(w: usize, h: usize, mut data: Vec<f32>, weights: Weights) -> Option<Template> {
-        let weight = |k: usize| weights.at(k % w, k / w);
-        let total: f32 = (0..data.len()).map(weight).sum();
-        let mean = data.iter().enumerate().map(|(k, v)| weight(k) * v).sum::<f32>() / total;
-        data.iter_mut().for_each(|v| *v -= mean);
-        let norm = data.iter().enumerate().map(|(k, v)| weight(k) * v * v).sum::<f32>().sqrt();
-        if norm < 1e-3 * total {
-            return None; // a flat patch: nothing to track
-        }
-        data.iter_mut().enumerate().for_each(|(k, v)| *v *= weight(k) / norm);
-        Some(Template { w, h, data, weights })
-    }
-
-    /// Weighted correlation with the raw patch `p` (same size).
-    fn ncc(&self, p: &[f32]) -> f64 {
-        let (mut s0, mut s1, mut s2, mut dot) = (0f64, 0f64, 0f64, 0f64);
-        for (k, (v, a)) in p.iter().zip(&self.data).enumerate() {
-            let (wk, v) = (f64::from(self.weights.at(k % self.w, k / self.w)), f64::from(*v));
-            s0 += wk;
-            s1 += wk * v;
-            s2 += wk * v * v;
-            dot += f64::from(*a) * v;
-        }
-        let var = s2 - s1 * s1 / s0;
-        if var <= 1e-6 * s0 { 0.0 } else { dot / var.sqrt() }
-    }
-}
-
-/// Dense correlation of `t` over `img` (`iw` x `ih`): the best score and its top-left offset,
-/// sub-cell by a parabola through the neighbours.
-fn ncc_search(t: &Template, img: &[f32], iw: usize, ih: usize) -> Option<(f64, f64, f64)> {
-    if iw < t.w || ih < t.h {
-        return None;
-    }
-    // Running sums of the image and its square for each window's mean and norm.
-    let (sw, sh) = (iw + 1, ih + 1);
-    let mut s1 = vec![0f64; sw * sh];
-    let mut s2 = vec![0f64; sw * sh];
-    for y in 0..ih {
-        let (mut r1, mut r2) = (0f64, 0f64);
-        for x in 0..iw {
-            let v = f64::from(img[y * iw + x]);
-            r1 += v;
-            r2 += v * v;
-            s1[(y + 1) * sw + x + 1] = s1[y * sw + x + 1] + r1;
-            s2[(y + 1) * sw + x + 1] = s2[y * sw + x + 1] + r2;
-        }
-    }
-    let n = (t.w * t.h) as f64;
-    // The box's cells weigh 1, the context's c: a window's weighted sums are c times its sums
-    // plus (1 - c) times its box's.
-    let [bx0, by0, bx1, by1] = t.weights.inner;
-    let c = f64::from(t.weights.context);
-    let total = c * n + (1.0 - c) * ((bx1 - bx0) * (by1 - by0)) as f64;
-    let (nx, ny) = (iw - t.w + 1, ih - t.h + 1);
-    let mut scores = vec![f64::NEG_INFINITY; nx * ny];
-    for y in 0..ny {
-        for x in 0..nx {
-            let rect = |s: &[f64], [x0, y0, x1, y1]: [usize; 4]| {
-                s[(y + y1) * sw + x + x1] - s[(y + y0) * sw + x + x1] - s[(y + y1) * sw + x + x0]
-                    + s[(y + y0) * sw + x + x0]
-            };
-            let all = [0, 0, t.w, t.h];
-            let (a, b) = if c < 1.0 {
-                let inner = t.weights.inner;
-                (
-                    c * rect(&s1, all) + (1.0 - c) * rect(&s1, inner),
-                    c * rect(&s2, all) + (1.0 - c) * rect(&s2, inner),
-                )
-            } else {
-                (rect(&s1, all), rect(&s2, all))
-            };
-            let var = b - a * a / total;
-            if var <= 1e-6 * total {
-                continue;
-            }
-            // The template's weighted mean is zero, so the window's drops out of the dot product.
-            let mut dot = 0f32;
-            for j in 0..t.h {
-                let row = &img[(y + j) * iw + x..(y + j) * iw + x + t.w];
-                let trow = &t.data[j * t.w..(j + 1) * t.w];
-                dot += row.iter().zip(trow).map(|(p, q)| p * q).sum::<f32>();
-            }
-            scores[y * nx + x] = f64::from(dot) / var.sqrt();
-        }
-    }
-    let (k, best) = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
-    if !best.is_finite() {
-        return None;
-    }
-    let (bx, by) = (k % nx, k / nx);
-    let sub = |m: f64, c: f64, p: f64| {
-        let den = m - 2.0 * c + p;
-        if m.is_finite() && p.is_finite() && den < 0.0 { (0.5 * (m - p) / den).clamp(-0.5, 0.5) } else { 0.0 }
-    };
-    let dx = if bx > 0 && bx + 1 < nx { sub(scores[k - 1], *best, scores[k + 1]) } else { 0.0 };
-    let dy = if by > 0 && by + 1 < ny { sub(scores[k - nx], *best, scores[k + nx]) } else { 0.0 };
-    Some((*best, bx as f64 + dx, by as f64 + dy))
-}
-
-/// The best match of `t` whose centre lies within `m` cells (of `step` pixels) of (cx, cy): its
-/// score and centre, pixels.
-fn search_around(
-    img: &GreyImage,
-    t: &Template,
-    cx: f64,
-    cy: f64,
-    step: f64,
-    m: usize,
-) -> Option<(f64, f64, f64)> {
-    let (iw, ih) = (t.w + 2 * m, t.h + 2 * m);
-    let area = resample_centred(img, cx, cy, step, iw, ih);
-    let (score, ox, oy) = ncc_search(t, &area, iw, ih)?;
-    Some((score, cx + (ox - m as f64) * step, cy + (oy - m as f64) * step))
 }
 
 fn centre(b: &BBox) -> (f64, f64) {
@@ -332,7 +147,14 @@ fn centre(b: &BBox) -> (f64, f64) {
 impl TemplateTracker {
     /// A tracker with nothing to track yet.
     pub fn new(params: TrackerParams) -> Self {
-        TemplateTracker { params, templates: Vec::new(), bbox: None, region: (0.0, 0.0), lost: false }
+        TemplateTracker {
+            params,
+            templates: Vec::new(),
+            model: None,
+            bbox: None,
+            region: (0.0, 0.0),
+            lost: false,
+        }
     }
 
     /// The target's last box.
@@ -390,6 +212,7 @@ impl TemplateTracker {
         let (w, h, p) = self.patch(img, cx, cy, region);
         let t = Template::new(w, h, p, self.weights(w, h, &bbox, region))
             .ok_or("the box shows no texture to track")?;
+        self.model = Some(t.clone());
         self.templates = vec![t];
         self.bbox = Some(bbox);
         self.region = region;
@@ -447,6 +270,10 @@ impl TemplateTracker {
                 self.bbox = Some(bbox);
                 self.region = region;
                 self.lost = false;
+                if status == TrackStatus::Redetected {
+                    // Found again, maybe elsewhere and changed: the model starts over from here.
+                    self.model = None;
+                }
                 self.learn(img, &bbox, region, confidence);
                 TrackResult { bbox, confidence, status }
             }
@@ -467,7 +294,7 @@ impl TemplateTracker {
         scales: &[f64],
     ) -> Option<(f64, BBox, (f64, f64))> {
         let last = self.bbox?;
-        let newest = self.templates.last()?;
+        let newest = self.model.as_ref().or(self.templates.last())?;
         let m = self.params.search_cells;
         let mut best: Option<(f64, f64, f64, f64)> = None; // score, cx, cy, scale
         for &s in scales {
@@ -492,7 +319,12 @@ impl TemplateTracker {
     /// Best correlation of the patch at (x, y) of `region` with any learnt template.
     fn confidence(&self, img: &GreyImage, x: f64, y: f64, region: (f64, f64)) -> f64 {
         let (_, _, p) = self.patch(img, x, y, region);
-        self.templates.iter().filter(|t| t.data.len() == p.len()).map(|t| t.ncc(&p)).fold(-1.0, f64::max)
+        self.templates
+            .iter()
+            .chain(&self.model)
+            .filter(|t| t.data.len() == p.len())
+            .map(|t| t.ncc(&p))
+            .fold(-1.0, f64::max)
     }
 
     /// Declares the current box not the target (someone else knows better): the next update
@@ -526,12 +358,22 @@ impl TemplateTracker {
         if !novel {
             return;
         }
-        if let Some(t) = Template::new(w, h, p, self.weights(w, h, bbox, region)) {
-            if self.templates.len() >= self.params.max_templates.max(2) {
-                self.templates.remove(1);
+        let weights = self.weights(w, h, bbox, region);
+        let Some(t) = Template::new(w, h, p, weights) else { return };
+        let rate = self.params.model_rate as f32;
+        self.model = match self.model.take() {
+            Some(m) if rate < 1.0 && (m.w, m.h) == (w, h) => {
+                let blend = (0..h)
+                    .flat_map(|y| (0..w).map(move |x| (x, y)))
+                    .map(|(x, y)| (1.0 - rate) * m.unweighted(x, y) + rate * t.unweighted(x, y));
+                Template::new(w, h, blend.collect(), weights).or_else(|| Some(t.clone()))
             }
-            self.templates.push(t);
+            _ => Some(t.clone()),
+        };
+        if self.templates.len() >= self.params.max_templates.max(2) {
+            self.templates.remove(1);
         }
+        self.templates.push(t);
     }
 
     /// Searches `area` (pixels, [u_min, v_min, u_max, v_max]; None: the whole image) at `scales`
@@ -656,6 +498,52 @@ mod tests {
         let i = (a[2].min(b[2]) - a[0].max(b[0])).max(0.0) * (a[3].min(b[3]) - a[1].max(b[1])).max(0.0);
         let area = |r: &BBox| (r[2] - r[0]) * (r[3] - r[1]);
         i / (area(a) + area(b) - i)
+    }
+
+    /// A dark 6 x 10 px target at (x, 120) with its shadow, a band trailing to its right, on
+    /// faintly textured ground (a small target far away: the ground's texture is blurred).
+    fn shadowed(x: f64) -> GreyImage {
+        let mut img = scene(x, 120.0, 0.0, false);
+        for (k, p) in img.data.iter_mut().enumerate() {
+            let (u, v) = ((k % 320) as f64 + 0.5, (k / 320) as f64 + 0.5);
+            let ground = 110.0 + (f64::from(*p) - 120.0) / 2.0;
+            let (du, dv) = (u - x, v - 120.0);
+            *p = if du.abs() < 3.0 && dv.abs() < 5.0 {
+                60.0
+            } else if (3.0..12.0).contains(&du) && (2.0..5.0).contains(&dv) {
+                ground * 0.45
+            } else {
+                ground
+            } as u8;
+        }
+        img
+    }
+
+    /// Mean offset of the box's centre from the target's (pixels; positive: behind it) as the
+    /// target and its shadow move left 1.5 px a frame over the static ground, each box confirmed.
+    fn lag_behind_a_moving_target(model_rate: f64) -> f64 {
+        let params =
+            TrackerParams { context: 0.25, min_region_px: 12.0, model_rate, ..TrackerParams::default() };
+        let mut t = TemplateTracker::new(params);
+        t.init(&shadowed(250.0), [247.0, 115.0, 253.0, 125.0]).unwrap();
+        let mut lag = 0.0;
+        for k in 1..=80 {
+            let x = 250.0 - 1.5 * k as f64;
+            let img = shadowed(x);
+            let r = t.update(&img, &Prior { centre: Some((x + 1.5, 120.0)), ..Prior::default() });
+            assert_ne!(r.status, TrackStatus::Lost, "frame {k}");
+            t.confirm(&img);
+            lag += centre(&r.bbox).0 - x;
+        }
+        lag / 80.0
+    }
+
+    #[test]
+    fn a_running_average_model_keeps_up_with_a_target_moving_over_the_ground() {
+        let (average, newest) = (lag_behind_a_moving_target(0.3), lag_behind_a_moving_target(1.0));
+        println!("mean lag: running average {average:.2} px, newest patch alone {newest:.2} px");
+        assert!(average.abs() < 1.0, "{average:.2} px");
+        assert!(newest > average.abs() + 2.0, "the newest patch alone lags {newest:.2} px only");
     }
 
     /// A tracker started on a 16 px target at (100, 120) that then went behind the occluder.

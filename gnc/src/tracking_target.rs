@@ -712,6 +712,9 @@ impl Module for TrackingTarget {
                 p.tracker.context_weight
             ));
         }
+        if !(p.tracker.model_rate > 0.0 && p.tracker.model_rate <= 1.0) {
+            return Err(format!("tracker.model_rate must be in (0, 1], got {}", p.tracker.model_rate));
+        }
         if !(p.max_target_speed_mps.is_finite() && p.max_target_speed_mps >= 0.0) {
             return Err(format!("max_target_speed_mps must be >= 0, got {}", p.max_target_speed_mps));
         }

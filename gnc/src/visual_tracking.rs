@@ -9,7 +9,8 @@
 //! - `point_locate_approach_track {max_distance_m, max_sigma_m?}`: repeats point, locate and
 //!   approach in legs (each ending at a fraction of the distance left, where stereo ranges the
 //!   target better, so the first uncertain estimate is refined on the way; a moving target's
-//!   estimate follows it) until the rover is within `max_distance_m`, then faces it;
+//!   estimate follows it) until the rover is within `max_distance_m`, then faces it (found outside
+//!   once faced, as a refined or moving estimate can say, it locates and approaches again);
 //! - `stop`: ends the command in progress (the navigation it started is cancelled) and the pursuit.
 //!
 //! A turn to face the target that stalls a wheel (turning in place on loose ground) is tried once
@@ -62,7 +63,8 @@ pub struct VisualTrackingParams {
     pub standoff_fraction: f64,
     /// Arrival tolerance of an intermediate leg, m.
     pub leg_tolerance_m: f64,
-    /// Most legs of one `point_locate_approach_track`.
+    /// Most legs of one `point_locate_approach_track`, and most times it locates again after
+    /// facing the target outside the boundary.
     pub max_legs: u32,
     /// Longest wait for TrackingTarget to locate the target to the asked accuracy, s.
     pub locate_timeout_s: f64,
@@ -776,6 +778,7 @@ mod tests {
     #[test]
     fn a_tracking_job_faced_outside_the_boundary_goes_again_a_bounded_number_of_times() {
         assert_eq!(faced(1.9, Some(2.0), true, 0, 10), Faced::Done);
+        assert_eq!(faced(2.0, Some(2.0), false, 0, 10), Faced::Done);
         assert_eq!(faced(2.03, Some(2.0), true, 0, 10), Faced::Again);
         assert_eq!(faced(2.03, Some(2.0), true, 10, 10), Faced::Outside(2.0));
         assert_eq!(faced(2.03, Some(2.0), false, 0, 10), Faced::Outside(2.0));

@@ -1,5 +1,5 @@
 //! Fiducial markers (seed 000, 8.4): the 6-DoF pose of a marker, or of a whole marker table, from
-//! the corners [`MarkerDetector`] finds.
+//! the corners [`MarkerDetector`](crate::tracking::marker_detector::MarkerDetector) finds.
 //!
 //! A marker's pose starts from kornia-3d's planar pose of its four corners (both of its solutions
 //! when there are two), then every estimate, one marker's or a table's, is refined by weighted

@@ -1,10 +1,10 @@
 //! Vision algorithms of seed 000, 8.1 and 8.4, free of the framework's module machinery: fiducial
 //! markers ([`marker_detector`]) and the poses they give ([`markers`]), the operator-selected target's image tracker
-//! ([`template`], on the weighted correlation of [`correlation`]) and where a lost one is looked for ([`search`]), its position by stereo
+//! ([`template`], on the weighted correlation of `correlation`) and where a lost one is looked for ([`search`]), its position by stereo
 //! ([`locate`]) fused over the images ([`estimate`]) and the pan and tilt that point a camera at it
 //! ([`pointing`]).
 
-pub mod correlation;
+pub(crate) mod correlation;
 pub mod estimate;
 pub mod locate;
 pub mod marker_detector;

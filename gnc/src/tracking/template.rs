@@ -4,15 +4,15 @@
 //!
 //! A template is the target's box with some context around it (a small target far away is a few
 //! pixels; the ground around it moves with it), resampled to a fixed grid and normalized (zero mean,
-//! unit norm). Each frame the newest template is searched for around the prediction (the last
+//! unit norm). Each frame the tracking model is searched for around the prediction (the last
 //! position, or where the caller's 3D estimate projects) at a few scales, each scale resampling
 //! the search area once onto the template's grid so the search is a dense correlation with running
-//! sums. The confidence is the best correlation with any learnt template there; a confident match
-//! that looks unlike every stored template is learnt. What is searched for is the tracking model:
-//! the newest learnt template, or (`model_rate` below 1) the running average of the learnt ones.
+//! sums. The confidence is the best correlation with the model or any learnt template there; a
+//! confident match that looks unlike every stored template is learnt. The model is the newest
+//! learnt template, or (`model_rate` below 1) an exponential moving average of the learnt ones.
 //! The newest alone suits a still target; for a moving one it carries the lag of the frame it was
 //! learnt in (the static ground in it holds each match back a little), and learnt again and again
-//! the lags add up until the box slides off the target. In a running average what moves with the
+//! the lags add up until the box slides off the target. In a moving average what moves with the
 //! target stays sharp and the ground it crosses blurs away. Below the tracking threshold the target is
 //! lost, and every later frame is searched, coarse to fine, at several scales, with the operator's
 //! and the newest templates, until one matches above the re-detection threshold: the whole image,
@@ -55,9 +55,10 @@ pub struct TrackerParams {
     pub novelty_threshold: f64,
     /// Templates kept (the first, the operator's, is never dropped).
     pub max_templates: usize,
-    /// How much of each learnt patch the tracking model takes (the rest is the model so far): 1,
-    /// the newest patch alone. Below 1 the model is a running average, in which what moves with
-    /// the target stays sharp and the ground a moving target crosses blurs away.
+    /// How much of each learnt patch the tracking model takes (the rest is the model so far), in
+    /// (0, 1]: 1, the newest patch alone. Below 1 the model is an exponential moving average, in
+    /// which what moves with the target stays sharp and the ground a moving target crosses blurs
+    /// away.
     pub model_rate: f64,
     /// A re-detection is accepted above this correlation.
     pub redetect_threshold: f64,
@@ -132,7 +133,9 @@ const MAX_TRACK_RESCALE: f64 = 1.25;
 pub struct TemplateTracker {
     params: TrackerParams,
     templates: Vec<Template>,
-    /// What the target is followed with: the learnt patches' running average.
+    /// What the target is followed with: the newest learnt template, or the learnt templates'
+    /// moving average (`model_rate`). None after a re-detection until a template is learnt: the
+    /// newest stored one stands for it.
     model: Option<Template>,
     /// The box, and its region's size (box plus context), pixels.
     bbox: Option<BBox>,
@@ -284,8 +287,8 @@ impl TemplateTracker {
         }
     }
 
-    /// The best match of the newest template around (cx, cy), over `scales` of the last box:
-    /// (confidence against all templates, box, region).
+    /// The best match of the tracking model around (cx, cy), over `scales` of the last box:
+    /// (confidence against the model and all templates, box, region).
     fn search_scales(
         &self,
         img: &GreyImage,
@@ -316,7 +319,7 @@ impl TemplateTracker {
         ([x - hw, y - hh, x + hw, y + hh], (self.region.0 * s, self.region.1 * s))
     }
 
-    /// Best correlation of the patch at (x, y) of `region` with any learnt template.
+    /// Best correlation of the patch at (x, y) of `region` with the model or any learnt template.
     fn confidence(&self, img: &GreyImage, x: f64, y: f64, region: (f64, f64)) -> f64 {
         let (_, _, p) = self.patch(img, x, y, region);
         self.templates
@@ -343,7 +346,8 @@ impl TemplateTracker {
         }
     }
 
-    /// Learns the patch at `bbox` when confident and unlike the stored templates.
+    /// Learns the patch at `bbox` when confident and unlike the stored templates: stored, and
+    /// taken into the tracking model.
     fn learn(&mut self, img: &GreyImage, bbox: &BBox, region: (f64, f64), confidence: f64) {
         if confidence < self.params.learn_threshold {
             return;
@@ -420,7 +424,7 @@ impl TemplateTracker {
                         for i in 0..w2 {
                             // The cells' deviations, unweighted: the coarse template weighs
                             // them again.
-                            let at = |x: usize, y: usize| t.data[y * t.w + x] / t.weights.at(x, y);
+                            let at = |x: usize, y: usize| t.unweighted(x, y);
                             let (x, y) = (2 * i, 2 * j);
                             d.push(at(x, y) + at(x + 1, y) + at(x, y + 1) + at(x + 1, y + 1));
                         }
@@ -531,9 +535,9 @@ mod tests {
             let x = 250.0 - 1.5 * k as f64;
             let img = shadowed(x);
             let r = t.update(&img, &Prior { centre: Some((x + 1.5, 120.0)), ..Prior::default() });
-            assert_ne!(r.status, TrackStatus::Lost, "frame {k}");
+            // A lost target counts as left behind by its width.
+            lag += if r.status == TrackStatus::Lost { 6.0 } else { centre(&r.bbox).0 - x };
             t.confirm(&img);
-            lag += centre(&r.bbox).0 - x;
         }
         lag / 80.0
     }

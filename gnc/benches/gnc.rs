@@ -21,8 +21,9 @@
 //!   (each marker's own pose and the table's from its 16 corners) on a ray-cast 640 x 480 image of
 //!   the calibration table (four 0.2 m markers) 2 m away over textured ground. Target: detection
 //!   and pose together under 10 ms.
-//! - `tracker_update` (the target's templates searched around its last position at three scales,
-//!   the confidence against every template, learning) and `tracker_redetect` (a lost target
+//! - `tracker_update` (the tracking model searched around the target's last position at three
+//!   scales, the confidence against it and every template, learning; with the newest template as
+//!   the model, `model_rate` 1, and with a moving average of them, 0.3) and `tracker_redetect` (a lost target
 //!   searched over the whole image, five scales, its learnt templates) on the ray-cast ground
 //!   scene, a 48 x 48 pixel box; target under 10 ms per frame. `stereo_locate_64x64`: block
 //!   matching, left-right check and k-means in a 64 x 64 box of the rectified pair; target under
@@ -368,11 +369,11 @@ fn tracking_frames()
 
 const TRACK_BOX: [f64; 4] = [296.0, 276.0, 344.0, 324.0];
 
-#[divan::bench(sample_count = 30, sample_size = 5)]
-fn tracker_update(b: Bencher<'_, '_>) {
+#[divan::bench(sample_count = 30, sample_size = 5, args = [1.0, 0.3])]
+fn tracker_update(b: Bencher<'_, '_>, model_rate: f64) {
     use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
     let (_, frames) = tracking_frames();
-    let mut t = TemplateTracker::new(TrackerParams::default());
+    let mut t = TemplateTracker::new(TrackerParams { model_rate, ..TrackerParams::default() });
     t.init(&frames[0].0, TRACK_BOX).unwrap();
     assert_ne!(t.clone().update(&frames[1].0, &Prior::default()).status, TrackStatus::Lost);
     b.with_inputs(|| t.clone())

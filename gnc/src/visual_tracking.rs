@@ -13,6 +13,8 @@
 //!   once faced, as a refined or moving estimate can say, it locates and approaches again);
 //! - `stop`: ends the command in progress (the navigation it started is cancelled) and the pursuit.
 //!
+//! An approach leg that fails (a wheel stalls short of the goal) with the rover already within the
+//! boundary by the target's estimate ends in facing the target as an arrival would.
 //! A turn to face the target that stalls a wheel (turning in place on loose ground) is tried once
 //! more after locomotion's fault is cleared (`recover`); a second stall fails the command.
 //! The target's position is its estimate carried by its velocity to the time it is used.
@@ -161,7 +163,8 @@ enum Step {
     Approach(MessageId, [f64; 2]),
     /// Turning to face the target.
     Face(MessageId),
-    /// Clearing locomotion's fault after a wheel stalled in the turn, before turning again.
+    /// Clearing locomotion's fault (a wheel stalled in the turn, or in a failed leg that ended
+    /// within the boundary) before turning to face the target.
     Recover(MessageId),
 }
 
@@ -535,7 +538,18 @@ impl CoordinatorVisualTracking {
                     job.step = self.locate(ctx, job)?;
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
-                    return Err(format!("approach failed: {r}"));
+                    // The leg aimed inside the boundary with room to spare: a leg that fails
+                    // (a wheel bogged down short of its goal) may still have brought the rover
+                    // within it, which is what the command asks.
+                    let within = job.kind.boundary().zip(self.distance(ctx)).filter(|(b, d)| d <= b);
+                    let Some((b, d)) = within else {
+                        return Err(format!("approach failed: {r}"));
+                    };
+                    ctx.note(format!(
+                        "the approach leg failed ({r}), but the target is {d:.2} m away, within the {b:.2} m boundary: clearing locomotion's fault, facing it"
+                    ));
+                    job.step =
+                        Step::Recover(send(ctx, &self.peers.locomotion, "recover", serde_json::Value::Null)?);
                 }
                 _ => {}
             },

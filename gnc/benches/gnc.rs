@@ -140,13 +140,8 @@ fn marker_detection_640x480_with_region(b: Bencher<'_, '_>) {
     let mut detector = gnc::tracking::marker_detector::MarkerDetector::new(640, 480, 2).unwrap();
     let found = detector.detect(&img, 0).unwrap();
     assert_eq!(found.len(), 4, "the four markers");
-    let table = found
-        .iter()
-        .map(|d| d.bbox())
-        .reduce(|a, b| [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])]);
-    let t = table.unwrap();
-    let s = 0.5 * (t[2] - t[0]).max(t[3] - t[1]);
-    let region = [t[0] - s, t[1] - s, t[2] + s, t[3] + s];
+    let table = gnc::tracking_marker::union(found.iter().map(|d| d.bbox())).unwrap();
+    let region = gnc::tracking_marker::grow(&table, 0.5);
     assert_eq!(detector.detect_in(&img, 0, &[region]).unwrap().0.len(), 4, "the four markers");
     b.bench_local(|| black_box(detector.detect_in(black_box(&img), 0, &[region]).unwrap()));
 }

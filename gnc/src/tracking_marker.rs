@@ -196,8 +196,7 @@ fn merged(mut regions: Vec<[f64; 4]>) -> Vec<[f64; 4]> {
     while k < regions.len() {
         if let Some(j) = (k + 1..regions.len()).find(|&j| overlap(&regions[k], &regions[j])) {
             let b = regions.swap_remove(j);
-            let a = &mut regions[k];
-            *a = [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])];
+            regions[k] = hull(&regions[k], &b);
             // The grown box may now overlap ones already passed: look again from the start.
             k = 0;
         } else {
@@ -208,14 +207,19 @@ fn merged(mut regions: Vec<[f64; 4]>) -> Vec<[f64; 4]> {
 }
 
 /// `b` ([u_min, v_min, u_max, v_max]) grown on each side by `margin` times its larger side.
-fn grow(b: &[f64; 4], margin: f64) -> [f64; 4] {
+pub fn grow(b: &[f64; 4], margin: f64) -> [f64; 4] {
     let s = margin * (b[2] - b[0]).max(b[3] - b[1]);
     [b[0] - s, b[1] - s, b[2] + s, b[3] + s]
 }
 
+/// The box around boxes `a` and `b`.
+fn hull(a: &[f64; 4], b: &[f64; 4]) -> [f64; 4] {
+    [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])]
+}
+
 /// The box around all of `boxes`.
-fn union(boxes: impl Iterator<Item = [f64; 4]>) -> Option<[f64; 4]> {
-    boxes.reduce(|a, b| [a[0].min(b[0]), a[1].min(b[1]), a[2].max(b[2]), a[3].max(b[3])])
+pub fn union(boxes: impl Iterator<Item = [f64; 4]>) -> Option<[f64; 4]> {
+    boxes.reduce(|a, b| hull(&a, &b))
 }
 
 /// The TrackingMarker module.

@@ -486,6 +486,11 @@ impl CoordinatorVisualTracking {
         Ok(Step::Face(send(ctx, &self.peers.locomotion, "turn_to", args)?))
     }
 
+    /// Clears locomotion's fault (the step after it turns to face the target).
+    fn recover(&self, ctx: &mut Ctx<'_>) -> Result<Step, String> {
+        Ok(Step::Recover(send(ctx, &self.peers.locomotion, "recover", serde_json::Value::Null)?))
+    }
+
     /// A completed job's result.
     fn result(&self, ctx: &Ctx<'_>, job: &Job) -> Result<serde_json::Value, String> {
         let (target, rover, track) = self.positions(ctx)?;
@@ -548,8 +553,7 @@ impl CoordinatorVisualTracking {
                     ctx.note(format!(
                         "the approach leg failed ({r}), but the target is {d:.2} m away, within the {b:.2} m boundary: clearing locomotion's fault, facing it"
                     ));
-                    job.step =
-                        Step::Recover(send(ctx, &self.peers.locomotion, "recover", serde_json::Value::Null)?);
+                    job.step = self.recover(ctx)?;
                 }
                 _ => {}
             },
@@ -580,12 +584,7 @@ impl CoordinatorVisualTracking {
                         ctx.note(format!(
                             "turning to face the target failed ({r}): clearing the fault, turning again"
                         ));
-                        job.step = Step::Recover(send(
-                            ctx,
-                            &self.peers.locomotion,
-                            "recover",
-                            serde_json::Value::Null,
-                        )?);
+                        job.step = self.recover(ctx)?;
                     } else {
                         return Err(format!("turning to face the target failed: {r}"));
                     }

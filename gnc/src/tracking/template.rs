@@ -424,9 +424,13 @@ impl TemplateTracker {
                         for i in 0..w2 {
                             // The cells' deviations, unweighted: the coarse template weighs
                             // them again.
-                            let at = |x: usize, y: usize| t.unweighted(x, y);
                             let (x, y) = (2 * i, 2 * j);
-                            d.push(at(x, y) + at(x + 1, y) + at(x, y + 1) + at(x + 1, y + 1));
+                            d.push(
+                                t.unweighted(x, y)
+                                    + t.unweighted(x + 1, y)
+                                    + t.unweighted(x, y + 1)
+                                    + t.unweighted(x + 1, y + 1),
+                            );
                         }
                     }
                     Template::new(w2, h2, d, t.weights.halved(w2, h2))

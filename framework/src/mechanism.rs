@@ -73,6 +73,35 @@ pub struct LinkInfo {
     pub parent_joint: Option<usize>,
     /// Mass, kg (0 for frames without inertia).
     pub mass: f64,
+    /// Its collision shapes, each as the box that bounds it (a cylinder, sphere or capsule by its
+    /// bounding box: conservative for clearance checks), in the link frame. Meshes are left out.
+    pub collision_boxes: Vec<CollisionBox>,
+}
+
+/// A box in a link's frame: where it is and its half extents, m.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CollisionBox {
+    /// Pose of the box's centre and axes in the link frame.
+    pub origin: Isometry3<f64>,
+    /// Half its size along its own x, y and z, m.
+    pub half_extents: Vector3<f64>,
+}
+
+impl CollisionBox {
+    /// The box bounding a URDF collision geometry at `origin` (None for a mesh). URDF cylinders
+    /// and capsules lie along their z axis.
+    pub fn of(geometry: &urdf_rs::Geometry, origin: Isometry3<f64>) -> Option<Self> {
+        let half_extents = match geometry {
+            urdf_rs::Geometry::Box { size } => Vector3::new(size[0], size[1], size[2]) / 2.0,
+            urdf_rs::Geometry::Cylinder { radius, length } => Vector3::new(*radius, *radius, length / 2.0),
+            urdf_rs::Geometry::Capsule { radius, length } => {
+                Vector3::new(*radius, *radius, length / 2.0 + radius)
+            }
+            urdf_rs::Geometry::Sphere { radius } => Vector3::repeat(*radius),
+            urdf_rs::Geometry::Mesh { .. } => return None,
+        };
+        Some(CollisionBox { origin, half_extents })
+    }
 }
 
 /// Errors building or querying the model.
@@ -150,7 +179,16 @@ impl MechanismModel {
         let mut links: Vec<LinkInfo> = robot
             .links
             .iter()
-            .map(|l| LinkInfo { name: l.name.clone(), parent_joint: None, mass: l.inertial.mass.value })
+            .map(|l| LinkInfo {
+                name: l.name.clone(),
+                parent_joint: None,
+                mass: l.inertial.mass.value,
+                collision_boxes: l
+                    .collision
+                    .iter()
+                    .filter_map(|c| CollisionBox::of(&c.geometry, urdf_pose(&c.origin)))
+                    .collect(),
+            })
             .collect();
         let link_index: HashMap<String, usize> =
             links.iter().enumerate().map(|(i, l)| (l.name.clone(), i)).collect();

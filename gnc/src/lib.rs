@@ -15,11 +15,16 @@
 //! [`path_planning::PathPlanning`] and [`navigator::CoordinatorNavigator`], over the algorithms of
 //! [`navigation`]; the vision modules of seed 000, 8.1 and 8.4:
 //! [`tracking_marker::TrackingMarker`], [`tracking_target::TrackingTarget`] and
-//! [`visual_tracking::CoordinatorVisualTracking`], over the algorithms of [`tracking`].
-//! To come (see DESIGN.md): visual servoing, autonomy.
+//! [`visual_tracking::CoordinatorVisualTracking`], over the algorithms of [`tracking`]; the
+//! manipulation modules of seed 000, 8.3: [`manipulator_control::ManipulatorControl`] (planned arm
+//! motions clear of the body, grasps under visual servoing with the wrist camera, placing in the
+//! stowage slot) and [`coordinator_manipulation::CoordinatorManipulation`] (`acquire_canister`,
+//! `stow_canister`), over the algorithms of [`manipulation`].
+//! To come (see DESIGN.md): autonomy.
 
 pub mod body;
 pub mod cameras;
+pub mod coordinator_manipulation;
 pub mod history;
 pub mod joints;
 pub mod localization;
@@ -28,6 +33,8 @@ pub mod localization_inertial;
 pub mod localization_mechanical;
 pub mod localization_visual;
 pub mod locomotion;
+pub mod manipulation;
+pub mod manipulator_control;
 pub mod navigation;
 pub mod navigator;
 pub mod params;

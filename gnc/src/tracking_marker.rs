@@ -19,7 +19,8 @@
 //!
 //! Commands: `forget` (every object's track), `locate {object, max_sigma_m?, max_angle_deg?,
 //! frames?}` (completes once `frames` images in a row gave the object's pose in `base_link` to
-//! `max_sigma_m` and `max_angle_deg`, 1 sigma per axis, with that pose and its `map` pose; the arm
+//! `max_sigma_m` and `max_angle_deg`, 1 sigma per axis (images captured after the command only),
+//! with that pose and its `map` pose; the arm
 //! needs the first) and `stop` (a pending `locate` fails). The `base_link` covariance is the
 //! image's (corner noise through the believed camera model): the mechanism's calibration error (a
 //! few centimetres through the arm for the wrist camera) is not in it, which is why the arm closes
@@ -171,6 +172,9 @@ struct PendingLocate {
     args: LocateObjectArgs,
     met: u32,
     before: u32,
+    /// Only images captured from then on count (one in flight when the command came shows the
+    /// scene from before it: the rover or the arm may have moved since).
+    since: Time,
 }
 
 /// What the module remembers of an object between images.
@@ -492,6 +496,9 @@ impl TrackingMarker {
     fn settle(&mut self, ctx: &mut Ctx<'_>, objects: &[ObjectPose]) {
         let Some(pl) = &mut self.pending else { return };
         let a = &pl.args;
+        if objects.first().is_some_and(|o| o.stamp < pl.since) {
+            return;
+        }
         let good = objects.iter().find(|o| o.object == a.object).filter(|o| {
             let c = &o.base_covariance;
             (0..3).all(|i| c[(i, i)].sqrt() <= a.max_sigma_m)
@@ -561,7 +568,9 @@ impl Module for TrackingMarker {
             let Some(request) = ctx.request() else {
                 return Outcome::reject("locate needs a request to answer");
             };
-            if let Some(old) = m.pending.replace(PendingLocate { request, args: a, met: 0, before: 0 }) {
+            let since = ctx.now();
+            if let Some(old) = m.pending.replace(PendingLocate { request, args: a, met: 0, before: 0, since })
+            {
                 ctx.reply(&old.request, Outcome::fail("superseded by a new locate"));
             }
             Outcome::Accepted

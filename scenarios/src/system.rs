@@ -23,7 +23,8 @@ pub fn module_config_dir() -> PathBuf {
 /// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate; visual
 /// odometry only with the cameras and a localization stereo rate; the head camera's trackers only
 /// with the cameras and a head stereo rate; the wrist camera's marker tracker with the cameras (it
-/// sees images once a plan or the scenario gives the wrist camera a rate; it is off by default).
+/// sees images once a plan or the scenario gives the wrist camera a rate; it is off by default), and
+/// the manipulator and its coordinator with it (they grasp under the wrist camera's view).
 pub const MODULES: &[&str] = &[
     "localization_mechanical",
     "localization_inertial",
@@ -43,11 +44,16 @@ pub const MODULES: &[&str] = &[
     "path_planning",
     "navigator",
     "visual_tracking",
+    "manipulator_control",
+    "manipulation",
     faults::NAME,
 ];
 
 /// The modules that track in the head camera's images.
 const HEAD_TRACKING: &[&str] = &["tracking_marker", "tracking_target", "visual_tracking"];
+
+/// The modules that grasp under the wrist camera's view.
+const MANIPULATION: &[&str] = &["tracking_marker_wrist", "manipulator_control", "manipulation"];
 
 /// The navigation chain's modules (they need the ToF cameras).
 const NAVIGATION: &[&str] =
@@ -132,7 +138,7 @@ pub(crate) fn build_system(
             || (NAVIGATION.contains(name) && !navigation_enabled(s))
             || (*name == "localization_visual" && !visual_enabled(s))
             || (HEAD_TRACKING.contains(name) && !camera_rate_on(s, "head_stereo_hz"))
-            || (*name == "tracking_marker_wrist" && !cameras)
+            || (MANIPULATION.contains(name) && !cameras)
         {
             continue;
         }
@@ -141,6 +147,7 @@ pub(crate) fn build_system(
             visual: visual_enabled(s),
             operator: s.operator.select_target && cameras,
             navigation: navigation_enabled(s),
+            head_tracking: camera_rate_on(s, "head_stereo_hz"),
         };
         add_module(&mut b, name, &map, twin, model.clone(), config, wiring)?;
     }
@@ -240,6 +247,9 @@ struct Wiring {
     operator: bool,
     /// The navigation chain, which the visual-tracking coordinator then drives approaches with.
     navigation: bool,
+    /// The head camera's target tracking, whose estimate the manipulation coordinator then uses to
+    /// bring the rover within the arm's reach.
+    head_tracking: bool,
 }
 
 /// Registers module `name` of the runner's system, with its devices from `map`.
@@ -388,6 +398,35 @@ fn add_module(
                 config,
             )
         }
+        "manipulator_control" => b.add(
+            name,
+            gnc::manipulator_control::ManipulatorControl::new(
+                gnc::manipulator_control::ManipulatorPeers {
+                    arm: "arm".into(),
+                    gripper: "gripper".into(),
+                    others: vec!["ptu".into()],
+                    objects: format!("{}/objects", gnc::tracking_marker::WRIST_PREFIX),
+                },
+                &map.mechanism()?,
+                "gripper_tcp",
+            )
+            .map_err(|e| anyhow!("the manipulator: {e}"))?,
+            config,
+        ),
+        "manipulation" => b.add(
+            name,
+            gnc::coordinator_manipulation::CoordinatorManipulation::new(
+                gnc::coordinator_manipulation::ManipulationPeers {
+                    manipulator: "manipulator_control".into(),
+                    markers: "tracking_marker_wrist".into(),
+                    cameras: ("cameras".into(), "wrist_camera".into()),
+                    locomotion: "locomotion".into(),
+                    target: wiring.head_tracking.then(|| gnc::tracking_target::SLOT.to_string()),
+                    pose: POSE_SLOT.into(),
+                },
+            ),
+            config,
+        ),
         other => return Err(anyhow!("no module '{other}' in the runner's system")),
     };
     Ok(())

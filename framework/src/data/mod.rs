@@ -116,9 +116,11 @@ pub struct NavigationState {
 }
 
 mod localization;
+mod manipulation;
 mod maps;
 mod tracking;
 pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
+pub use manipulation::ManipulationState;
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};
 pub use tracking::{
     LineOfSight, MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, TargetStatus, TargetTrack,

@@ -6,8 +6,8 @@ use framework::Time;
 use framework::blackboard::SlotCell;
 use framework::camera::{GreyImage, TofFrame};
 use framework::data::{
-    ElevationMap, JointStates, LocomotionState, MarkerDetections, NavigationMap, ObjectPoses, PoseEstimate,
-    StereoImages, TargetSelection, TargetTrack, VisualOdometry,
+    ElevationMap, JointStates, LocomotionState, ManipulationState, MarkerDetections, NavigationMap,
+    ObjectPoses, PoseEstimate, StereoImages, TargetSelection, TargetTrack, VisualOdometry,
 };
 use std::any::Any;
 use std::sync::Arc;
@@ -32,6 +32,7 @@ pub(super) enum Known {
     Markers(Arc<Stamped<MarkerDetections>>),
     Objects(Arc<Stamped<ObjectPoses>>),
     Track(Arc<Stamped<TargetTrack>>),
+    Manipulation(Arc<Stamped<ManipulationState>>),
     Other,
 }
 
@@ -73,6 +74,8 @@ pub(super) fn classify(any: &dyn Any, twin: &Twin) -> Known {
         Known::Objects(s)
     } else if let Some(s) = latest::<TargetTrack>(any) {
         Known::Track(s)
+    } else if let Some(s) = latest::<ManipulationState>(any) {
+        Known::Manipulation(s)
     } else {
         Known::Other
     }

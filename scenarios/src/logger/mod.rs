@@ -642,6 +642,7 @@ impl Writer {
                 Known::Markers(m) => self.markers(&m.value)?,
                 Known::Objects(o) => self.objects(&o.value)?,
                 Known::Track(t) => self.target(&t.value)?,
+                Known::Manipulation(m) => self.manipulation(m.stamp, &m.value)?,
                 Known::Other => {}
             }
             // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.

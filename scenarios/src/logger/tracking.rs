@@ -8,7 +8,7 @@ use super::Writer;
 use super::mcap_writer::{pose_json, stamp_json};
 use super::rerun_view::rr_transform;
 use anyhow::Result;
-use framework::data::{MarkerDetections, ObjectPoses, TargetStatus, TargetTrack};
+use framework::data::{ManipulationState, MarkerDetections, ObjectPoses, TargetStatus, TargetTrack};
 use serde_json::{Value, json};
 
 /// Marker outlines: green for a marker of a known object, orange for an unknown id.
@@ -94,6 +94,38 @@ impl Writer {
             let points: Vec<Value> = points.into_iter().chain(regions).collect();
             let msg = json!({ "circles": [], "points": points, "texts": texts });
             mc.foxglove(&format!("/{path}"), "foxglove.ImageAnnotations", m.stamp, &msg)?;
+        }
+        Ok(())
+    }
+
+    /// The manipulator: its tool centre point (believed kinematics) as axes under the fused pose
+    /// estimate's `base_link`, with what it does; the servo's error as a plot. In the MCAP, the tool
+    /// pose in `base_link`.
+    pub(super) fn manipulation(&mut self, stamp: framework::Time, m: &ManipulationState) -> Result<()> {
+        let label = format!(
+            "{}{}",
+            m.command.as_deref().map_or("idle".to_string(), |c| format!("{c}: {}", m.step)),
+            m.holding.as_deref().map_or(String::new(), |h| format!(" (holding the {h})"))
+        );
+        if let Some(rec) = &self.rrd {
+            let base = format!("world/estimate/{}/tool", gnc::localization_fusion::SLOT.replace('/', "_"));
+            if let Some(t) = &m.tool_in_base {
+                rec.log(base.as_str(), &rr_transform(t))?;
+                rec.log(
+                    format!("{base}/axes"),
+                    &rerun::Arrows3D::from_vectors([[0.08f32, 0.0, 0.0], [0.0, 0.08, 0.0], [0.0, 0.0, 0.08]])
+                        .with_colors([[255u8, 0, 0], [0, 255, 0], [0, 0, 255]])
+                        .with_labels([label, String::new(), String::new()]),
+                )?;
+            }
+            if let Some(e) = m.servo_error_m {
+                rec.log("plots/manipulation/servo_error_mm", &rerun::Scalars::single(e * 1e3))?;
+            }
+        }
+        if let (Some(mc), Some(t)) = (&mut self.mcap, &m.tool_in_base) {
+            let msg =
+                json!({ "timestamp": stamp_json(stamp), "frame_id": "base_link", "pose": pose_json(t) });
+            mc.foxglove("/manipulation/tool", "foxglove.PoseInFrame", stamp, &msg)?;
         }
         Ok(())
     }

@@ -349,7 +349,7 @@ impl Twin {
                 ("canister_box", [0.05, 0.05, 0.075], [0.0, 0.0, 0.075]),
                 ("canister_post_front", [0.0075, 0.0075, 0.02], [0.035, 0.0, 0.17]),
                 ("canister_post_back", [0.0075, 0.0075, 0.02], [-0.035, 0.0, 0.17]),
-                ("canister_handle", [0.0425, 0.01, 0.0075], [0.0, 0.0, HANDLE_HEIGHT]),
+                ("canister_handle", [0.0425, HANDLE_HALF_WIDTH, 0.0075], [0.0, 0.0, HANDLE_HEIGHT]),
             ];
             for (i, (name, h, p)) in parts.iter().enumerate() {
                 let tag = self.tag(name.to_string(), false, false);

@@ -1,11 +1,16 @@
 //! The gripper and the canister. Closing fingers hold the handle only when it lies between them
 //! (within `gripper.latch_distance_m` of the tool centre point) with their closing axis within
 //! `gripper.grasp_tolerance_deg` of the handle's narrow axis; a misaligned close holds nothing.
+//! Holding, the fingers stand on the handle (its half width each, in kinematic fidelity too), so
+//! the gripper's opening tells a grasp from a close on nothing.
 //! How the handle sat is ground truth ([`crate::truth::GraspTruth`]). A released canister falls
 //! where it is (full dynamics), or in kinematic fidelity rests in the stowage cradle when released
 //! there and on the ground elsewhere.
 
 use super::*;
+
+/// A finger touches the handle when its inner face is at most this far from it, m.
+const TOUCH_M: f64 = 0.001;
 
 /// A scripted motion of the canister: carried over the ground at a constant velocity, upright, from
 /// one time until another (a moving target, moved by something outside the rover's software). In
@@ -124,11 +129,21 @@ impl Twin {
         let near = (tcp.translation.vector - handle.translation.vector).norm() < latch_d;
         let grasp = crate::truth::GraspTruth::of(&tcp, &handle);
         let aligned = grasp.closing_axis_error_deg <= self.config.gripper.grasp_tolerance_deg;
+        // The fingers hold the handle once both reach it (its half width, each) with it between
+        // them. (rapier's contacts do not stop the servo-driven fingers on the 2 cm bar reliably:
+        // they squeeze through it, so the twin decides the grasp by this geometry in both
+        // fidelities.)
+        let ids = self.groups.get("gripper").cloned().unwrap_or_default();
+        let reached = !ids.is_empty()
+            && ids.iter().all(|&s| self.joints[self.servos[s].joint].q <= HANDLE_HALF_WIDTH + TOUCH_M);
         if kinematic {
-            if self.latched_kinematic.is_none() && near && aligned && closing {
+            if self.latched_kinematic.is_none() && near && aligned && closing && reached {
                 self.latched_kinematic = Some(tcp.inverse() * can);
                 self.stowed_kinematic = None;
                 self.grasp = Some(grasp);
+                for s in ids {
+                    self.hold(s);
+                }
             }
             if let Some(off) = self.latched_kinematic
                 && let Some(c) = self.canister.as_mut()
@@ -137,24 +152,12 @@ impl Twin {
             }
             return;
         }
-        if self.latch.is_some() || !near || !closing || !aligned {
+        if self.latch.is_some() || !near || !closing || !aligned || !reached {
             return;
         }
         let Some(cb) = self.canister.as_ref().and_then(|c| c.body) else { return };
-        let fingers = [self.body_of("gripper_finger_left"), self.body_of("gripper_finger_right")];
         let Some(palm) = self.body_of("gripper_palm") else { return };
         let Engine::Dynamic(ph) = &mut self.engine else { return };
-        // Both fingers must touch the canister.
-        let touches = |fb: RigidBodyHandle| {
-            ph.bodies[fb].colliders().iter().any(|fc| {
-                ph.bodies[cb].colliders().iter().any(|cc| {
-                    ph.narrow_phase.contact_pair(*fc, *cc).is_some_and(|p| p.has_any_active_contact())
-                })
-            })
-        };
-        if !fingers.iter().all(|f| f.is_some_and(touches)) {
-            return;
-        }
         let palm_pose = pose_from_rapier(ph.bodies[palm].position());
         let rel = palm_pose.inverse() * can;
         let joint = FixedJointBuilder::new().local_frame1(pose_to_rapier(&rel)).local_frame2(Pose::IDENTITY);

@@ -225,6 +225,8 @@ impl KinState {
 
 /// Height of the canister's handle centre above its base, m (`assets/canister/canister.urdf`).
 const HANDLE_HEIGHT: f64 = 0.1975;
+/// Half the handle bar's width across the fingers, m: where closing fingers stop on it.
+const HANDLE_HALF_WIDTH: f64 = 0.01;
 
 /// Pose of a placed object on the ground, lifted by `lift`.
 fn object_pose(o: &worlds::PlacedObject, lift: f64) -> Isometry3<f64> {

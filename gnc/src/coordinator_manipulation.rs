@@ -1,0 +1,500 @@
+//! CoordinatorManipulation (seed 000, 8.3 and 8.4): sequences the rover, the wrist camera's marker
+//! tracking and the manipulator for the mission's two manipulation commands.
+//!
+//! - `acquire_canister`: turns the wrist camera on; puts the rover where the arm can reach the
+//!   object (from the head camera's target estimate, `tracking/target`: facing it at the working
+//!   distance); raises the arm to its look pose and has the wrist camera's TrackingMarker locate
+//!   the object by its markers; if the located object is outside the arm's grasp region, moves the
+//!   rover by what is missing and looks again; then has the manipulator grasp it under visual
+//!   servoing. A grasp that fails (the fingers closed beside the handle, the servo loop did not
+//!   converge) is tried again from the look, up to `max_attempts`. Completes once the manipulator
+//!   reports the object held (its fingers stopped on the handle), with the wrist camera off again.
+//! - `stow_canister`: has the manipulator place the held object in the stowage slot.
+//! - `stop`: ends the command in progress and stops what it commanded.
+//!
+//! Progress is published on `manipulation/coordinator` as the generic module state (the command and
+//! its step) through the notes; the manipulator's own state is on `manipulation/state`.
+
+use crate::peer::send;
+use framework::data::{PoseEstimate, TargetTrack};
+use framework::message::{AckStatus, MessageId};
+use framework::module::Request;
+use framework::prelude::*;
+use nalgebra::{Isometry3, Point3};
+use serde::{Deserialize, Serialize};
+
+/// CoordinatorManipulation parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct CoordinatorManipulationParams {
+    /// The object kind acquired and stowed (as the marker tracker names it).
+    pub object: String,
+    /// The wrist camera's frame rate while acquiring, Hz.
+    pub camera_hz: f64,
+    /// The rover stands with the object this far from `base_link` (horizontally) to look at it, m.
+    pub work_distance_m: f64,
+    /// ... and moves there first when farther than this from it ...
+    pub work_tolerance_m: f64,
+    /// ... or when it is more than this off the heading, deg.
+    pub max_bearing_deg: f64,
+    /// The arm grasps an object whose centre lies within this box of `base_link` (x min, x max,
+    /// largest |y|), m; elsewhere the rover moves first.
+    pub grasp_region_m: [f64; 3],
+    /// Where in that box the rover puts the object when it moves (x), m.
+    pub grasp_x_m: f64,
+    /// Accuracy the markers must locate the object to (1 sigma), m and deg.
+    pub locate_sigma_m: f64,
+    /// ... deg.
+    pub locate_angle_deg: f64,
+    /// The manipulator's poses the wrist camera looks from, tried in turn until one locates the
+    /// object (the nearest view first).
+    pub look_poses: Vec<String>,
+    /// Longest wait for the markers to locate the object from one look pose, s.
+    pub locate_timeout_s: f64,
+    /// Grasps tried before the command fails.
+    pub max_attempts: u32,
+    /// Rover moves after looking before the command fails.
+    pub max_repositions: u32,
+}
+
+impl Default for CoordinatorManipulationParams {
+    fn default() -> Self {
+        CoordinatorManipulationParams {
+            object: "canister".into(),
+            camera_hz: 5.0,
+            work_distance_m: 1.05,
+            work_tolerance_m: 0.15,
+            max_bearing_deg: 10.0,
+            grasp_region_m: [0.85, 1.2, 0.2],
+            grasp_x_m: 1.0,
+            locate_sigma_m: 0.01,
+            locate_angle_deg: 2.0,
+            look_poses: vec!["look_near".into(), "look".into()],
+            locate_timeout_s: 8.0,
+            max_attempts: 3,
+            max_repositions: 3,
+        }
+    }
+}
+
+/// Names of the modules the coordinator commands and the slots it reads.
+#[derive(Clone, Debug)]
+pub struct ManipulationPeers {
+    /// ManipulatorControl.
+    pub manipulator: String,
+    /// The wrist camera's TrackingMarker.
+    pub markers: String,
+    /// The cameras module and the wrist camera's device name.
+    pub cameras: (String, String),
+    /// Locomotion.
+    pub locomotion: String,
+    /// The head camera's target track (where the object is, in `map`), if the system has one.
+    pub target: Option<String>,
+    /// The pose estimate.
+    pub pose: String,
+}
+
+/// The rover's speed in the short moves that bring an object within reach, m/s.
+const DRIVE_SPEED_MPS: f64 = 0.1;
+/// After a look, the rover turns to face an object farther off its heading than this, deg.
+const REPOSITION_BEARING_DEG: f64 = 4.0;
+/// Most moves towards the head camera's estimate before the look (a turn, a drive, a turn).
+const MAX_PREPARE_MOVES: u32 = 3;
+
+/// Which command a job carries out.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Kind {
+    Acquire,
+    Stow,
+}
+
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::Acquire => "acquire_canister",
+            Kind::Stow => "stow_canister",
+        }
+    }
+}
+
+/// Where a job is: the command awaited and what it was for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Step {
+    CameraOn,
+    /// Turning or driving to the working distance from the target estimate.
+    Prepare,
+    Look,
+    Locate,
+    /// Driving to put the located object in the grasp region.
+    Reposition,
+    Grasp,
+    Place,
+    CameraOff,
+}
+
+struct Job {
+    request: Request,
+    kind: Kind,
+    step: Step,
+    id: MessageId,
+    attempts: u32,
+    repositions: u32,
+    /// Moves towards the head camera's estimate so far.
+    prepares: u32,
+    /// The look pose in use (index into `look_poses`).
+    look: usize,
+    /// The object's position in `map` from the last locate, for the turn after a reposition.
+    object_map: Option<Point3<f64>>,
+    result: serde_json::Value,
+    /// When the step awaited began.
+    since: Time,
+}
+
+/// What the rover should do so that an object at `object` (in `base_link`, m) can be grasped:
+/// nothing (None), or move to the point (in `base_link`) from which the object lies `grasp_x_m`
+/// ahead on the same line.
+pub fn reposition(object: &Point3<f64>, p: &CoordinatorManipulationParams) -> Option<[f64; 2]> {
+    let [x_min, x_max, y_max] = p.grasp_region_m;
+    if (x_min..=x_max).contains(&object.x) && object.y.abs() <= y_max {
+        return None;
+    }
+    let d = object.x.hypot(object.y);
+    let f = (d - p.grasp_x_m) / d;
+    Some([object.x * f, object.y * f])
+}
+
+/// The CoordinatorManipulation module.
+pub struct CoordinatorManipulation {
+    peers: ManipulationPeers,
+    target: Option<Reader<TargetTrack>>,
+    pose: Option<Reader<PoseEstimate>>,
+    params: CoordinatorManipulationParams,
+    job: Option<Job>,
+}
+
+impl CoordinatorManipulation {
+    /// A coordinator of `peers`.
+    pub fn new(peers: ManipulationPeers) -> Self {
+        CoordinatorManipulation { peers, target: None, pose: None, params: Default::default(), job: None }
+    }
+
+    fn pose(&self, ctx: &Ctx<'_>) -> Result<Isometry3<f64>, String> {
+        self.pose
+            .as_ref()
+            .and_then(|r| ctx.read(r))
+            .map(|p| p.value.pose)
+            .ok_or_else(|| "no pose estimate".into())
+    }
+
+    fn camera(&self, ctx: &mut Ctx<'_>, hz: f64) -> Result<MessageId, String> {
+        let (cameras, device) = &self.peers.cameras;
+        send(ctx, cameras, "set_rate", serde_json::json!({ "device": device, "hz": hz }))
+    }
+
+    /// The arm to the look pose `job.look` (from the first after a move or a failed grasp).
+    fn look(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
+        let pose = self.params.look_poses.get(job.look).ok_or("no look pose left")?;
+        job.id = send(ctx, &self.peers.manipulator, "move_named", serde_json::json!({ "pose": pose }))?;
+        job.step = Step::Look;
+        Ok(())
+    }
+
+    /// One locomotion move that brings the object at `object` (in `map`) to `want` m ahead
+    /// (within `tolerance`) and within `max_bearing` (rad) of the heading: a turn to face it when
+    /// it is off the heading, else a straight drive by what is missing (slowly, open loop: the
+    /// caller looks again after it). False when the rover is there already.
+    fn move_towards(
+        &self,
+        ctx: &mut Ctx<'_>,
+        job: &mut Job,
+        object: &Point3<f64>,
+        want: f64,
+        tolerance: f64,
+        max_bearing: f64,
+    ) -> Result<bool, String> {
+        let pose = self.pose(ctx)?;
+        let in_base = pose.inverse() * object;
+        let d = in_base.x.hypot(in_base.y);
+        if in_base.y.atan2(in_base.x).abs() > max_bearing {
+            let rover = pose.translation.vector;
+            let yaw = (object.y - rover.y).atan2(object.x - rover.x);
+            let args = serde_json::json!({ "yaw_deg": yaw.to_degrees() });
+            job.id = send(ctx, &self.peers.locomotion, "turn_to", args)?;
+            return Ok(true);
+        }
+        let go = d - want;
+        if go.abs() <= tolerance {
+            return Ok(false);
+        }
+        let v = DRIVE_SPEED_MPS.copysign(go);
+        let args = serde_json::json!({ "v": v, "omega": 0.0, "duration_s": go.abs() / DRIVE_SPEED_MPS });
+        job.id = send(ctx, &self.peers.locomotion, "drive", args)?;
+        Ok(true)
+    }
+
+    /// The rover to the working distance from the head camera's estimate of the object (when
+    /// there is one), then the look.
+    fn prepare(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
+        if job.object_map.is_none() {
+            let track = self.target.as_ref().and_then(|r| ctx.read(r)).map(|t| t.value.clone());
+            job.object_map = track.and_then(|t| t.position_at(ctx.now()));
+        }
+        let Some(object) = job.object_map else { return self.look(ctx, job) };
+        let p = &self.params;
+        let (want, tol, bearing) = (p.work_distance_m, p.work_tolerance_m, p.max_bearing_deg.to_radians());
+        if job.prepares < MAX_PREPARE_MOVES && self.move_towards(ctx, job, &object, want, tol, bearing)? {
+            job.prepares += 1;
+            job.step = Step::Prepare;
+            return Ok(());
+        }
+        self.look(ctx, job)
+    }
+
+    fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
+        let status = match ctx.ack_status(job.id) {
+            Some(AckStatus::Completed(v)) => Ok(v),
+            Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(r),
+            _ if job.step == Step::Locate
+                && (ctx.now() - job.since).as_secs_f64() > self.params.locate_timeout_s =>
+            {
+                let _ = ctx.send(Command::new(&self.peers.markers, "stop"));
+                Err(format!(
+                    "not located to {} m within {} s",
+                    self.params.locate_sigma_m, self.params.locate_timeout_s
+                ))
+            }
+            _ => return Ok(None),
+        };
+        match (job.step, status) {
+            (Step::CameraOn, Ok(_)) | (Step::Prepare, Ok(_)) => self.prepare(ctx, job)?,
+            (Step::Look, Ok(_)) => {
+                let args = serde_json::json!({
+                    "object": self.params.object,
+                    "max_sigma_m": self.params.locate_sigma_m,
+                    "max_angle_deg": self.params.locate_angle_deg,
+                });
+                job.id = send(ctx, &self.peers.markers, "locate", args)?;
+                job.step = Step::Locate;
+                job.since = ctx.now();
+            }
+            (Step::Locate, Ok(v)) => {
+                let xyz: [f64; 3] = serde_json::from_value(v["base_from_object"]["xyz"].clone())
+                    .map_err(|e| format!("locate's result has no base_from_object: {e}"))?;
+                let object = Point3::from(xyz);
+                let pose = self.pose(ctx)?;
+                job.object_map = Some(pose * object);
+                match reposition(&object, &self.params) {
+                    None => {
+                        job.attempts += 1;
+                        job.id = send(
+                            ctx,
+                            &self.peers.manipulator,
+                            "grasp",
+                            serde_json::json!({ "object": self.params.object }),
+                        )?;
+                        job.step = Step::Grasp;
+                    }
+                    Some(_) if job.repositions >= self.params.max_repositions => {
+                        return Err(format!(
+                            "the {} is still out of the arm's reach at ({:.2}, {:.2}) after {} moves",
+                            self.params.object, object.x, object.y, job.repositions
+                        ));
+                    }
+                    Some(_) => {
+                        job.repositions += 1;
+                        ctx.note(format!(
+                            "{}: the {} at ({:.2}, {:.2}) in base_link is out of the grasp region: moving the rover",
+                            job.kind.name(),
+                            self.params.object,
+                            object.x,
+                            object.y,
+                        ));
+                        let target = job.object_map.ok_or("no object position")?;
+                        let x = self.params.grasp_x_m;
+                        // Facing it within a few degrees, then to the grasp distance.
+                        self.move_towards(ctx, job, &target, x, 0.0, REPOSITION_BEARING_DEG.to_radians())?;
+                        job.step = Step::Reposition;
+                    }
+                }
+            }
+            (Step::Reposition, Ok(_)) => {
+                job.look = 0;
+                self.look(ctx, job)?;
+            }
+            (Step::Grasp, Ok(v)) => {
+                if v["holding"].as_str() != Some(self.params.object.as_str()) {
+                    return Err(format!("the grasp completed without holding the {}", self.params.object));
+                }
+                job.result = v;
+                job.id = self.camera(ctx, 0.0)?;
+                job.step = Step::CameraOff;
+            }
+            (Step::Locate, Err(r)) if job.look + 1 < self.params.look_poses.len() => {
+                job.look += 1;
+                ctx.note(format!(
+                    "{}: not located from the look pose ({r}): from '{}'",
+                    job.kind.name(),
+                    self.params.look_poses[job.look]
+                ));
+                self.look(ctx, job)?;
+            }
+            (Step::Grasp, Err(r)) if job.attempts < self.params.max_attempts => {
+                job.look = 0;
+                ctx.note(format!("{}: grasp {} failed ({r}): looking again", job.kind.name(), job.attempts));
+                self.look(ctx, job)?;
+            }
+            (Step::CameraOff, Ok(_)) | (Step::Place, Ok(_)) => {
+                if job.kind == Kind::Stow {
+                    return Ok(Some(serde_json::json!({ "stowed": self.params.object })));
+                }
+                let mut result = job.result.clone();
+                result["attempts"] = job.attempts.into();
+                result["repositions"] = job.repositions.into();
+                return Ok(Some(result));
+            }
+            (step, Err(r)) => return Err(format!("{step:?} failed: {r}")),
+        }
+        Ok(None)
+    }
+
+    fn start(&mut self, ctx: &mut Ctx<'_>, kind: Kind) -> Outcome {
+        let Some(request) = ctx.request() else {
+            return Outcome::reject(format!("{} must come as a command", kind.name()));
+        };
+        self.cancel(ctx, &format!("superseded by {}", kind.name()));
+        let first = match kind {
+            Kind::Acquire => self.camera(ctx, self.params.camera_hz).map(|id| (id, Step::CameraOn)),
+            Kind::Stow => {
+                send(ctx, &self.peers.manipulator, "place", serde_json::json!({})).map(|id| (id, Step::Place))
+            }
+        };
+        match first {
+            Ok((id, step)) => {
+                self.job = Some(Job {
+                    request,
+                    kind,
+                    step,
+                    id,
+                    attempts: 0,
+                    repositions: 0,
+                    prepares: 0,
+                    look: 0,
+                    object_map: None,
+                    result: serde_json::Value::Null,
+                    since: ctx.now(),
+                });
+                Outcome::Accepted
+            }
+            Err(e) => Outcome::reject(e),
+        }
+    }
+
+    fn cancel(&mut self, ctx: &mut Ctx<'_>, reason: &str) {
+        let Some(job) = self.job.take() else { return };
+        let to = match job.step {
+            Step::Prepare | Step::Reposition => Some(&self.peers.locomotion),
+            Step::Look | Step::Grasp | Step::Place => Some(&self.peers.manipulator),
+            Step::Locate => Some(&self.peers.markers),
+            Step::CameraOn | Step::CameraOff => None,
+        };
+        if let Some(to) = to {
+            let _ = ctx.send(Command::new(to, "stop"));
+        }
+        ctx.reply(&job.request, Outcome::fail(reason));
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        if let Some(mut job) = self.job.take() {
+            match self.advance(ctx, &mut job) {
+                Ok(None) => self.job = Some(job),
+                Ok(Some(result)) => {
+                    ctx.note(format!("{} completed: {result}", job.kind.name()));
+                    ctx.reply(&job.request, Outcome::Completed(result));
+                }
+                Err(reason) => {
+                    ctx.note(format!("{} failed: {reason}", job.kind.name()));
+                    if job.kind == Kind::Acquire {
+                        let _ = self.camera(ctx, 0.0);
+                    }
+                    ctx.reply(&job.request, Outcome::fail(reason));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Module for CoordinatorManipulation {
+    type Params = CoordinatorManipulationParams;
+    const KIND: ModuleKind = ModuleKind::Coordination;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        if let Some(t) = &self.peers.target {
+            self.target = Some(d.reads(t));
+        }
+        self.pose = Some(d.reads(&self.peers.pose));
+        d.sends_to(&self.peers.manipulator)
+            .sends_to(&self.peers.markers)
+            .sends_to(&self.peers.cameras.0)
+            .sends_to(&self.peers.locomotion);
+        d.context_switchable();
+        d.state("active", |m, ctx| m.cycle(ctx));
+        d.command("acquire_canister", |m, ctx, _: ()| m.start(ctx, Kind::Acquire));
+        d.command("stow_canister", |m, ctx, _: ()| m.start(ctx, Kind::Stow));
+        d.command("stop", |m, ctx, _: ()| {
+            m.cancel(ctx, "stopped by command");
+            Outcome::done()
+        });
+    }
+
+    fn configure(&mut self, p: &CoordinatorManipulationParams) -> Result<(), String> {
+        crate::params::require_positive(&[
+            ("camera_hz", p.camera_hz),
+            ("work_distance_m", p.work_distance_m),
+            ("work_tolerance_m", p.work_tolerance_m),
+            ("max_bearing_deg", p.max_bearing_deg),
+            ("grasp_x_m", p.grasp_x_m),
+            ("locate_sigma_m", p.locate_sigma_m),
+            ("locate_angle_deg", p.locate_angle_deg),
+            ("locate_timeout_s", p.locate_timeout_s),
+            ("max_attempts", p.max_attempts as f64),
+        ])?;
+        if p.look_poses.is_empty() {
+            return Err("look_poses must name at least one pose".into());
+        }
+        let [lo, hi, y] = p.grasp_region_m;
+        if !(lo < p.grasp_x_m && p.grasp_x_m < hi && y > 0.0) {
+            return Err(format!(
+                "grasp_x_m {} must lie inside grasp_region_m {:?}",
+                p.grasp_x_m, p.grasp_region_m
+            ));
+        }
+        self.params = p.clone();
+        Ok(())
+    }
+
+    fn on_transition(&mut self, ctx: &mut Ctx<'_>, _from: Lifecycle, to: Lifecycle) -> Result<(), String> {
+        if matches!(to, Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown) {
+            self.cancel(ctx, &format!("'{}' left Run for {to}", ctx.name()));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_object_out_of_the_grasp_region_is_brought_to_the_grasp_distance_on_its_line() {
+        let p = CoordinatorManipulationParams::default();
+        assert_eq!(reposition(&Point3::new(1.0, 0.05, -0.3), &p), None);
+        let to = reposition(&Point3::new(1.6, 0.3, -0.3), &p).unwrap();
+        let (dx, dy) = (1.6 - to[0], 0.3 - to[1]);
+        assert!((dx.hypot(dy) - p.grasp_x_m).abs() < 1e-12);
+        assert!((to[1] / to[0] - 0.3 / 1.6).abs() < 1e-12);
+        // Too near: backwards.
+        let back = reposition(&Point3::new(0.7, 0.0, -0.3), &p).unwrap();
+        assert!((back[0] + 0.3).abs() < 1e-12);
+    }
+}

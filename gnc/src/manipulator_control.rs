@@ -1,0 +1,1014 @@
+//! ManipulatorControl (seed 000, 8.3): the arm and the gripper as one manipulator, on the believed
+//! mechanism model (never the physics), commanding the `arm` and `gripper` joint groups.
+//!
+//! Every arm motion is planned clear of the rover's own body ([`Clearance`]: the URDF's collision
+//! shapes, a held object included) and the ground, through configured via-poses when the straight
+//! joint-space path is not clear, each segment timed within the joints' speed and acceleration
+//! limits ([`segment_speed`]).
+//!
+//! Commands (each completes when done, with a deferred acknowledgement):
+//! - `move_named {pose}`: a planned motion to a configured pose;
+//! - `move_tool {position, rpy_deg}`: the tool centre point to a pose in `base_link` (inverse
+//!   kinematics, then a planned motion);
+//! - `grasp {object}`: grasps an object's handle from above under visual servoing with the wrist
+//!   camera (eye-in-hand): the gripper opens, the arm goes to a pre-grasp pose above the handle
+//!   where the wrist camera's marker pose (`tracking/wrist/objects`) puts it, then looks and moves
+//!   until the tool is within tolerance of the pre-grasp pose as the camera sees it, descends
+//!   onto the handle, closes, checks that the fingers stopped on the handle (not closed on
+//!   nothing), and lifts; fails with the reason (the caller may retry);
+//! - `place {slot?}`: puts the held object into the stowage slot (a link of the mechanism,
+//!   `stow_slot` by default) upright, opens, and lifts the gripper off it;
+//! - `open`, `close`: the gripper alone;
+//! - `stop`: stops the arm and ends the command in progress.
+//!
+//! The state (what it does, the servo's last error, whether it holds something) goes out on
+//! `manipulation/state`.
+
+use crate::body::joint_values;
+use crate::manipulation::clearance::{Clearance, ClearanceParams, Held};
+use crate::manipulation::kinematics::{ArmKinematics, distance, top_down_grasps};
+use crate::manipulation::servo::{next_tool_pose, tool_correction};
+use crate::manipulation::trajectory::{plan_path, segment_speed};
+use crate::peer::send;
+use framework::data::{JointStates, ManipulationState, ObjectPoses};
+use framework::mechanism::{CollisionBox, MechanismModel};
+use framework::message::{AckStatus, MessageId};
+use framework::module::Request;
+use framework::prelude::*;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+use std::collections::{BTreeMap, VecDeque};
+
+/// A placed object is let go this far above its resting place, m.
+const PLACE_CLEARANCE_M: f64 = 0.01;
+
+/// The slot of the manipulator's state.
+pub const SLOT: &str = "manipulation/state";
+
+/// How an object is grasped and held.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GraspableObject {
+    /// The handle's centre in the object's frame (its bar along the frame's x), m.
+    pub handle: [f64; 3],
+    /// Half the handle bar's width across the fingers, m: where closing fingers stop on it.
+    pub handle_half_width_m: f64,
+    /// The object's bounding box in its frame: centre and half extents, m (a held object is kept
+    /// clear of the body with it).
+    pub box_center: [f64; 3],
+    /// Half extents of that box, m.
+    pub box_half: [f64; 3],
+}
+
+/// ManipulatorControl parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ManipulatorParams {
+    /// Fastest joint motion, fraction of each joint's velocity limit (the profile's peak).
+    pub speed: f64,
+    /// Joint acceleration limit, rad/s^2.
+    pub acceleration_rad_s2: f64,
+    /// Named arm poses, joint values in the arm's order, rad.
+    pub poses: BTreeMap<String, Vec<f64>>,
+    /// Poses a motion may pass through when its straight path is blocked.
+    pub vias: Vec<String>,
+    /// Smallest gap between the arm (and what it holds) and the body, m.
+    pub margin_m: f64,
+    /// Smallest height of the arm above the wheels' ground plane, m.
+    pub ground_margin_m: f64,
+    /// Joint step between clearance checks along a path, rad.
+    pub check_step_rad: f64,
+    /// Finger position of an open gripper (each finger), m.
+    pub open_m: f64,
+    /// The pre-grasp pose is this far above the handle along the approach, m.
+    pub pregrasp_height_m: f64,
+    /// The descent onto the handle goes in steps of this length, m.
+    pub descent_step_m: f64,
+    /// After a grasp the object is lifted by this much, m.
+    pub lift_m: f64,
+    /// Share of the measured error each servo step corrects, (0, 1].
+    pub servo_gain: f64,
+    /// Longest translation of one servo step, m.
+    pub servo_max_step_m: f64,
+    /// The servo loop ends within this translation ...
+    pub servo_tolerance_m: f64,
+    /// ... and this rotation, deg.
+    pub servo_tolerance_deg: f64,
+    /// Most servo steps of one grasp.
+    pub max_servo_steps: u32,
+    /// The arm rests this long after a move before an image is taken as its view, s.
+    pub settle_s: f64,
+    /// Longest wait for the wrist camera to see the object, s.
+    pub observe_timeout_s: f64,
+    /// An arm move is stopped once it runs this long past twice its planned duration, s ...
+    pub move_slack_s: f64,
+    /// ... and the motion goes on if the tool is within this of the move's goal by then (the
+    /// servos hold a load a few milliradians off their goal), m (and a tenth of this in rad).
+    pub arrive_tolerance_m: f64,
+    /// Fingers stopped within this of the handle's half width hold it, m.
+    pub grip_tolerance_m: f64,
+    /// The held object is lowered into the slot from this far above its resting place, m.
+    pub place_height_m: f64,
+    /// The pose the arm goes to after placing an object.
+    pub after_place: String,
+    /// Objects the manipulator can grasp, by kind (the object database's names).
+    pub objects: BTreeMap<String, GraspableObject>,
+}
+
+impl Default for ManipulatorParams {
+    fn default() -> Self {
+        ManipulatorParams {
+            speed: 0.6,
+            acceleration_rad_s2: 2.0,
+            poses: BTreeMap::new(),
+            vias: Vec::new(),
+            margin_m: 0.015,
+            ground_margin_m: 0.05,
+            check_step_rad: 0.02,
+            open_m: 0.04,
+            pregrasp_height_m: 0.12,
+            descent_step_m: 0.02,
+            lift_m: 0.12,
+            servo_gain: 0.8,
+            servo_max_step_m: 0.06,
+            servo_tolerance_m: 0.003,
+            servo_tolerance_deg: 1.5,
+            max_servo_steps: 10,
+            settle_s: 0.3,
+            observe_timeout_s: 4.0,
+            move_slack_s: 3.0,
+            arrive_tolerance_m: 0.005,
+            grip_tolerance_m: 0.004,
+            place_height_m: 0.1,
+            after_place: "stowed".into(),
+            objects: BTreeMap::new(),
+        }
+    }
+}
+
+/// Arguments of `move_named`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MoveNamedArgs {
+    /// The pose's name.
+    pub pose: String,
+}
+
+/// Arguments of `move_tool`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MoveToolArgs {
+    /// The tool centre point in `base_link`, m.
+    pub position: [f64; 3],
+    /// Its orientation, roll, pitch and yaw, deg.
+    pub rpy_deg: [f64; 3],
+}
+
+/// Arguments of `grasp`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GraspArgs {
+    /// The object kind (as the marker tracker names it).
+    pub object: String,
+}
+
+/// Arguments of `place`.
+#[derive(Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaceArgs {
+    /// The link the object is placed on (default `stow_slot`).
+    #[serde(default)]
+    pub slot: Option<String>,
+}
+
+/// Names of the modules and slots the manipulator uses.
+#[derive(Clone, Debug)]
+pub struct ManipulatorPeers {
+    /// The arm's joint group.
+    pub arm: String,
+    /// The gripper's joint group.
+    pub gripper: String,
+    /// Other joint groups whose links the clearance checks need (the pan-tilt unit).
+    pub others: Vec<String>,
+    /// The wrist camera's object poses.
+    pub objects: String,
+}
+
+/// One action of a command.
+#[derive(Clone, Debug)]
+enum Action {
+    /// A planned motion to arm values.
+    Plan(Vec<f64>),
+    /// A straight joint-space motion, checked (`contact`: a motion at the object itself, setting
+    /// it down or leaving it: the held object and the objects set down are not checked).
+    Straight { to: Vec<f64>, contact: bool },
+    /// The gripper to finger positions.
+    Gripper(Vec<f64>),
+    /// Find the object's handle and the pre-grasp pose above it.
+    Approach,
+    /// One look-and-move step of the servo loop.
+    Servo,
+    /// Down onto the handle.
+    Descend,
+    /// Did the fingers stop on the handle?
+    CheckGrip,
+    /// Straight up by the lift height.
+    Lift,
+    /// The object is let go: the manipulator holds nothing.
+    Released,
+}
+
+/// What the command in progress waits for.
+#[derive(Clone, Debug)]
+enum Wait {
+    /// Nothing: take the next action.
+    Idle,
+    /// A joint-group command, and for an arm move when it should be over and where it goes (an
+    /// arm still short of its goal then is stopped: near enough, the motion goes on).
+    Command(MessageId, &'static str, Option<(Time, Vec<f64>)>),
+    /// An image of the object taken at rest after this time (asked since).
+    View { after: Time, since: Time },
+}
+
+/// A command in progress.
+struct Job {
+    request: Request,
+    name: &'static str,
+    actions: VecDeque<Action>,
+    wait: Wait,
+    /// The object being grasped.
+    object: Option<String>,
+    /// The grasp (tool pose in the handle's frame, at the handle).
+    grasp: Option<Isometry3<f64>>,
+    servo_steps: u32,
+    last_error: Option<(f64, f64)>,
+    /// Why the command fails once its remaining actions (backing off) are done.
+    failed: Option<String>,
+    /// Where a `place` puts the object (a link).
+    slot: Option<String>,
+}
+
+/// The ManipulatorControl module.
+pub struct ManipulatorControl {
+    peers: ManipulatorPeers,
+    kinematics: ArmKinematics,
+    clearance: Clearance,
+    /// The gripper's finger joints (in the gripper group's order).
+    fingers: Vec<String>,
+    joints: Vec<Option<Reader<JointStates>>>,
+    objects: Option<Reader<ObjectPoses>>,
+    out: Option<Writer<ManipulationState>>,
+    params: ManipulatorParams,
+    speed_limits: Vec<f64>,
+    job: Option<Job>,
+    /// The object held and its pose in the tool frame.
+    held: Option<(String, Isometry3<f64>)>,
+    last: Option<String>,
+}
+
+/// The gap between arm and body below which the clearance check stops a motion, and the other
+/// settings, from the parameters and the mechanism (the ground plane: the wheels' lowest point).
+fn clearance_params(mechanism: &MechanismModel, p: &ManipulatorParams) -> Result<ClearanceParams, String> {
+    let q = vec![0.0; mechanism.dof_count()];
+    let poses = mechanism.link_poses(&q).map_err(|e| e.to_string())?;
+    let ground = mechanism
+        .links()
+        .iter()
+        .enumerate()
+        .filter(|(_, l)| l.name.starts_with("wheel_"))
+        .flat_map(|(i, l)| {
+            let pose = poses[i];
+            l.collision_boxes.iter().map(move |b| crate::manipulation::clearance::Obb::placed(&pose, b))
+        })
+        .map(|o| o.min_z())
+        .fold(f64::INFINITY, f64::min);
+    if !ground.is_finite() {
+        return Err("the mechanism has no wheels to stand on".into());
+    }
+    Ok(ClearanceParams {
+        margin_m: p.margin_m,
+        ground_z_m: ground,
+        ground_margin_m: p.ground_margin_m,
+        step: p.check_step_rad,
+    })
+}
+
+/// True for the links on the arm side of the clearance checks.
+fn is_arm_link(name: &str) -> bool {
+    name.starts_with("arm_link_") || name.starts_with("gripper_")
+}
+
+/// The first arm link turns about its own axis on the mount: no motion brings it nearer the body.
+const COAXIAL: &[&str] = &["arm_link_1"];
+
+impl ManipulatorControl {
+    /// A manipulator of `peers` on the believed `mechanism`, its tool centre point at link `tool`.
+    pub fn new(peers: ManipulatorPeers, mechanism: &MechanismModel, tool: &str) -> Result<Self, String> {
+        let kinematics = ArmKinematics::new(mechanism, tool)?;
+        let params = ManipulatorParams::default();
+        let clearance =
+            Clearance::new(mechanism, is_arm_link, COAXIAL, clearance_params(mechanism, &params)?);
+        let speed_limits = kinematics
+            .joint_names()
+            .iter()
+            .map(|n| mechanism.joint(n).map(|j| j.velocity_limit).map_err(|e| e.to_string()))
+            .collect::<Result<_, _>>()?;
+        let fingers = mechanism
+            .joints()
+            .iter()
+            .filter(|j| j.name.starts_with("gripper_finger_") && j.dof.is_some())
+            .map(|j| j.name.clone())
+            .collect();
+        Ok(ManipulatorControl {
+            peers,
+            kinematics,
+            clearance,
+            fingers,
+            joints: Vec::new(),
+            objects: None,
+            out: None,
+            params,
+            speed_limits,
+            job: None,
+            held: None,
+            last: None,
+        })
+    }
+
+    /// The whole mechanism's joint values now (the joint groups' latest states).
+    fn all_joints(&self, ctx: &Ctx<'_>) -> Option<Vec<f64>> {
+        let mut states = Vec::new();
+        for r in &self.joints {
+            let s = ctx.read(r.as_ref()?)?;
+            states.extend(s.value.joints.iter().map(|j| (j.name.clone(), j.position)));
+        }
+        Some(joint_values(self.kinematics.mechanism(), states.iter().map(|(n, v)| (n.as_str(), *v))))
+    }
+
+    /// The arm's joint values now.
+    fn arm_now(&self, ctx: &Ctx<'_>) -> Result<(Vec<f64>, Vec<f64>), String> {
+        let all = self.all_joints(ctx).ok_or("no joint states yet")?;
+        Ok((self.kinematics.arm_values(&all), all))
+    }
+
+    /// The held object as the clearance checks see it.
+    fn held_shape(&self) -> Option<Held> {
+        let (kind, tool_from_object) = self.held.as_ref()?;
+        let o = self.params.objects.get(kind)?;
+        let link = self.kinematics.mechanism().link(self.kinematics.tip()).ok()?;
+        let c = Vector3::from(o.box_center);
+        Some(Held {
+            link,
+            shape: CollisionBox {
+                origin: tool_from_object * Isometry3::translation(c.x, c.y, c.z),
+                half_extents: Vector3::from(o.box_half),
+            },
+        })
+    }
+
+    /// IK seeds besides the present joints: the named poses.
+    fn seeds(&self) -> Vec<Vec<f64>> {
+        self.params.poses.values().cloned().collect()
+    }
+
+    fn vias(&self) -> Vec<Vec<f64>> {
+        self.params.vias.iter().filter_map(|v| self.params.poses.get(v).cloned()).collect()
+    }
+
+    /// Sends the arm along the first segment of a planned path, queueing the rest.
+    fn start_plan(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, to: &[f64]) -> Result<(), String> {
+        let (q, all) = self.arm_now(ctx)?;
+        let held = self.held_shape();
+        let full = |a: &[f64]| self.kinematics.full(a, &all);
+        let path = plan_path(&self.clearance, &full, &q, to, &self.vias(), held.as_ref())
+            .map_err(|e| e.to_string())?;
+        if path.len() > 1 {
+            ctx.note(format!(
+                "{}: the straight path is blocked, going through {} via-poses",
+                job.name,
+                path.len() - 1
+            ));
+        }
+        // Each segment is checked already: the first goes now, the others after it.
+        for p in path.iter().skip(1).rev() {
+            job.actions.push_front(Action::Straight { to: p.clone(), contact: false });
+        }
+        self.move_arm(ctx, job, &q, &path[0])
+    }
+
+    /// Commands one straight segment of the arm.
+    fn move_arm(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, from: &[f64], to: &[f64]) -> Result<(), String> {
+        let accel = vec![self.params.acceleration_rad_s2; to.len()];
+        let speed = segment_speed(from, to, &self.speed_limits, &accel, self.params.speed);
+        let id = send(ctx, &self.peers.arm, "move", serde_json::json!({ "positions": to, "speed": speed }))?;
+        // The device's duration for that speed; a move still under way long after it is blocked.
+        let duration = from
+            .iter()
+            .zip(to)
+            .zip(&self.speed_limits)
+            .map(|((a, b), v)| (b - a).abs() / (v * speed).max(1e-9))
+            .fold(0.0, f64::max);
+        let deadline = ctx.now() + Duration::from_secs_f64(2.0 * duration + self.params.move_slack_s);
+        job.wait = Wait::Command(id, "arm move", Some((deadline, to.to_vec())));
+        Ok(())
+    }
+
+    /// A straight segment, checked first.
+    fn straight(
+        &mut self,
+        ctx: &mut Ctx<'_>,
+        job: &mut Job,
+        to: &[f64],
+        contact: bool,
+    ) -> Result<(), String> {
+        let (q, all) = self.arm_now(ctx)?;
+        let held = if contact { None } else { self.held_shape() };
+        let (from, to_all) = (self.kinematics.full(&q, &all), self.kinematics.full(to, &all));
+        let c = self.clearance.segment_contact(&from, &to_all, held.as_ref(), !contact)?;
+        if let Some((s, c)) = c {
+            return Err(format!(
+                "{}: the motion is stopped before it starts: at {:.0} % of it {c}",
+                job.name,
+                s * 100.0
+            ));
+        }
+        self.move_arm(ctx, job, &q, to)
+    }
+
+    /// The tool's path down (or up) along its own x axis by `length`, as joint values every
+    /// descent step, from the arm's values `q`.
+    fn line(&self, q: &[f64], length: f64) -> Result<Vec<Vec<f64>>, String> {
+        let start = self.kinematics.forward(q)?;
+        let n = (length.abs() / self.params.descent_step_m).ceil().max(1.0) as usize;
+        let mut seed = q.to_vec();
+        let mut out = Vec::with_capacity(n);
+        for k in 1..=n {
+            let goal = start * Isometry3::translation(length * k as f64 / n as f64, 0.0, 0.0);
+            seed = self.kinematics.inverse(&goal, &seed, &[])?;
+            out.push(seed.clone());
+        }
+        Ok(out)
+    }
+
+    /// The object's newest pose seen at rest after `after`, in the tool frame (the arm at `q`).
+    fn view(&self, ctx: &Ctx<'_>, object: &str, after: Time, q: &[f64]) -> Option<Isometry3<f64>> {
+        let poses = ctx.read(self.objects.as_ref()?)?;
+        if poses.value.stamp < after {
+            return None;
+        }
+        let o = poses.value.objects.iter().find(|o| o.object == object)?;
+        // The arm rests: the believed kinematics that placed the camera at the stamp place the tool
+        // now, so their errors cancel between the two.
+        let base_from_tool = self.kinematics.forward(q).ok()?;
+        Some(base_from_tool.inverse() * o.base_from_object)
+    }
+
+    fn object_params(&self, object: &str) -> Result<&GraspableObject, String> {
+        self.params.objects.get(object).ok_or_else(|| {
+            format!(
+                "no grasp configured for '{object}' (configured: {})",
+                self.params.objects.keys().cloned().collect::<Vec<_>>().join(", ")
+            )
+        })
+    }
+
+    /// Takes the next action of a job whose wait is over; `Ok(true)` when none is left.
+    fn next_action(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<bool, String> {
+        let Some(action) = job.actions.pop_front() else { return Ok(true) };
+        match action {
+            Action::Plan(to) => self.start_plan(ctx, job, &to)?,
+            Action::Straight { to, contact } => self.straight(ctx, job, &to, contact)?,
+            Action::Gripper(to) => {
+                let id = send(ctx, &self.peers.gripper, "move", serde_json::json!({ "positions": to }))?;
+                job.wait = Wait::Command(id, "gripper move", None);
+            }
+            Action::Approach | Action::Servo => {
+                // Both need a view of the object at rest; the action goes back in front of the
+                // queue and runs when the view comes (see `viewed`).
+                job.actions.push_front(action);
+                let now = ctx.now();
+                job.wait =
+                    Wait::View { after: now + Duration::from_secs_f64(self.params.settle_s), since: now };
+            }
+            Action::Descend => {
+                let (q, _) = self.arm_now(ctx)?;
+                let path = self.line(&q, self.params.pregrasp_height_m)?;
+                for p in path.into_iter().rev() {
+                    job.actions.push_front(Action::Straight { to: p, contact: false });
+                }
+                return self.next_action(ctx, job);
+            }
+            Action::Lift => {
+                let (q, _) = self.arm_now(ctx)?;
+                // Up: against the tool's x axis (the fingers point down).
+                let path = self.line(&q, -self.params.lift_m)?;
+                for p in path.into_iter().rev() {
+                    job.actions.push_front(Action::Straight { to: p, contact: true });
+                }
+                return self.next_action(ctx, job);
+            }
+            Action::CheckGrip => self.check_grip(ctx, job)?,
+            Action::Released => {
+                // Let go in the slot, the object stays there: the arm keeps clear of it.
+                if let (Some(shape), Some(slot)) = (self.held_shape(), job.slot.clone()) {
+                    let (_, all) = self.arm_now(ctx)?;
+                    let m = self.kinematics.mechanism();
+                    let base_from_tool =
+                        m.transform(m.root(), self.kinematics.tip(), &all).map_err(|e| e.to_string())?;
+                    let base_from_slot = m.transform(m.root(), &slot, &all).map_err(|e| e.to_string())?;
+                    let link = m.link(&slot).map_err(|e| e.to_string())?;
+                    let origin = base_from_slot.inverse() * base_from_tool * shape.shape.origin;
+                    self.clearance.add_placed(Held { link, shape: CollisionBox { origin, ..shape.shape } });
+                }
+                self.held = None;
+                return self.next_action(ctx, job);
+            }
+        }
+        Ok(false)
+    }
+
+    /// The fingers stopped on the handle: the object is held (its pose in the tool frame from
+    /// the grasp); closed on nothing, or stopped wide, the grasp failed.
+    fn check_grip(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
+        let object = job.object.clone().ok_or("no object")?;
+        let o = self.object_params(&object)?.clone();
+        let all = self.all_joints(ctx).ok_or("no joint states")?;
+        let names = self.kinematics.mechanism().dof_names();
+        let fingers: Vec<f64> =
+            self.fingers.iter().filter_map(|f| names.iter().position(|n| n == f).map(|i| all[i])).collect();
+        let ok = !fingers.is_empty()
+            && fingers.iter().all(|f| (f - o.handle_half_width_m).abs() <= self.params.grip_tolerance_m);
+        if !ok {
+            let mm: Vec<String> = fingers.iter().map(|f| format!("{:.1}", f * 1e3)).collect();
+            let why = format!(
+                "the fingers stopped at {} mm, not on the handle ({:.1} mm)",
+                mm.join(", "),
+                o.handle_half_width_m * 1e3
+            );
+            ctx.note(format!("grasp: {why}: opening and backing off"));
+            // Let go and back off before failing, so a retry starts clear.
+            job.actions.clear();
+            job.actions.push_back(Action::Gripper(vec![self.params.open_m; self.fingers.len()]));
+            job.actions.push_back(Action::Lift);
+            job.failed = Some(why);
+            return self.next_action(ctx, job).map(|_| ());
+        }
+        let grasp = job.grasp.ok_or("no grasp")?;
+        let h = Vector3::from(o.handle);
+        let object_from_tool = Isometry3::translation(h.x, h.y, h.z) * grasp;
+        self.held = Some((object, object_from_tool.inverse()));
+        self.next_action(ctx, job).map(|_| ())
+    }
+
+    /// What a view of the object at rest does: the approach picks the grasp and goes to its
+    /// pre-grasp pose; a servo step measures the error and corrects it or ends the loop.
+    fn viewed(
+        &mut self,
+        ctx: &mut Ctx<'_>,
+        job: &mut Job,
+        tool_from_object: Isometry3<f64>,
+    ) -> Result<(), String> {
+        let action = job.actions.pop_front().ok_or("no action")?;
+        let object = job.object.clone().ok_or("no object")?;
+        let o = self.object_params(&object)?.clone();
+        let h = Vector3::from(o.handle);
+        let tool_from_handle = tool_from_object * Isometry3::translation(h.x, h.y, h.z);
+        let (q, all) = self.arm_now(ctx)?;
+        let base_from_tool = self.kinematics.forward(&q)?;
+        let height = self.params.pregrasp_height_m;
+        match action {
+            Action::Approach => {
+                let base_from_handle = base_from_tool * tool_from_handle;
+                // Of the two grasps (the closing axis either way), the reachable one whose path is
+                // clear and nearest the present joints.
+                let mut best: Option<(f64, Vec<f64>, Isometry3<f64>)> = None;
+                let mut why = String::new();
+                let full = |a: &[f64]| self.kinematics.full(a, &all);
+                for g in top_down_grasps(0.0) {
+                    let pre = base_from_handle * Isometry3::translation(0.0, 0.0, height) * g;
+                    let at = base_from_handle * g;
+                    let sol = self.kinematics.inverse(&pre, &q, &self.seeds()).and_then(|qp| {
+                        // The grasp itself must be reachable from there too.
+                        self.kinematics.inverse(&at, &qp, &[])?;
+                        plan_path(&self.clearance, &full, &q, &qp, &self.vias(), None)
+                            .map_err(|e| e.to_string())?;
+                        Ok(qp)
+                    });
+                    match sol {
+                        Ok(qp) => {
+                            let d = distance(&qp, &q);
+                            if best.as_ref().is_none_or(|(b, ..)| d < *b) {
+                                best = Some((d, qp, g));
+                            }
+                        }
+                        Err(e) => why = e,
+                    }
+                }
+                let (_, qp, g) = best.ok_or_else(|| format!("no grasp of the {object}'s handle: {why}"))?;
+                job.grasp = Some(g);
+                let hv = base_from_handle.translation.vector;
+                ctx.note(format!(
+                    "grasp: the {object}'s handle at ({:.3}, {:.3}, {:.3}) in base_link; to the pre-grasp pose",
+                    hv.x, hv.y, hv.z
+                ));
+                job.actions.push_front(Action::Servo);
+                job.actions.push_front(Action::Plan(qp));
+            }
+            Action::Servo => {
+                let g = job.grasp.ok_or("no grasp chosen")?;
+                // Where the tool should see the handle: the pre-grasp pose's inverse.
+                let goal_tool_from_handle = (Isometry3::translation(0.0, 0.0, height) * g).inverse();
+                let (corr, e) = tool_correction(&tool_from_handle, &goal_tool_from_handle);
+                job.last_error = Some((e.position_m, e.angle_rad));
+                ctx.note(format!(
+                    "servo step {}: {:.1} mm, {:.2} deg from the pre-grasp pose",
+                    job.servo_steps,
+                    e.position_m * 1e3,
+                    e.angle_rad.to_degrees()
+                ));
+                if e.position_m <= self.params.servo_tolerance_m
+                    && e.angle_rad <= self.params.servo_tolerance_deg.to_radians()
+                {
+                    job.actions.push_front(Action::Descend);
+                } else {
+                    if job.servo_steps >= self.params.max_servo_steps {
+                        return Err(format!(
+                            "visual servoing did not converge in {} steps: {:.1} mm, {:.2} deg left",
+                            job.servo_steps,
+                            e.position_m * 1e3,
+                            e.angle_rad.to_degrees()
+                        ));
+                    }
+                    job.servo_steps += 1;
+                    let goal = next_tool_pose(
+                        &base_from_tool,
+                        &corr,
+                        self.params.servo_gain,
+                        self.params.servo_max_step_m,
+                    );
+                    let qn = self.kinematics.inverse(&goal, &q, &[])?;
+                    job.actions.push_front(Action::Servo);
+                    job.actions.push_front(Action::Straight { to: qn, contact: false });
+                }
+            }
+            other => return Err(format!("internal: a view for {other:?}")),
+        }
+        self.next_action(ctx, job).map(|_| ())
+    }
+
+    /// Advances the job; its result once it ends.
+    fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
+        match job.wait.clone() {
+            Wait::Idle => {}
+            Wait::Command(id, what, deadline) => match ctx.ack_status(id) {
+                Some(AckStatus::Completed(_)) => job.wait = Wait::Idle,
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                    return Err(format!("{what} failed: {r}"));
+                }
+                _ if deadline.as_ref().is_some_and(|(d, _)| ctx.now() > *d) => {
+                    let _ = ctx.send(Command::new(&self.peers.arm, "stop"));
+                    let goal = deadline.map(|(_, q)| q).unwrap_or_default();
+                    let (q, _) = self.arm_now(ctx)?;
+                    let (at, want) = (self.kinematics.forward(&q)?, self.kinematics.forward(&goal)?);
+                    let off = (at.translation.vector - want.translation.vector).norm();
+                    let angle = (at.rotation.inverse() * want.rotation).angle();
+                    if off > self.params.arrive_tolerance_m || angle > self.params.arrive_tolerance_m / 0.1 {
+                        return Err(format!(
+                            "{what}: the arm stopped {:.1} mm from its goal (blocked on its way?)",
+                            off * 1e3
+                        ));
+                    }
+                    // The servos hold a load a few milliradians off: near enough goes on.
+                    job.wait = Wait::Idle;
+                }
+                _ => return Ok(None),
+            },
+            Wait::View { after, since } => {
+                let object = job.object.clone().ok_or("no object")?;
+                let (q, _) = self.arm_now(ctx)?;
+                match self.view(ctx, &object, after, &q) {
+                    Some(t) => {
+                        job.wait = Wait::Idle;
+                        self.viewed(ctx, job, t)?;
+                        return Ok(None);
+                    }
+                    None if (ctx.now() - since).as_secs_f64() > self.params.observe_timeout_s => {
+                        return Err(format!(
+                            "the wrist camera did not see the {object} within {} s",
+                            self.params.observe_timeout_s
+                        ));
+                    }
+                    None => return Ok(None),
+                }
+            }
+        }
+        if self.next_action(ctx, job)? {
+            return Ok(Some(self.result(ctx, job)));
+        }
+        Ok(None)
+    }
+
+    fn result(&self, ctx: &Ctx<'_>, job: &Job) -> serde_json::Value {
+        let tool = self.arm_now(ctx).ok().and_then(|(q, _)| self.kinematics.forward(&q).ok());
+        serde_json::json!({
+            "holding": self.held.as_ref().map(|(k, _)| k.clone()),
+            "servo_steps": job.servo_steps,
+            "servo_error_mm": job.last_error.map(|(p, _)| p * 1e3),
+            "servo_error_deg": job.last_error.map(|(_, a)| a.to_degrees()),
+            "tool": tool.map(|t| [t.translation.x, t.translation.y, t.translation.z]),
+        })
+    }
+
+    fn start(
+        &mut self,
+        ctx: &mut Ctx<'_>,
+        name: &'static str,
+        actions: Vec<Action>,
+        object: Option<String>,
+        slot: Option<String>,
+    ) -> Outcome {
+        let Some(request) = ctx.request() else {
+            return Outcome::reject(format!("{name} must come as a command"));
+        };
+        self.cancel(ctx, &format!("superseded by {name}"));
+        let mut job = Job {
+            request,
+            name,
+            actions: actions.into(),
+            wait: Wait::Idle,
+            object,
+            grasp: None,
+            servo_steps: 0,
+            last_error: None,
+            failed: None,
+            slot,
+        };
+        match self.next_action(ctx, &mut job) {
+            Ok(true) => Outcome::Completed(self.result(ctx, &job)),
+            Ok(false) => {
+                self.job = Some(job);
+                Outcome::Accepted
+            }
+            Err(e) => Outcome::reject(e),
+        }
+    }
+
+    /// The actions of `place`: above the slot, down into it, open, up, away.
+    fn place_actions(&self, ctx: &Ctx<'_>, slot: &str) -> Result<Vec<Action>, String> {
+        let (kind, tool_from_object) = self.held.clone().ok_or("the gripper holds nothing")?;
+        let (q, all) = self.arm_now(ctx)?;
+        let m = self.kinematics.mechanism();
+        let base_from_slot = m.transform(m.root(), slot, &all).map_err(|e| e.to_string())?;
+        let object_from_tool = tool_from_object.inverse();
+        let full = |a: &[f64]| self.kinematics.full(a, &all);
+        let held = self.held_shape();
+        let mut why = String::new();
+        // The object upright on the slot, turned by a quarter turn at a time: the first reachable
+        // and clear, nearest the present joints.
+        let mut best: Option<(f64, Vec<f64>, Vec<f64>)> = None;
+        for k in 0..4 {
+            let yaw =
+                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), k as f64 * std::f64::consts::FRAC_PI_2);
+            // Set down just over the slot (the believed kinematics may be a little low).
+            let rest = base_from_slot
+                * Isometry3::from_parts(Translation3::new(0.0, 0.0, PLACE_CLEARANCE_M), yaw)
+                * object_from_tool;
+            let above = Isometry3::translation(0.0, 0.0, self.params.place_height_m) * rest;
+            let sol = self.kinematics.inverse(&above, &q, &self.seeds()).and_then(|qa| {
+                let qr = self.kinematics.inverse(&rest, &qa, &[])?;
+                plan_path(&self.clearance, &full, &q, &qa, &self.vias(), held.as_ref())
+                    .map_err(|e| e.to_string())?;
+                Ok((qa, qr))
+            });
+            match sol {
+                Ok((qa, qr)) => {
+                    let d = distance(&qa, &q);
+                    if best.as_ref().is_none_or(|(b, ..)| d < *b) {
+                        best = Some((d, qa, qr));
+                    }
+                }
+                Err(e) => why = e,
+            }
+        }
+        let (_, qa, _) = best.ok_or_else(|| format!("cannot place the {kind} on '{slot}': {why}"))?;
+        let mut actions = vec![Action::Plan(qa.clone())];
+        // Down in steps along the vertical (the tool's own axis need not be vertical here).
+        let start = self.kinematics.forward(&qa)?;
+        let n = (self.params.place_height_m / self.params.descent_step_m).ceil().max(1.0) as usize;
+        let mut seed = qa;
+        for k in 1..=n {
+            let goal =
+                Isometry3::translation(0.0, 0.0, -self.params.place_height_m * k as f64 / n as f64) * start;
+            seed = self.kinematics.inverse(&goal, &seed, &[])?;
+            actions.push(Action::Straight { to: seed.clone(), contact: true });
+        }
+        actions.push(Action::Gripper(vec![self.params.open_m; self.fingers.len()]));
+        actions.push(Action::Released);
+        actions.push(Action::Lift);
+        if let Some(p) = self.params.poses.get(&self.params.after_place) {
+            actions.push(Action::Plan(p.clone()));
+        }
+        Ok(actions)
+    }
+
+    /// Ends the job in progress, if any, with `reason`, stopping the arm.
+    fn cancel(&mut self, ctx: &mut Ctx<'_>, reason: &str) {
+        let Some(job) = self.job.take() else { return };
+        if matches!(job.wait, Wait::Command(..)) {
+            let _ = ctx.send(Command::new(&self.peers.arm, "stop"));
+        }
+        self.last = Some(format!("{}: {reason}", job.name));
+        ctx.reply(&job.request, Outcome::fail(reason));
+    }
+
+    fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        if let Some(mut job) = self.job.take() {
+            match self.advance(ctx, &mut job) {
+                Ok(None) => self.job = Some(job),
+                Ok(Some(_)) if job.failed.is_some() => {
+                    let why = job.failed.take().unwrap_or_default();
+                    self.last = Some(format!("{}: {why}", job.name));
+                    ctx.note(format!("{} failed: {why}", job.name));
+                    ctx.reply(&job.request, Outcome::fail(why));
+                }
+                Ok(Some(result)) => {
+                    self.last = Some(format!("{}: completed", job.name));
+                    ctx.note(format!("{} completed: {result}", job.name));
+                    ctx.reply(&job.request, Outcome::Completed(result));
+                }
+                Err(reason) => {
+                    self.last = Some(format!("{}: {reason}", job.name));
+                    ctx.note(format!("{} failed: {reason}", job.name));
+                    ctx.reply(&job.request, Outcome::fail(reason));
+                }
+            }
+        }
+        self.publish(ctx);
+        Ok(())
+    }
+
+    fn publish(&self, ctx: &mut Ctx<'_>) {
+        let Some(w) = &self.out else { return };
+        let tool = self.arm_now(ctx).ok().and_then(|(q, _)| self.kinematics.forward(&q).ok());
+        let state = ManipulationState {
+            command: self.job.as_ref().map(|j| j.name.to_string()),
+            step: self.job.as_ref().map_or("idle".into(), |j| match &j.wait {
+                Wait::Idle => "idle".into(),
+                Wait::Command(_, what, _) => (*what).to_string(),
+                Wait::View { .. } => "view".into(),
+            }),
+            tool_in_base: tool,
+            holding: self.held.as_ref().map(|(k, _)| k.clone()),
+            servo_steps: self.job.as_ref().map_or(0, |j| j.servo_steps),
+            servo_error_m: self.job.as_ref().and_then(|j| j.last_error.map(|e| e.0)),
+            last_outcome: self.last.clone(),
+        };
+        ctx.write(w, state);
+    }
+}
+
+impl Module for ManipulatorControl {
+    type Params = ManipulatorParams;
+    const KIND: ModuleKind = ModuleKind::Coordination;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        let groups: Vec<String> = [self.peers.arm.clone(), self.peers.gripper.clone()]
+            .into_iter()
+            .chain(self.peers.others.clone())
+            .collect();
+        self.joints = groups.iter().map(|g| Some(d.reads(&format!("{g}/joints")))).collect();
+        self.objects = Some(d.reads(&self.peers.objects));
+        self.out = Some(d.writes(SLOT));
+        d.sends_to(&self.peers.arm).sends_to(&self.peers.gripper);
+        d.context_switchable();
+        d.state("active", |m, ctx| m.cycle(ctx));
+        d.command("move_named", |m, ctx, a: MoveNamedArgs| {
+            let Some(q) = m.params.poses.get(&a.pose).cloned() else {
+                return Outcome::reject(format!(
+                    "no pose '{}' (configured: {})",
+                    a.pose,
+                    m.params.poses.keys().cloned().collect::<Vec<_>>().join(", ")
+                ));
+            };
+            m.start(ctx, "move_named", vec![Action::Plan(q)], None, None)
+        });
+        d.command("move_tool", |m, ctx, a: MoveToolArgs| {
+            let [r, p, y] = a.rpy_deg.map(f64::to_radians);
+            let goal = Isometry3::from_parts(
+                Translation3::from(Vector3::from(a.position)),
+                UnitQuaternion::from_euler_angles(r, p, y),
+            );
+            let q = match m.arm_now(ctx).and_then(|(q, _)| m.kinematics.inverse(&goal, &q, &m.seeds())) {
+                Ok(q) => q,
+                Err(e) => return Outcome::reject(e),
+            };
+            m.start(ctx, "move_tool", vec![Action::Plan(q)], None, None)
+        });
+        d.command("grasp", |m, ctx, a: GraspArgs| {
+            if let Err(e) = m.object_params(&a.object) {
+                return Outcome::reject(e);
+            }
+            if let Some((k, _)) = &m.held {
+                return Outcome::reject(format!("the gripper already holds the {k}"));
+            }
+            let open = vec![m.params.open_m; m.fingers.len()];
+            let close = vec![0.0; m.fingers.len()];
+            let actions = vec![
+                Action::Gripper(open),
+                Action::Approach,
+                Action::Gripper(close),
+                Action::CheckGrip,
+                Action::Lift,
+            ];
+            m.start(ctx, "grasp", actions, Some(a.object), None)
+        });
+        d.command("place", |m, ctx, a: PlaceArgs| {
+            let slot = a.slot.unwrap_or_else(|| "stow_slot".into());
+            match m.place_actions(ctx, &slot) {
+                Ok(actions) => m.start(ctx, "place", actions, None, Some(slot)),
+                Err(e) => Outcome::reject(e),
+            }
+        });
+        d.command("open", |m, ctx, _: ()| {
+            let open = vec![m.params.open_m; m.fingers.len()];
+            m.start(ctx, "open", vec![Action::Gripper(open), Action::Released], None, None)
+        });
+        d.command("close", |m, ctx, _: ()| {
+            let close = vec![0.0; m.fingers.len()];
+            m.start(ctx, "close", vec![Action::Gripper(close)], None, None)
+        });
+        d.command("stop", |m, ctx, _: ()| {
+            m.cancel(ctx, "stopped by command");
+            let _ = ctx.send(Command::new(&m.peers.arm, "stop"));
+            Outcome::done()
+        });
+    }
+
+    fn configure(&mut self, p: &ManipulatorParams) -> Result<(), String> {
+        crate::params::require_positive(&[
+            ("speed", p.speed),
+            ("acceleration_rad_s2", p.acceleration_rad_s2),
+            ("margin_m", p.margin_m),
+            ("check_step_rad", p.check_step_rad),
+            ("open_m", p.open_m),
+            ("pregrasp_height_m", p.pregrasp_height_m),
+            ("descent_step_m", p.descent_step_m),
+            ("lift_m", p.lift_m),
+            ("servo_gain", p.servo_gain),
+            ("servo_max_step_m", p.servo_max_step_m),
+            ("servo_tolerance_m", p.servo_tolerance_m),
+            ("servo_tolerance_deg", p.servo_tolerance_deg),
+            ("settle_s", p.settle_s),
+            ("observe_timeout_s", p.observe_timeout_s),
+            ("move_slack_s", p.move_slack_s),
+            ("arrive_tolerance_m", p.arrive_tolerance_m),
+            ("grip_tolerance_m", p.grip_tolerance_m),
+            ("place_height_m", p.place_height_m),
+        ])?;
+        if p.speed > 1.0 || p.servo_gain > 1.0 {
+            return Err(format!(
+                "speed and servo_gain must be in (0, 1], got {} and {}",
+                p.speed, p.servo_gain
+            ));
+        }
+        let limits = self.kinematics.limits();
+        for (name, q) in &p.poses {
+            if q.len() != limits.len() {
+                return Err(format!(
+                    "pose '{name}' has {} values, the arm has {} joints",
+                    q.len(),
+                    limits.len()
+                ));
+            }
+            if let Some((j, v)) =
+                q.iter().enumerate().find(|(j, v)| !(limits[*j].0..=limits[*j].1).contains(*v))
+            {
+                return Err(format!(
+                    "pose '{name}': {} = {v} outside its limits",
+                    self.kinematics.joint_names()[j]
+                ));
+            }
+        }
+        if let Some(v) = p.vias.iter().find(|v| !p.poses.contains_key(*v)) {
+            return Err(format!("via-pose '{v}' is not a configured pose"));
+        }
+        if !p.poses.contains_key(&p.after_place) {
+            return Err(format!("after_place pose '{}' is not a configured pose", p.after_place));
+        }
+        self.clearance = Clearance::new(
+            self.kinematics.mechanism(),
+            is_arm_link,
+            COAXIAL,
+            clearance_params(self.kinematics.mechanism(), p)?,
+        );
+        self.params = p.clone();
+        Ok(())
+    }
+
+    fn on_transition(&mut self, ctx: &mut Ctx<'_>, _from: Lifecycle, to: Lifecycle) -> Result<(), String> {
+        if matches!(to, Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown) {
+            self.cancel(ctx, &format!("'{}' left Run for {to}", ctx.name()));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,185 @@
+//! The manipulation algorithms on the rover's own mechanism (`assets/rover/rover.urdf`): inverse
+//! kinematics round trips, motions clear of the body, the stowage slot within reach.
+
+use framework::mechanism::MechanismModel;
+use gnc::manipulation::clearance::{Clearance, ClearanceParams, Contact};
+use gnc::manipulation::kinematics::{ArmKinematics, top_down_grasps};
+use gnc::manipulation::trajectory::plan_path;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+use rand::{Rng, SeedableRng};
+
+fn mechanism() -> MechanismModel {
+    let urdf = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/rover/rover.urdf");
+    MechanismModel::from_urdf_file(urdf).expect("rover urdf")
+}
+
+/// The poses of `scenarios/config/modules/manipulator_control.toml`.
+const STOWED: [f64; 6] = [0.0; 6];
+const LOOK: [f64; 6] = [0.0, -1.1, 2.45, 0.0, -0.55, 0.0];
+const VIAS: [[f64; 6]; 3] =
+    [[0.0, -1.8, 1.6, 0.0, 1.8, 0.0], [1.3, -1.8, 1.6, 0.0, 1.8, 0.0], [2.6, -1.8, 1.6, 0.0, 1.8, 0.0]];
+
+fn clearance(m: &MechanismModel, margin: f64) -> Clearance {
+    let is_arm = |n: &str| n.starts_with("arm_link_") || n.starts_with("gripper_");
+    // The wheels' lowest point: 0.38 m below base_link.
+    let params = ClearanceParams { margin_m: margin, ground_z_m: -0.38, ground_margin_m: 0.05, step: 0.02 };
+    Clearance::new(m, is_arm, &["arm_link_1"], params)
+}
+
+#[test]
+fn inverse_kinematics_round_trips_forward_kinematics_within_a_millimetre_and_a_tenth_of_a_degree() {
+    let m = mechanism();
+    let arm = ArmKinematics::new(&m, "gripper_tcp").unwrap();
+    let limits = arm.limits();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
+    let seeds: Vec<Vec<f64>> =
+        std::iter::once(LOOK.to_vec()).chain(VIAS.iter().map(|v| v.to_vec())).collect();
+    let (mut worst_mm, mut worst_deg) = (0.0f64, 0.0f64);
+    for _ in 0..200 {
+        // A reachable pose: the tool where random joints put it (within 90 % of the limits).
+        let q: Vec<f64> = limits.iter().map(|(lo, hi)| rng.random_range(0.9 * lo..0.9 * hi)).collect();
+        let target = arm.forward(&q).unwrap();
+        // Started 0.3 rad off in every joint, as a move from a nearby pose is.
+        let start: Vec<f64> = q.iter().map(|v| v + rng.random_range(-0.3..0.3)).collect();
+        let sol = arm.inverse(&target, &start, &seeds).unwrap_or_else(|e| panic!("{q:?}: {e}"));
+        let got = arm.forward(&sol).unwrap();
+        let mm = (got.translation.vector - target.translation.vector).norm() * 1e3;
+        let deg = (got.rotation.inverse() * target.rotation).angle().to_degrees();
+        worst_mm = worst_mm.max(mm);
+        worst_deg = worst_deg.max(deg);
+        for (v, (lo, hi)) in sol.iter().zip(&limits) {
+            assert!(v >= lo && v <= hi, "{sol:?} outside the limits");
+        }
+    }
+    assert!(worst_mm < 1.0 && worst_deg < 0.1, "worst {worst_mm:.4} mm, {worst_deg:.4} deg");
+}
+
+#[test]
+fn the_configured_poses_are_clear_and_the_tool_reaches_its_work_space_and_the_stowage_slot() {
+    let m = mechanism();
+    let arm = ArmKinematics::new(&m, "gripper_tcp").unwrap();
+    let c = clearance(&m, 0.015);
+    let rest = vec![0.0; m.dof_count()];
+    for q in [STOWED, LOOK].iter().chain(&VIAS) {
+        assert_eq!(c.contact(&arm.full(q, &rest), None, true).unwrap(), None, "{q:?}");
+    }
+    let seeds: Vec<Vec<f64>> = VIAS.iter().map(|v| v.to_vec()).collect();
+    // A canister's handle on flat ground (0.38 m below base_link, the handle 0.1975 m over it)
+    // 0.8-1.3 m ahead and up to 0.3 m aside: grasped from above, either way.
+    for x in [0.8, 1.0, 1.2, 1.3] {
+        for y in [-0.3, 0.0, 0.3] {
+            let handle = Isometry3::translation(x, y, -0.38 + 0.1975);
+            let reach =
+                top_down_grasps(0.0).iter().any(|g| arm.inverse(&(handle * g), &LOOK, &seeds).is_ok());
+            assert!(reach, "handle at ({x}, {y})");
+        }
+    }
+    // The stowage slot: the canister's handle 0.1975 m over it, and 0.1 m higher.
+    let slot = m.transform(m.root(), "stow_slot", &rest).unwrap();
+    for h in [0.0, 0.1] {
+        let handle = slot * Isometry3::translation(0.0, 0.0, 0.1975 + h);
+        let reach = top_down_grasps(0.0).iter().any(|g| arm.inverse(&(handle * g), &VIAS[2], &seeds).is_ok());
+        assert!(reach, "over the slot by {h} m");
+    }
+}
+
+#[test]
+fn planned_motions_never_come_near_the_body_even_where_the_straight_way_would() {
+    let m = mechanism();
+    let arm = ArmKinematics::new(&m, "gripper_tcp").unwrap();
+    let c = clearance(&m, 0.015);
+    // Checked again at a quarter of the planner's step with no margin: no sample between the
+    // planner's samples touches either.
+    let strict = {
+        let is_arm = |n: &str| n.starts_with("arm_link_") || n.starts_with("gripper_");
+        let p = ClearanceParams { margin_m: 0.0, ground_z_m: -0.38, ground_margin_m: 0.0, step: 0.005 };
+        Clearance::new(&m, is_arm, &["arm_link_1"], p)
+    };
+    let rest = vec![0.0; m.dof_count()];
+    let full = |q: &[f64]| arm.full(q, &rest);
+    let vias: Vec<Vec<f64>> = VIAS.iter().map(|v| v.to_vec()).collect();
+    let limits = arm.limits();
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+    let random_clear = |rng: &mut rand_pcg::Pcg64| loop {
+        let q: Vec<f64> = limits.iter().map(|(lo, hi)| rng.random_range(*lo..*hi)).collect();
+        if c.contact(&full(&q), None, true).unwrap().is_none() {
+            return q;
+        }
+    };
+    let (mut planned, mut detoured, mut blocked) = (0, 0, 0);
+    for _ in 0..60 {
+        let (a, b) = (random_clear(&mut rng), random_clear(&mut rng));
+        match plan_path(&c, &full, &a, &b, &vias, None) {
+            Ok(path) => {
+                planned += 1;
+                if path.len() > 1 {
+                    detoured += 1;
+                }
+                let mut from = a.clone();
+                for p in &path {
+                    let hit = strict.segment_contact(&full(&from), &full(p), None, true).unwrap();
+                    assert_eq!(hit, None, "{a:?} -> {b:?} through {path:?}");
+                    from = p.clone();
+                }
+            }
+            Err(_) => blocked += 1,
+        }
+    }
+    assert!(
+        planned >= 40 && detoured >= 1,
+        "{planned} planned, {detoured} through via-poses, {blocked} blocked"
+    );
+    // From the look pose to over the stowage slot the arm swings round over the body.
+    let slot_pose = arm
+        .inverse(
+            &(m.transform(m.root(), "stow_slot", &rest).unwrap()
+                * Isometry3::translation(0.0, 0.0, 0.2975)
+                * top_down_grasps(0.0)[0]),
+            &VIAS[2],
+            &[],
+        )
+        .unwrap();
+    let path = plan_path(&c, &full, &LOOK, &slot_pose, &vias, None, true).unwrap();
+    let mut from = LOOK.to_vec();
+    for p in &path {
+        assert_eq!(strict.segment_contact(&full(&from), &full(p), None, true).unwrap(), None);
+        from = p.clone();
+    }
+}
+
+#[test]
+fn a_held_canister_is_kept_off_the_body_and_a_pose_into_the_chassis_is_refused() {
+    let m = mechanism();
+    let arm = ArmKinematics::new(&m, "gripper_tcp").unwrap();
+    let c = clearance(&m, 0.015);
+    let rest = vec![0.0; m.dof_count()];
+    // The arm folded down onto the chassis: the gripper would go into it.
+    let into = [2.6, -0.6, 2.6, 0.0, 1.0, 0.0];
+    let hit = c.contact(&arm.full(&into, &rest), None, true).unwrap();
+    assert!(matches!(hit, Some(Contact::Body { .. })), "{hit:?}");
+    // Holding the canister (its box hanging 0.2 m under the tool) over the cradle at the via-pose
+    // height is clear; lowered into the cradle 3 cm off its centre it meets a wall.
+    let tool = m.link("gripper_tcp").unwrap();
+    let held = gnc::manipulation::clearance::Held {
+        link: tool,
+        shape: framework::mechanism::CollisionBox {
+            origin: Isometry3::from_parts(
+                Translation3::new(0.1975 - 0.1025, 0.0, 0.0),
+                UnitQuaternion::from_axis_angle(&Vector3::y_axis(), std::f64::consts::FRAC_PI_2),
+            ),
+            half_extents: Vector3::new(0.05, 0.05, 0.1025),
+        },
+    };
+    let over = arm.full(&VIAS[2], &rest);
+    assert_eq!(c.contact(&over, Some(&held), true).unwrap(), None);
+    let slot = m.transform(m.root(), "stow_slot", &rest).unwrap();
+    let low = arm
+        .inverse(
+            &(slot * Isometry3::translation(0.0, 0.03, 0.1975 + 0.03) * top_down_grasps(0.0)[0]),
+            &VIAS[2],
+            &[],
+        )
+        .unwrap();
+    let hit = c.contact(&arm.full(&low, &rest), Some(&held), true).unwrap();
+    assert!(matches!(&hit, Some(Contact::Body { arm, .. }) if arm == "held"), "{hit:?}");
+}

@@ -94,7 +94,8 @@ pub struct ManipulatorParams {
     pub servo_tolerance_m: f64,
     /// ... and this rotation, deg.
     pub servo_tolerance_deg: f64,
-    /// Most servo steps of one grasp.
+    /// Most servo steps of one grasp (0: none, an open-loop grasp from the first view, to measure
+    /// what the servoing is worth).
     pub max_servo_steps: u32,
     /// The arm rests this long after a move before an image is taken as its view, s.
     pub settle_s: f64,
@@ -611,7 +612,10 @@ impl ManipulatorControl {
                     "grasp: the {object}'s handle at ({:.3}, {:.3}, {:.3}) in base_link; to the pre-grasp pose",
                     hv.x, hv.y, hv.z
                 ));
-                job.actions.push_front(Action::Servo);
+                // With no servo steps allowed the grasp goes where this first view put it: open
+                // loop, through the believed kinematics alone.
+                let next = if self.params.max_servo_steps == 0 { Action::Descend } else { Action::Servo };
+                job.actions.push_front(next);
                 job.actions.push_front(Action::Plan(qp));
             }
             Action::Servo => {

@@ -51,6 +51,7 @@ fn inverse_kinematics_round_trips_forward_kinematics_within_a_millimetre_and_a_t
             assert!(v >= lo && v <= hi, "{sol:?} outside the limits");
         }
     }
+    eprintln!("inverse kinematics over 200 poses: worst {worst_mm:.4} mm, {worst_deg:.4} deg");
     assert!(worst_mm < 1.0 && worst_deg < 0.1, "worst {worst_mm:.4} mm, {worst_deg:.4} deg");
 }
 
@@ -139,7 +140,7 @@ fn planned_motions_never_come_near_the_body_even_where_the_straight_way_would() 
             &[],
         )
         .unwrap();
-    let path = plan_path(&c, &full, &LOOK, &slot_pose, &vias, None, true).unwrap();
+    let path = plan_path(&c, &full, &LOOK, &slot_pose, &vias, None).unwrap();
     let mut from = LOOK.to_vec();
     for p in &path {
         assert_eq!(strict.segment_contact(&full(&from), &full(p), None, true).unwrap(), None);

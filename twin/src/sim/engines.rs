@@ -263,7 +263,11 @@ impl Twin {
         let mut now = std::collections::BTreeSet::new();
         let mut self_now = std::collections::BTreeSet::new();
         let mut canister_on_body = Vec::new();
-        for (_, a, b) in active_pairs(ph) {
+        // Touching: a contact point at most a millimetre apart (the solver keeps speculative
+        // contacts centimetres apart too, which touch nothing).
+        let touching =
+            |p: &ContactPair| p.manifolds().iter().any(|m| m.points.iter().any(|c| c.dist <= 1e-3));
+        for (_, a, b) in active_pairs(ph).filter(|(p, ..)| touching(p)) {
             let (ta, tb) = (a.user_data as usize, b.user_data as usize);
             let (Some(x), Some(y)) = (self.tags.get(ta), self.tags.get(tb)) else { continue };
             // A collision: a robot part other than a wheel touching a rock or an object (wheels may

@@ -4,10 +4,24 @@
 //! Holding, the fingers stand on the handle (its half width each, in kinematic fidelity too), so
 //! the gripper's opening tells a grasp from a close on nothing.
 //! How the handle sat is ground truth ([`crate::truth::GraspTruth`]). A released canister falls
-//! where it is (full dynamics), or in kinematic fidelity rests in the stowage cradle when released
-//! there and on the ground elsewhere.
+//! where it is (full dynamics: into the stowage cradle, whose clamp centres and holds it once it
+//! rests there), or in kinematic fidelity rests in the cradle, centred, when released there and on
+//! the ground elsewhere.
 
 use super::*;
+
+/// The cradle clamps a canister resting at most this high over the slot, m.
+const CLAMP_HEIGHT_M: f64 = 0.02;
+
+/// Where the cradle's clamp holds a canister that rests at `rel` in the slot's frame (`slot`):
+/// centred on the slot, upright, its yaw kept.
+fn clamped(slot: &Isometry3<f64>, rel: &Isometry3<f64>) -> Isometry3<f64> {
+    let yaw = rel.rotation.euler_angles().2;
+    slot * Isometry3::from_parts(
+        Translation3::identity(),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+    )
+}
 
 /// A finger touches the handle when its inner face is at most this far from it, m.
 const TOUCH_M: f64 = 0.001;
@@ -157,6 +171,7 @@ impl Twin {
         }
         let Some(cb) = self.canister.as_ref().and_then(|c| c.body) else { return };
         let Some(palm) = self.body_of("gripper_palm") else { return };
+        self.release_cradle();
         let Engine::Dynamic(ph) = &mut self.engine else { return };
         let palm_pose = pose_from_rapier(ph.bodies[palm].position());
         let rel = palm_pose.inverse() * can;
@@ -198,19 +213,49 @@ impl Twin {
         let (Ok(li), Some(can)) = (self.mech.link("stow_slot"), self.canister_pose()) else { return false };
         let slot = self.link_pose_index(li);
         let rel = slot.inverse() * can;
-        let yaw = rel.rotation.euler_angles().2;
-        let v = rel.translation.vector;
-        let rest = slot
-            * Isometry3::from_parts(
-                Translation3::new(v.x, v.y, 0.0),
-                UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
-            );
+        let rest = clamped(&slot, &rel);
         let base = self.base_pose_internal();
         self.stowed_kinematic = Some(base.inverse() * rest);
         if let Some(c) = self.canister.as_mut() {
             c.pose = rest;
         }
         true
+    }
+
+    /// Full dynamics: a canister let go in the stowage cradle that comes to rest there is clamped
+    /// (the cradle's clamp centres it on the slot, upright, its yaw kept, and holds it to the
+    /// chassis over rough ground) until the gripper takes it again.
+    pub(super) fn update_cradle(&mut self) {
+        if self.cradle_clamp.is_some() || self.holding_canister() || !self.canister_in_cradle() {
+            return;
+        }
+        let (Some(cb), Some(base)) = (self.canister.as_ref().and_then(|c| c.body), self.base_body) else {
+            return;
+        };
+        let (Ok(li), Some(can)) = (self.mech.link("stow_slot"), self.canister_pose()) else { return };
+        let slot = self.link_pose_index(li);
+        let rel = slot.inverse() * can;
+        let Engine::Dynamic(ph) = &mut self.engine else { return };
+        let (body, chassis) = (&ph.bodies[cb], &ph.bodies[base]);
+        let resting = (body.linvel() - chassis.linvel()).length() < 0.05 && body.angvel().length() < 0.5;
+        if !resting || rel.translation.z > CLAMP_HEIGHT_M {
+            return;
+        }
+        let rest = clamped(&slot, &rel);
+        let base_pose = pose_from_rapier(chassis.position());
+        let body = &mut ph.bodies[cb];
+        body.set_position(pose_to_rapier(&rest), true);
+        let joint = FixedJointBuilder::new()
+            .local_frame1(pose_to_rapier(&(base_pose.inverse() * rest)))
+            .local_frame2(Pose::IDENTITY);
+        self.cradle_clamp = Some(ph.impulse_joints.insert(base, cb, joint, true));
+    }
+
+    /// Opens the cradle's clamp (the gripper takes the canister, or a test moves it).
+    fn release_cradle(&mut self) {
+        if let (Some(h), Engine::Dynamic(ph)) = (self.cradle_clamp.take(), &mut self.engine) {
+            ph.impulse_joints.remove(h, true);
+        }
     }
 
     /// True while the gripper holds the canister.
@@ -222,6 +267,7 @@ impl Twin {
     pub fn place_canister(&mut self, pose: Isometry3<f64>) {
         self.set_canister_motion(None);
         self.release_latch();
+        self.release_cradle();
         self.stowed_kinematic = None;
         if let Some(c) = self.canister.as_mut() {
             c.pose = pose;

@@ -287,6 +287,8 @@ pub struct Twin {
     grasp: Option<crate::truth::GraspTruth>,
     /// Kinematic fidelity: a released canister resting in the stowage cradle, its pose there.
     stowed_kinematic: Option<Isometry3<f64>>,
+    /// Full dynamics: the cradle's clamp holding a stowed canister to the chassis.
+    cradle_clamp: Option<ImpulseJointHandle>,
     /// A scripted motion of the canister over the ground (a moving target).
     canister_motion: Option<CanisterMotion>,
     /// The robot's collision shapes (self-collision tests in kinematic fidelity, lines of sight).
@@ -361,6 +363,7 @@ impl Twin {
             self_touching: Default::default(),
             grasp: None,
             stowed_kinematic: None,
+            cradle_clamp: None,
             canister_motion: None,
             self_shapes: None,
             occluders: Default::default(),
@@ -530,6 +533,7 @@ impl Twin {
         );
         self.update_moves(dt);
         self.update_latch();
+        self.update_cradle();
         self.update_canister_motion();
     }
 

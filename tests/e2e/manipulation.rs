@@ -1,0 +1,84 @@
+//! End-to-end: the arm acquires and stows the canister (`scenarios/acquire_stow.toml`: the rover
+//! parked, the canister at arm's reach, only the wrist camera rendering), in both fidelities; and the
+//! same grasp with the visual servoing switched off.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn run(out: &Path, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rover-twin"))
+        .arg("run")
+        .arg(root().join("scenarios/acquire_stow.toml"))
+        .arg("--out")
+        .arg(out)
+        .args(["--quiet", "--set", "logging.rrd=false", "--set", "logging.mcap=false"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn show(o: &Output) -> String {
+    format!(
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn score(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn the_arm_acquires_and_stows_the_canister_under_visual_servoing_in_both_fidelities() {
+    for fidelity in ["kinematic", "dynamic"] {
+        let dir = tempfile::tempdir().unwrap();
+        let o = run(dir.path(), &["--fidelity", fidelity]);
+        assert_eq!(o.status.code(), Some(0), "{fidelity}: {}", show(&o));
+        let m = &score(dir.path())["metrics"];
+        assert_eq!(m["canister_stowed"], true, "{fidelity}: {m}");
+        // The handle within a centimetre of the tool centre point when the fingers closed.
+        let err = m["grasp_position_error_m"].as_f64().unwrap();
+        assert!(err < 0.01, "{fidelity}: grasped {err} m off the handle");
+        assert_eq!(m["self_collisions"], 0, "{fidelity}: {m}");
+    }
+}
+
+#[test]
+fn the_servoed_grasp_lands_nearer_the_handle_than_an_open_loop_one_from_the_same_first_view() {
+    // The same seeds (the same calibration errors and placements) with and without servoing, one
+    // grasp each. Open loop, the arm goes where the first view of the handle put it through the
+    // believed kinematics; servoed, the wrist camera closes the loop. (With the twin's calibration
+    // errors and a first view from the near look pose the open-loop grasp is 1-1.5 cm off: within
+    // the gripper's capture, so it holds too; the servoed one is nearer every time.)
+    for seed in ["1", "2", "3"] {
+        let grasp = |servo_steps: &str| {
+            let dir = tempfile::tempdir().unwrap();
+            let steps = format!("modules.manipulator_control.params.max_servo_steps={servo_steps}");
+            let o = run(
+                dir.path(),
+                &[
+                    "--fidelity",
+                    "kinematic",
+                    "--seed",
+                    seed,
+                    "--set",
+                    &steps,
+                    "--set",
+                    "modules.manipulation.params.max_attempts=1",
+                ],
+            );
+            let s = score(dir.path());
+            let err = s["metrics"]["grasp_position_error_m"].as_f64();
+            (err.unwrap_or_else(|| panic!("seed {seed}, {servo_steps} servo steps: no grasp\n{}", show(&o))))
+                .max(0.0)
+        };
+        let (servoed, open) = (grasp("10"), grasp("0"));
+        assert!(servoed < 0.01, "seed {seed}: the servoed grasp {servoed} m off the handle");
+        assert!(servoed < open, "seed {seed}: servoed {servoed} m, open loop {open} m off the handle");
+    }
+}

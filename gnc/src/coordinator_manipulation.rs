@@ -16,7 +16,7 @@
 //! its step) through the notes; the manipulator's own state is on `manipulation/state`.
 
 use crate::peer::send;
-use framework::data::{PoseEstimate, TargetTrack};
+use framework::data::{ObjectPoses, PoseEstimate, TargetTrack};
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
 use framework::prelude::*;
@@ -92,6 +92,9 @@ pub struct ManipulationPeers {
     pub target: Option<String>,
     /// The pose estimate.
     pub pose: String,
+    /// The wrist camera's object poses (a glimpse of the object the markers could not locate to
+    /// the accuracy asked still says which way to turn).
+    pub objects: String,
 }
 
 /// The rover's speed in the short moves that bring an object within reach, m/s.
@@ -148,6 +151,8 @@ struct Job {
     result: serde_json::Value,
     /// When the step awaited began.
     since: Time,
+    /// When the locate from the first look pose of this round began.
+    look_since: Time,
 }
 
 /// What the rover should do so that an object at `object` (in `base_link`, m) can be grasped:
@@ -168,6 +173,7 @@ pub struct CoordinatorManipulation {
     peers: ManipulationPeers,
     target: Option<Reader<TargetTrack>>,
     pose: Option<Reader<PoseEstimate>>,
+    objects: Option<Reader<ObjectPoses>>,
     params: CoordinatorManipulationParams,
     job: Option<Job>,
 }
@@ -175,7 +181,14 @@ pub struct CoordinatorManipulation {
 impl CoordinatorManipulation {
     /// A coordinator of `peers`.
     pub fn new(peers: ManipulationPeers) -> Self {
-        CoordinatorManipulation { peers, target: None, pose: None, params: Default::default(), job: None }
+        CoordinatorManipulation {
+            peers,
+            target: None,
+            pose: None,
+            objects: None,
+            params: Default::default(),
+            job: None,
+        }
     }
 
     fn pose(&self, ctx: &Ctx<'_>) -> Result<Isometry3<f64>, String> {
@@ -276,6 +289,9 @@ impl CoordinatorManipulation {
                 job.id = send(ctx, &self.peers.markers, "locate", args)?;
                 job.step = Step::Locate;
                 job.since = ctx.now();
+                if job.look == 0 {
+                    job.look_since = job.since;
+                }
             }
             (Step::Locate, Ok(v)) => {
                 let xyz: [f64; 3] = serde_json::from_value(v["base_from_object"]["xyz"].clone())
@@ -338,6 +354,32 @@ impl CoordinatorManipulation {
                 ));
                 self.look(ctx, job)?;
             }
+            (Step::Locate, Err(r)) if job.repositions < self.params.max_repositions => {
+                // Not located from any look pose: if the wrist camera glimpsed the object since the
+                // locate began, turn and drive towards it and look again.
+                let glimpse = self.objects.as_ref().and_then(|o| ctx.read(o)).and_then(|o| {
+                    (o.value.stamp >= job.look_since)
+                        .then(|| o.value.objects.iter().find(|x| x.object == self.params.object).cloned())
+                        .flatten()
+                });
+                let Some(seen) = glimpse else { return Err(format!("Locate failed: {r}")) };
+                job.repositions += 1;
+                let target = Point3::from(seen.map_from_object.translation.vector);
+                job.object_map = Some(target);
+                ctx.note(format!(
+                    "{}: not located ({r}), but glimpsed at ({:.2}, {:.2}) in base_link: moving towards it",
+                    job.kind.name(),
+                    seen.base_from_object.translation.x,
+                    seen.base_from_object.translation.y
+                ));
+                let x = self.params.grasp_x_m;
+                job.look = 0;
+                if self.move_towards(ctx, job, &target, x, 0.1, REPOSITION_BEARING_DEG.to_radians())? {
+                    job.step = Step::Reposition;
+                } else {
+                    self.look(ctx, job)?;
+                }
+            }
             (Step::Grasp, Err(r)) if job.attempts < self.params.max_attempts => {
                 job.look = 0;
                 ctx.note(format!("{}: grasp {} failed ({r}): looking again", job.kind.name(), job.attempts));
@@ -382,6 +424,7 @@ impl CoordinatorManipulation {
                     object_map: None,
                     result: serde_json::Value::Null,
                     since: ctx.now(),
+                    look_since: ctx.now(),
                 });
                 Outcome::Accepted
             }
@@ -433,6 +476,7 @@ impl Module for CoordinatorManipulation {
             self.target = Some(d.reads(t));
         }
         self.pose = Some(d.reads(&self.peers.pose));
+        self.objects = Some(d.reads(&self.peers.objects));
         d.sends_to(&self.peers.manipulator)
             .sends_to(&self.peers.markers)
             .sends_to(&self.peers.cameras.0)

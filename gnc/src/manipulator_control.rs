@@ -217,6 +217,8 @@ enum Action {
     Lift,
     /// The object is let go: the manipulator holds nothing.
     Released,
+    /// The arm's motors out of fault (after a blocked set-down stalled one).
+    RecoverArm,
 }
 
 /// What the command in progress waits for.
@@ -247,6 +249,8 @@ struct Job {
     failed: Option<String>,
     /// Where a `place` puts the object (a link).
     slot: Option<String>,
+    /// The arm move in progress sets the held object down (a place's descent).
+    setting_down: bool,
 }
 
 /// The ManipulatorControl module.
@@ -478,7 +482,14 @@ impl ManipulatorControl {
         let Some(action) = job.actions.pop_front() else { return Ok(true) };
         match action {
             Action::Plan(to) => self.start_plan(ctx, job, &to)?,
-            Action::Straight { to, contact } => self.straight(ctx, job, &to, contact)?,
+            Action::Straight { to, contact } => {
+                job.setting_down = contact && self.held.is_some() && job.slot.is_some();
+                self.straight(ctx, job, &to, contact)?
+            }
+            Action::RecoverArm => {
+                let id = send(ctx, &self.peers.arm, "recover", serde_json::Value::Null)?;
+                job.wait = Wait::Command(id, "arm recover", None);
+            }
             Action::Gripper(to) => {
                 let id = send(ctx, &self.peers.gripper, "move", serde_json::json!({ "positions": to }))?;
                 job.wait = Wait::Command(id, "gripper move", None);
@@ -660,12 +671,32 @@ impl ManipulatorControl {
         self.next_action(ctx, job).map(|_| ())
     }
 
+    /// A place's descent stopped short (the held object met the cradle's wall or floor before the
+    /// believed kinematics said it would): the rest of the descent is dropped and the object let go
+    /// where it is, within the cradle's walls, after the arm's motors are out of any fault.
+    fn set_down_early(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, why: &str) {
+        ctx.note(format!("place: the descent stopped short ({why}): letting go there"));
+        while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
+            job.actions.pop_front();
+        }
+        job.actions.push_front(Action::RecoverArm);
+        job.setting_down = false;
+        job.wait = Wait::Idle;
+    }
+
     /// Advances the job; its result once it ends.
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
         match job.wait.clone() {
             Wait::Idle => {}
             Wait::Command(id, what, deadline) => match ctx.ack_status(id) {
                 Some(AckStatus::Completed(_)) => job.wait = Wait::Idle,
+                // Not in fault: nothing to recover.
+                Some(AckStatus::Rejected(_) | AckStatus::Failed(_)) if what == "arm recover" => {
+                    job.wait = Wait::Idle
+                }
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) if job.setting_down => {
+                    self.set_down_early(ctx, job, &format!("{what} failed: {r}"));
+                }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     return Err(format!("{what} failed: {r}"));
                 }
@@ -676,7 +707,14 @@ impl ManipulatorControl {
                     let (at, want) = (self.kinematics.forward(&q)?, self.kinematics.forward(&goal)?);
                     let off = (at.translation.vector - want.translation.vector).norm();
                     let angle = (at.rotation.inverse() * want.rotation).angle();
-                    if off > self.params.arrive_tolerance_m || angle > self.params.arrive_tolerance_m / 0.1 {
+                    let far =
+                        off > self.params.arrive_tolerance_m || angle > self.params.arrive_tolerance_m / 0.1;
+                    if far && job.setting_down {
+                        let why = format!("the arm stopped {:.1} mm from its goal", off * 1e3);
+                        self.set_down_early(ctx, job, &why);
+                        return Ok(None);
+                    }
+                    if far {
                         return Err(format!(
                             "{what}: the arm stopped {:.1} mm from its goal (blocked on its way?)",
                             off * 1e3
@@ -746,6 +784,7 @@ impl ManipulatorControl {
             last_error: None,
             failed: None,
             slot,
+            setting_down: false,
         };
         match self.next_action(ctx, &mut job) {
             Ok(true) => Outcome::Completed(self.result(ctx, &job)),

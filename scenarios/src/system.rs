@@ -423,6 +423,7 @@ fn add_module(
                     locomotion: "locomotion".into(),
                     target: wiring.head_tracking.then(|| gnc::tracking_target::SLOT.to_string()),
                     pose: POSE_SLOT.into(),
+                    objects: format!("{}/objects", gnc::tracking_marker::WRIST_PREFIX),
                 },
             ),
             config,

@@ -345,7 +345,7 @@ impl CoordinatorManipulation {
                 job.id = self.camera(ctx, 0.0)?;
                 job.step = Step::CameraOff;
             }
-            (Step::Locate, Err(r)) if job.look + 1 < self.params.look_poses.len() => {
+            (Step::Look | Step::Locate, Err(r)) if job.look + 1 < self.params.look_poses.len() => {
                 job.look += 1;
                 ctx.note(format!(
                     "{}: not located from the look pose ({r}): from '{}'",
@@ -434,6 +434,9 @@ impl CoordinatorManipulation {
 
     fn cancel(&mut self, ctx: &mut Ctx<'_>, reason: &str) {
         let Some(job) = self.job.take() else { return };
+        if job.kind == Kind::Acquire {
+            let _ = self.camera(ctx, 0.0);
+        }
         let to = match job.step {
             Step::Prepare | Step::Reposition => Some(&self.peers.locomotion),
             Step::Look | Step::Grasp | Step::Place => Some(&self.peers.manipulator),

@@ -104,7 +104,7 @@ pub struct ManipulatorParams {
     /// An arm move is stopped once it runs this long past twice its planned duration, s ...
     pub move_slack_s: f64,
     /// ... and the motion goes on if the tool is within this of the move's goal by then (the
-    /// servos hold a load a few milliradians off their goal), m (and a tenth of this in rad).
+    /// servos hold a load a few milliradians off their goal), m (and ten times this in rad).
     pub arrive_tolerance_m: f64,
     /// Fingers stopped within this of the handle's half width hold it, m.
     pub grip_tolerance_m: f64,
@@ -217,8 +217,16 @@ enum Action {
     Lift,
     /// The object is let go: the manipulator holds nothing.
     Released,
-    /// The arm's motors out of fault (after a blocked set-down stalled one).
-    RecoverArm,
+    /// A joint group's motors out of fault (the arm after a blocked set-down stalled one, the
+    /// gripper before a grasp: a close that stalled faults it).
+    Recover(Group),
+}
+
+/// The joint groups the manipulator commands.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Group {
+    Arm,
+    Gripper,
 }
 
 /// What the command in progress waits for.
@@ -480,15 +488,21 @@ impl ManipulatorControl {
     /// Takes the next action of a job whose wait is over; `Ok(true)` when none is left.
     fn next_action(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<bool, String> {
         let Some(action) = job.actions.pop_front() else { return Ok(true) };
+        // Only a place's descent sets the object down (a failure there lets go early).
+        job.setting_down = false;
         match action {
             Action::Plan(to) => self.start_plan(ctx, job, &to)?,
             Action::Straight { to, contact } => {
                 job.setting_down = contact && self.held.is_some() && job.slot.is_some();
                 self.straight(ctx, job, &to, contact)?
             }
-            Action::RecoverArm => {
-                let id = send(ctx, &self.peers.arm, "recover", serde_json::Value::Null)?;
-                job.wait = Wait::Command(id, "arm recover", None);
+            Action::Recover(group) => {
+                let to = match group {
+                    Group::Arm => &self.peers.arm,
+                    Group::Gripper => &self.peers.gripper,
+                };
+                let id = send(ctx, to, "recover", serde_json::Value::Null)?;
+                job.wait = Wait::Command(id, "recover", None);
             }
             Action::Gripper(to) => {
                 let id = send(ctx, &self.peers.gripper, "move", serde_json::json!({ "positions": to }))?;
@@ -679,7 +693,7 @@ impl ManipulatorControl {
         while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
             job.actions.pop_front();
         }
-        job.actions.push_front(Action::RecoverArm);
+        job.actions.push_front(Action::Recover(Group::Arm));
         job.setting_down = false;
         job.wait = Wait::Idle;
     }
@@ -691,7 +705,7 @@ impl ManipulatorControl {
             Wait::Command(id, what, deadline) => match ctx.ack_status(id) {
                 Some(AckStatus::Completed(_)) => job.wait = Wait::Idle,
                 // Not in fault: nothing to recover.
-                Some(AckStatus::Rejected(_) | AckStatus::Failed(_)) if what == "arm recover" => {
+                Some(AckStatus::Rejected(_) | AckStatus::Failed(_)) if what == "recover" => {
                     job.wait = Wait::Idle
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) if job.setting_down => {
@@ -957,6 +971,7 @@ impl Module for ManipulatorControl {
             let open = vec![m.params.open_m; m.fingers.len()];
             let close = vec![0.0; m.fingers.len()];
             let actions = vec![
+                Action::Recover(Group::Gripper),
                 Action::Gripper(open),
                 Action::Approach,
                 Action::Gripper(close),

@@ -8,8 +8,8 @@ use serde::{Deserialize, Serialize};
 pub struct ManipulationState {
     /// The command in progress (`move_named`, `move_tool`, `grasp`, `place`, `open`, `close`).
     pub command: Option<String>,
-    /// What it waits for: `idle`, `arm move`, `gripper move`, `view` (an image of the object at
-    /// rest).
+    /// What it waits for: `idle`, `arm move`, `gripper move`, `recover` (a joint group's motors
+    /// out of fault), `view` (an image of the object at rest).
     pub step: String,
     /// The tool centre point in `base_link` by the believed kinematics, m.
     pub tool_in_base: Option<Isometry3<f64>>,

@@ -3,8 +3,9 @@
 //! (separating axes) between the arm side (arm links, gripper, a held object) and the body side
 //! (chassis, mast, pan-tilt, rockers, wheels), with a margin; and the arm kept above the ground
 //! plane the wheels stand on. A joint-space segment is checked at samples no farther apart than
-//! a joint step and close enough that no point of the robot moves more than half the margin
-//! between two of them (each joint's step times the longest lever, `LEVER_M`).
+//! a joint step (`step`): with 0.02 rad the tool can move 2-4 cm between samples, more than the
+//! margin, so a thin part could be passed between two samples (a known gap: a finer sampling made
+//! planning too slow for a module's step).
 //!
 //! Written by hand (an oriented-box test is 15 axes): `gnc` does not depend on parry, and boxes
 //! bounding the URDF's cylinders are conservative for the arm's clearance.
@@ -117,10 +118,6 @@ pub struct Held {
     pub shape: CollisionBox,
 }
 
-/// The farthest a point of the arm (or what it holds) is from any of its joint axes, m: the arm's
-/// reach from the first joint to a held canister's far end.
-pub const LEVER_M: f64 = 1.3;
-
 /// The name a held object's contacts carry.
 pub const HELD: &str = "held";
 /// The name an object set down on the body carries.
@@ -230,12 +227,8 @@ impl Clearance {
         held: Option<&Held>,
         placed: bool,
     ) -> Result<Option<(f64, Contact)>, String> {
-        // Samples no farther apart than `step` in any joint, and than half the margin in how far
-        // any point of the robot can move (the joints' steps summed over the longest lever).
         let span = from.iter().zip(to).map(|(a, b)| (b - a).abs()).fold(0.0, f64::max);
-        let sweep: f64 = from.iter().zip(to).map(|(a, b)| (b - a).abs()).sum::<f64>() * LEVER_M;
-        let n = (span / self.params.step).max(sweep / (0.5 * self.params.margin_m).max(1e-3)).ceil().max(1.0)
-            as usize;
+        let n = (span / self.params.step).ceil().max(1.0) as usize;
         for k in 0..=n {
             let s = k as f64 / n as f64;
             let q: Vec<f64> = from.iter().zip(to).map(|(a, b)| a + (b - a) * s).collect();

@@ -1,0 +1,142 @@
+//! ManipulatorControl's parameters (its configuration file's `[params]`) and the arguments of its
+//! commands.
+
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+
+/// How an object is grasped and held.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GraspableObject {
+    /// The handle's centre in the object's frame (its bar along the frame's x), m.
+    pub handle: [f64; 3],
+    /// Half the handle bar's width across the fingers, m: where closing fingers stop on it.
+    pub handle_half_width_m: f64,
+    /// The object's bounding box in its frame: centre and half extents, m (a held object is kept
+    /// clear of the body with it).
+    pub box_center: [f64; 3],
+    /// Half extents of that box, m.
+    pub box_half: [f64; 3],
+}
+
+/// ManipulatorControl parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ManipulatorParams {
+    /// Fastest joint motion, fraction of each joint's velocity limit (the profile's peak).
+    pub speed: f64,
+    /// Joint acceleration limit, rad/s^2.
+    pub acceleration_rad_s2: f64,
+    /// Named arm poses, joint values in the arm's order, rad.
+    pub poses: BTreeMap<String, Vec<f64>>,
+    /// Poses a motion may pass through when its straight path is blocked.
+    pub vias: Vec<String>,
+    /// Smallest gap between the arm (and what it holds) and the body, m.
+    pub margin_m: f64,
+    /// Smallest height of the arm above the wheels' ground plane, m.
+    pub ground_margin_m: f64,
+    /// Joint step between clearance checks along a path, rad.
+    pub check_step_rad: f64,
+    /// Finger position of an open gripper (each finger), m.
+    pub open_m: f64,
+    /// The pre-grasp pose is this far above the handle along the approach, m.
+    pub pregrasp_height_m: f64,
+    /// The descent onto the handle goes in steps of this length, m.
+    pub descent_step_m: f64,
+    /// After a grasp the object is lifted by this much, m.
+    pub lift_m: f64,
+    /// Share of the measured error each servo step corrects, (0, 1].
+    pub servo_gain: f64,
+    /// Longest translation of one servo step, m.
+    pub servo_max_step_m: f64,
+    /// The servo loop ends within this translation ...
+    pub servo_tolerance_m: f64,
+    /// ... and this rotation, deg.
+    pub servo_tolerance_deg: f64,
+    /// Most servo steps of one grasp (0: none, an open-loop grasp from the first view, to measure
+    /// what the servoing is worth).
+    pub max_servo_steps: u32,
+    /// The arm rests this long after a move before an image is taken as its view, s.
+    pub settle_s: f64,
+    /// Longest wait for the wrist camera to see the object, s.
+    pub observe_timeout_s: f64,
+    /// An arm move is stopped once it runs this long past twice its planned duration, s ...
+    pub move_slack_s: f64,
+    /// ... and the motion goes on if the tool is within this of the move's goal by then (the
+    /// servos hold a load a few milliradians off their goal), m (and ten times this in rad).
+    pub arrive_tolerance_m: f64,
+    /// Fingers stopped within this of the handle's half width hold it, m.
+    pub grip_tolerance_m: f64,
+    /// The held object is lowered into the slot from this far above its resting place, m.
+    pub place_height_m: f64,
+    /// The pose the arm goes to after placing an object.
+    pub after_place: String,
+    /// Objects the manipulator can grasp, by kind (the object database's names).
+    pub objects: BTreeMap<String, GraspableObject>,
+}
+
+impl Default for ManipulatorParams {
+    fn default() -> Self {
+        ManipulatorParams {
+            speed: 0.6,
+            acceleration_rad_s2: 2.0,
+            poses: BTreeMap::new(),
+            vias: Vec::new(),
+            margin_m: 0.015,
+            ground_margin_m: 0.05,
+            check_step_rad: 0.02,
+            open_m: 0.04,
+            pregrasp_height_m: 0.12,
+            descent_step_m: 0.02,
+            lift_m: 0.12,
+            servo_gain: 0.8,
+            servo_max_step_m: 0.06,
+            servo_tolerance_m: 0.003,
+            servo_tolerance_deg: 1.5,
+            max_servo_steps: 10,
+            settle_s: 0.3,
+            observe_timeout_s: 4.0,
+            move_slack_s: 3.0,
+            arrive_tolerance_m: 0.005,
+            grip_tolerance_m: 0.004,
+            place_height_m: 0.1,
+            after_place: "stowed".into(),
+            objects: BTreeMap::new(),
+        }
+    }
+}
+
+/// Arguments of `move_named`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MoveNamedArgs {
+    /// The pose's name.
+    pub pose: String,
+}
+
+/// Arguments of `move_tool`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MoveToolArgs {
+    /// The tool centre point in `base_link`, m.
+    pub position: [f64; 3],
+    /// Its orientation, roll, pitch and yaw, deg.
+    pub rpy_deg: [f64; 3],
+}
+
+/// Arguments of `grasp`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GraspArgs {
+    /// The object kind (as the marker tracker names it).
+    pub object: String,
+}
+
+/// Arguments of `place`.
+#[derive(Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaceArgs {
+    /// The link the object is placed on (default `stow_slot`).
+    #[serde(default)]
+    pub slot: Option<String>,
+}

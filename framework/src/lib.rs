@@ -28,6 +28,7 @@ pub mod clock;
 pub mod config;
 pub mod console;
 pub mod data;
+pub mod debugger;
 pub mod estimate;
 pub mod events;
 pub mod exec_context;

@@ -424,6 +424,15 @@ impl<'a> Ctx<'a> {
         self.goto = Some(to);
         Ok(())
     }
+    /// The System Manager's status of module `name` (lifecycle state, isolation, statistics), as a
+    /// supervisor reads it; `None` when the system has no such module.
+    pub fn module_status(&self, name: &str) -> Option<&crate::system::ModuleStatus> {
+        self.core.modules().iter().find(|m| m.name == name).map(|m| self.core.status(m.id))
+    }
+    /// The names of the system's modules, in registration order.
+    pub fn module_names(&self) -> Vec<String> {
+        self.core.modules().iter().map(|m| m.name.clone()).collect()
+    }
     /// The latest value of a slot.
     pub fn read<T: BoardData>(&self, r: &Reader<T>) -> Option<Arc<Stamped<T>>> {
         r.read()

@@ -22,6 +22,7 @@
 //! `stow_canister`), over the algorithms of [`manipulation`].
 //! To come (see DESIGN.md): autonomy.
 
+pub mod autonomy;
 pub mod body;
 pub mod cameras;
 pub mod coordinator_manipulation;

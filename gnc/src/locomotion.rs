@@ -632,7 +632,8 @@ impl Module for Locomotion {
 
     fn on_transition(&mut self, ctx: &mut Ctx<'_>, _from: Lifecycle, to: Lifecycle) -> Result<(), String> {
         match to {
-            Lifecycle::Run if self.token.is_none() => {
+            // A restart after isolation finds its reservation freed: it is taken again.
+            Lifecycle::Run if self.token.as_ref().is_none_or(|t| ctx.validate(t).is_err()) => {
                 let device = self.locomotor.device().to_string();
                 self.token = Some(ctx.acquire(&device).map_err(|e| e.to_string())?);
             }

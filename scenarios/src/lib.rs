@@ -12,6 +12,7 @@ pub mod demo;
 pub mod faults;
 pub mod localization_score;
 pub mod logger;
+pub mod mission;
 pub mod operator;
 pub mod physics_bench;
 pub mod report;

@@ -4,6 +4,7 @@
 use crate::sweep::{Campaign, METRICS, Row, Summary, SweepFile, metric_values};
 use anyhow::Result;
 use plotters::prelude::*;
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
 
@@ -210,7 +211,12 @@ pub fn write(
             m.n, m.mean, m.min, m.p5, m.p50, m.p95, m.max
         )?;
     }
-    writeln!(h, "</table><h2>Success by parameter</h2>")?;
+    writeln!(h, "</table>")?;
+    if let Some(t) = grid_table(out, sweep, rows)? {
+        writeln!(h, "<h2>Outcome by case (grid)</h2><p>Also in <code>grid.csv</code>.</p>")?;
+        h.push_str(&t);
+    }
+    writeln!(h, "<h2>Success by parameter</h2>")?;
     for (k, d) in sweep.dispersions.iter().enumerate() {
         if let Some(s) = success_by_parameter(&d.key, rows, k)? {
             h.push_str(&s);
@@ -234,4 +240,95 @@ pub fn write(
     writeln!(h, "</ul></body></html>")?;
     std::fs::write(out.join("report.html"), h)?;
     Ok(())
+}
+
+/// A grid value as a short label: a command table (`{to, command, args}`) as `to.command(args)`,
+/// anything else as its text.
+fn grid_label(text: &str) -> String {
+    let v = crate::scenario::parse_value(text);
+    let Some(t) = v.as_table() else { return text.trim_matches('"').to_string() };
+    match (t.get("to").and_then(|v| v.as_str()), t.get("command").and_then(|v| v.as_str())) {
+        (Some(to), Some(c)) => {
+            let args = t.get("args").map(|a| a.to_string()).unwrap_or_default();
+            format!("{to}.{c}{}", if args.is_empty() { String::new() } else { format!(" {args}") })
+        }
+        _ => text.to_string(),
+    }
+}
+
+/// One run of a grid, as a table cell: its outcome, the phase that failed and why, the system's
+/// final state and what Autonomy did about faults (from the run's `score.json`).
+pub fn grid_cell(dir: &Path, row: &Row) -> String {
+    let p = crate::sweep::run_dir(dir, row.index).join("score.json");
+    let Ok(score) = std::fs::read_to_string(&p)
+        .map_err(anyhow::Error::from)
+        .and_then(|t| serde_json::from_str::<crate::score::Score>(&t).map_err(anyhow::Error::from))
+    else {
+        return row.outcome.clone();
+    };
+    let mut cell = if score.success { "success".to_string() } else { score.outcome.clone() };
+    if let Some(f) = score.phases.iter().find(|p| !p.success && p.status == crate::score::PhaseStatus::Failed)
+    {
+        cell += &format!("; {} failed: {}", f.name, f.reason.as_deref().unwrap_or("?"));
+    }
+    cell += &format!("; final state {}", score.metrics.final_state);
+    let responses: Vec<String> =
+        score.faults.iter().map(|f| format!("{} ({})", f.response, f.activity)).collect();
+    if !responses.is_empty() {
+        cell += &format!("; autonomy: {}", responses.join(", "));
+    }
+    cell
+}
+
+/// The runs of a sweep with grid dispersions as a matrix: the first grid's values down, the
+/// second's across (one column when there is one grid); `grid.csv` holds the same, one run a line.
+pub fn grid_table(out: &Path, sweep: &SweepFile, rows: &[Row]) -> Result<Option<String>> {
+    let grids: Vec<usize> =
+        sweep.dispersions.iter().enumerate().filter(|(_, d)| d.grid.is_some()).map(|(k, _)| k).collect();
+    let Some(&down) = grids.first() else { return Ok(None) };
+    let across = grids.get(1).copied();
+    let mut csv = csv::Writer::from_path(out.join("grid.csv"))?;
+    let mut head: Vec<String> = grids.iter().map(|&k| sweep.dispersions[k].key.clone()).collect();
+    head.extend(["index", "success", "outcome"].map(String::from));
+    csv.write_record(&head)?;
+    let mut cells: BTreeMap<(String, String), Vec<(bool, String)>> = BTreeMap::new();
+    let (mut downs, mut acrosses) = (Vec::new(), Vec::new());
+    for r in rows {
+        let d = grid_label(&r.values[down]);
+        let a = across.map(|k| grid_label(&r.values[k])).unwrap_or_default();
+        if !downs.contains(&d) {
+            downs.push(d.clone());
+        }
+        if !acrosses.contains(&a) {
+            acrosses.push(a.clone());
+        }
+        let cell = grid_cell(out, r);
+        let mut rec: Vec<String> = grids.iter().map(|&k| grid_label(&r.values[k])).collect();
+        rec.extend([r.index.to_string(), r.success.to_string(), cell.clone()]);
+        csv.write_record(&rec)?;
+        cells.entry((d, a)).or_default().push((r.success, cell));
+    }
+    csv.flush()?;
+    let mut h = String::from("<table border=\"1\" style=\"border-collapse:collapse\"><tr><th></th>");
+    for a in &acrosses {
+        write!(h, "<th>{}</th>", esc(a))?;
+    }
+    h.push_str("</tr>");
+    for d in &downs {
+        write!(h, "<tr><th style=\"text-align:left\">{}</th>", esc(d))?;
+        for a in &acrosses {
+            let list = cells.get(&(d.clone(), a.clone())).cloned().unwrap_or_default();
+            let ok = !list.is_empty() && list.iter().all(|c| c.0);
+            let text: Vec<String> = list.iter().map(|c| esc(&c.1)).collect();
+            write!(
+                h,
+                "<td style=\"text-align:left;background:{}\">{}</td>",
+                if ok { "#dfd" } else { "#fdd" },
+                text.join("<br>")
+            )?;
+        }
+        h.push_str("</tr>");
+    }
+    h.push_str("</table>");
+    Ok(Some(h))
 }

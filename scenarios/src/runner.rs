@@ -8,16 +8,15 @@
 
 use crate::localization_score::LocalizationScorer;
 use crate::logger::RunLogger;
-use crate::scenario::{FidelityName, Loaded, OnFailure, Scenario};
-use crate::score::{CriterionResult, LogFiles, Metrics, PhaseResult, PhaseStatus, Score};
+use crate::mission::{Events, Mission};
+use crate::scenario::{FidelityName, Loaded, Scenario};
+use crate::score::{CriterionResult, LogFiles, Metrics, PhaseResult, Score};
 use anyhow::{Context, Result, anyhow};
 use framework::data::PoseEstimate;
-use framework::{
-    AckStatus, Command, Duration, Endpoint, Executor, Lifecycle, LockstepExecutor, MessageId, Time,
-};
+use framework::{Duration, Executor, Lifecycle, LockstepExecutor, Time};
 use nalgebra::Isometry3;
 use parking_lot::Mutex;
-use std::collections::{BTreeMap, HashSet};
+use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -131,179 +130,6 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     let mut twin = Twin::new(world, config, &twin::rover_urdf(), start, fid)?;
     twin.set_canister_motion(motion);
     Ok(twin)
-}
-
-#[derive(Debug)]
-struct PhaseRun {
-    status: Option<PhaseStatus>,
-    start: Option<Time>,
-    end: Option<Time>,
-    reason: Option<String>,
-}
-
-/// Plays the ground plan: each phase's steps in order, each awaited.
-struct Sequencer {
-    phases: Vec<crate::scenario::Phase>,
-    runs: Vec<PhaseRun>,
-    idx: usize,
-    step: usize,
-    current: Option<(MessageId, Time)>,
-    modules: HashSet<String>,
-    /// Set when the mission ends early: Hold (abort) or Safe.
-    end: Option<Lifecycle>,
-}
-
-impl Sequencer {
-    fn new(phases: &[crate::scenario::Phase], modules: HashSet<String>) -> Self {
-        Sequencer {
-            phases: phases.to_vec(),
-            runs: phases
-                .iter()
-                .map(|_| PhaseRun { status: None, start: None, end: None, reason: None })
-                .collect(),
-            idx: 0,
-            step: 0,
-            current: None,
-            modules,
-            end: None,
-        }
-    }
-
-    fn finished(&self) -> bool {
-        self.idx >= self.phases.len() || self.end.is_some()
-    }
-
-    fn current_name(&self) -> &str {
-        self.phases.get(self.idx).map(|p| p.name.as_str()).unwrap_or("-")
-    }
-
-    fn fail(&mut self, now: Time, reason: String, ground: &Endpoint) {
-        let p = &self.phases[self.idx];
-        if let Some((_, _)) = self.current.take() {
-            // Stop what the failed step was doing (modules without `stop` refuse it harmlessly).
-            let to = &p.steps[self.step].to;
-            let _ = ground.send(Command::new(to.clone(), "stop"));
-        }
-        let r = &mut self.runs[self.idx];
-        r.status = Some(PhaseStatus::Failed);
-        r.end = Some(now);
-        r.reason = Some(reason);
-        match p.on_failure {
-            OnFailure::Continue => {}
-            OnFailure::Abort => self.end = Some(Lifecycle::Hold),
-            OnFailure::Safe => self.end = Some(Lifecycle::Safe),
-        }
-        self.idx += 1;
-        self.step = 0;
-    }
-
-    fn update(&mut self, now: Time, ground: &Endpoint) {
-        while !self.finished() {
-            let p = &self.phases[self.idx];
-            if self.runs[self.idx].start.is_none() {
-                if let Some(missing) = p.steps.iter().find(|s| !self.modules.contains(&s.to)) {
-                    let r = &mut self.runs[self.idx];
-                    r.status = Some(PhaseStatus::NotRun);
-                    r.reason =
-                        Some(format!("needs module '{}', which this system does not have yet", missing.to));
-                    self.idx += 1;
-                    continue;
-                }
-                self.runs[self.idx].start = Some(now);
-                self.step = 0;
-            }
-            if self.step >= p.steps.len() {
-                let r = &mut self.runs[self.idx];
-                r.status = Some(PhaseStatus::Succeeded);
-                r.end = Some(now);
-                self.idx += 1;
-                self.step = 0;
-                continue;
-            }
-            let st = &p.steps[self.step];
-            match self.current {
-                None => {
-                    let args = st
-                        .args
-                        .as_ref()
-                        .map(|a| serde_json::to_value(a).unwrap_or_default())
-                        .unwrap_or(serde_json::Value::Null);
-                    let cmd = Command::new(st.to.clone(), st.command.clone()).json(args).on(st.queue.into());
-                    match ground.send(cmd) {
-                        Ok(id) => self.current = Some((id, now + Duration::from_secs_f64(st.timeout_s))),
-                        Err(e) => {
-                            let reason = format!(
-                                "step {} ({}.{}): cannot send: {e}",
-                                self.step + 1,
-                                st.to,
-                                st.command
-                            );
-                            self.fail(now, reason, ground);
-                        }
-                    }
-                    return;
-                }
-                Some((id, deadline)) => {
-                    let what = format!("step {} ({}.{})", self.step + 1, st.to, st.command);
-                    match ground.status(id) {
-                        Some(AckStatus::Completed(_)) => {
-                            self.current = None;
-                            self.step += 1;
-                            continue;
-                        }
-                        Some(AckStatus::Rejected(r)) => {
-                            self.fail(now, format!("{what} refused: {r}"), ground)
-                        }
-                        Some(AckStatus::Failed(r)) => self.fail(now, format!("{what} failed: {r}"), ground),
-                        _ if now >= deadline => {
-                            let reason = format!("{what} did not complete within {} s", st.timeout_s);
-                            self.fail(now, reason, ground)
-                        }
-                        _ => {}
-                    }
-                    return;
-                }
-            }
-        }
-    }
-
-    /// Ends the plan at `now` (time limit or abort): the phase under way fails, later ones are not run.
-    fn close(&mut self, now: Time, reason: &str) {
-        for (i, r) in self.runs.iter_mut().enumerate() {
-            if r.status.is_none() {
-                if r.start.is_some() {
-                    r.status = Some(PhaseStatus::Failed);
-                    r.end = Some(now);
-                    r.reason = Some(reason.to_string());
-                } else {
-                    r.status = Some(PhaseStatus::NotRun);
-                    r.reason = Some(if i < self.idx {
-                        "skipped".into()
-                    } else {
-                        format!("mission ended first ({reason})")
-                    });
-                }
-            }
-        }
-    }
-
-    fn results(&self) -> Vec<PhaseResult> {
-        self.phases
-            .iter()
-            .zip(&self.runs)
-            .map(|(p, r)| {
-                let status = r.status.clone().unwrap_or(PhaseStatus::NotRun);
-                PhaseResult {
-                    name: p.name.clone(),
-                    success: status == PhaseStatus::Succeeded,
-                    status,
-                    start_s: r.start.map(Time::as_secs_f64),
-                    end_s: r.end.map(Time::as_secs_f64),
-                    reason: r.reason.clone(),
-                }
-            })
-            .collect()
-    }
 }
 
 /// Ground-truth metrics accumulated during the run.
@@ -576,11 +402,8 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     ex.walk_to(Lifecycle::Run).context("bringing the system to Run")?;
     let ground = ex.endpoint("ground")?;
     let events_ep = ex.endpoint("events")?;
-    let modules: HashSet<String> = ex.core().modules().iter().map(|m| m.name.clone()).collect();
-    let mut seq = Sequencer::new(&s.phases, modules);
-    let mut pending_events: Vec<_> = s.events.iter().collect();
-    pending_events.sort_by(|a, b| a.at_s.total_cmp(&b.at_s));
-    let mut pending_events = std::collections::VecDeque::from(pending_events);
+    let mut mission = Mission::new(s, &ex.core().board);
+    let mut events = Events::new(s);
     let pose_reader = ex.core().board.reader::<PoseEstimate>(gnc::localization_fusion::SLOT).ok().flatten();
     let mut scorer = Scorer::new(LocalizationScorer::new(&ex.core().board));
     let limit = Time::from_secs_f64(s.run.time_limit_s);
@@ -596,25 +419,11 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             break;
         }
         let now = step(&mut ex, &twin);
-        while pending_events.front().is_some_and(|e| Time::from_secs_f64(e.at_s) <= now) {
-            let e = pending_events.pop_front().expect("checked");
-            let args =
-                e.args.as_ref().map(|a| serde_json::to_value(a).unwrap_or_default()).unwrap_or_default();
-            if let Err(err) =
-                events_ep.send(Command::new(e.to.clone(), e.command.clone()).json(args).on(e.queue.into()))
-            {
-                ex.core().events.raise(
-                    now,
-                    framework::events::EventKind::Note {
-                        module: "events".into(),
-                        text: format!("timed event {}.{} at {} s not sent: {err}", e.to, e.command, e.at_s),
-                    },
-                );
-            }
-        }
         if now >= settle {
-            seq.update(now, &ground);
+            mission.start(s, &ground);
         }
+        mission.update(&ground);
+        events.send_due(now, &mission, &events_ep, &ex.core().events);
         if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
             abort = Some(e);
             break;
@@ -628,12 +437,12 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
                 "\r[{}] t = {:7.1} s  phase: {:<16} speed: {:5.1}x   ",
                 s.name,
                 now.as_secs_f64(),
-                seq.current_name(),
+                mission.current_name(),
                 now.as_secs_f64() / wall.max(1e-9)
             );
             let _ = std::io::stderr().flush();
         }
-        if seq.finished() {
+        if mission.finished(s) {
             break;
         }
         if now >= limit {
@@ -646,12 +455,12 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     }
     let now = ex.now();
     if let Some(reason) = &abort {
-        seq.close(now, reason);
+        mission.close(now, reason);
     } else if timed_out {
-        seq.close(now, &format!("time limit of {} s reached", s.run.time_limit_s));
+        mission.close(now, &format!("time limit of {} s reached", s.run.time_limit_s));
     }
-    if let Some(to) = seq.end {
-        // The plan asked for Hold (abort) or Safe; a refusal is recorded, the state is what it is.
+    if let Some(to) = mission.end_state() {
+        // Autonomy asked for Hold (abort) or Safe; a refusal is recorded, the state is what it is.
         if let Err(e) = ex.transition(to) {
             ex.core().events.raise(
                 now,
@@ -676,7 +485,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     }
     let now = ex.now();
     let final_state = ex.system_state();
-    let phases = seq.results();
+    let phases = mission.results();
     let reports = ex.reports();
     let t = twin.lock();
     let est = pose_reader.as_ref().and_then(|r| r.read());
@@ -735,6 +544,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         wall_time_s: wall,
         speed: now.as_secs_f64() / wall.max(1e-9),
         phases,
+        faults: mission.faults().to_vec(),
         criteria,
         metrics,
         logs: LogFiles::default(),

@@ -60,6 +60,38 @@ pub struct Scenario {
     pub logging: LoggingSettings,
 }
 
+impl Scenario {
+    /// The ground plan as Autonomy takes it: each phase an activity.
+    pub fn plan(&self) -> framework::data::Plan {
+        use framework::data::{Activity, FailurePolicy, Plan, PlanStep};
+        let step = |st: &Step| PlanStep {
+            to: st.to.clone(),
+            command: st.command.clone(),
+            args: st.args.as_ref().and_then(|a| serde_json::to_value(a).ok()).unwrap_or_default(),
+            timeout_s: st.timeout_s,
+            emergency: st.queue == QueueName::Emergency,
+        };
+        Plan {
+            activities: self
+                .phases
+                .iter()
+                .map(|p| Activity {
+                    name: p.name.clone(),
+                    steps: p.steps.iter().map(step).collect(),
+                    after: p.after.clone(),
+                    retries: p.retries,
+                    recovery: p.recovery.iter().map(step).collect(),
+                    on_failure: match p.on_failure {
+                        OnFailure::Abort => FailurePolicy::Abort,
+                        OnFailure::Continue => FailurePolicy::Continue,
+                        OnFailure::Safe => FailurePolicy::Safe,
+                    },
+                })
+                .collect(),
+        }
+    }
+}
+
 /// The world of a scenario.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -218,7 +250,17 @@ pub struct Phase {
     /// The commands.
     #[serde(default)]
     pub steps: Vec<Step>,
-    /// What happens when a step fails or times out.
+    /// Phases that must have succeeded before this one starts (absent: the phase before it; `[]`:
+    /// none, its order is free).
+    #[serde(default)]
+    pub after: Option<Vec<String>>,
+    /// Times the phase is tried again from its first step after a step fails or times out.
+    #[serde(default)]
+    pub retries: u32,
+    /// Commands run before each retry (a joint group's `recover`, say), each awaited.
+    #[serde(default)]
+    pub recovery: Vec<Step>,
+    /// What happens when it has failed for good (its retries spent).
     #[serde(default)]
     pub on_failure: OnFailure,
 }
@@ -269,12 +311,20 @@ impl From<QueueName> for Queue {
     }
 }
 
-/// A command sent at a given time, whatever the plan is doing (fault injection, context change).
+/// A command sent at a given time, or a given time after a phase started, whatever the plan is
+/// doing (fault injection, context change). Commands on the debug queue go through the Debugger.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct TimedEvent {
-    /// Simulated time, s.
-    pub at_s: f64,
+    /// Simulated time, s (or give `phase`).
+    #[serde(default)]
+    pub at_s: Option<f64>,
+    /// The phase whose (first) start triggers it; never sent if the phase never starts.
+    #[serde(default)]
+    pub phase: Option<String>,
+    /// ... this long after that start, s.
+    #[serde(default)]
+    pub after_s: f64,
     /// Recipient module.
     pub to: String,
     /// Command.
@@ -710,9 +760,41 @@ fn validate(s: &Scenario, files: &[FileText], overrides: &[(String, String)]) ->
             }
         }
     }
+    for (i, p) in s.phases.iter().enumerate() {
+        for (j, a) in p.after.iter().flatten().enumerate() {
+            if !names.contains(a.as_str()) {
+                return err(&format!("phase.{i}.after.{j}"), format!("no phase named '{a}'"));
+            }
+        }
+        for (j, st) in p.recovery.iter().enumerate() {
+            positive(&format!("phase.{i}.recovery.{j}.timeout_s"), st.timeout_s)?;
+        }
+        for (k, list) in [("steps", &p.steps), ("recovery", &p.recovery)] {
+            if let Some(j) = list.iter().position(|st| st.queue == QueueName::Debug) {
+                return err(
+                    &format!("phase.{i}.{k}.{j}.queue"),
+                    "the plan's commands go on the nominal or emergency queue; debug commands are [[event]]s, sent through the Debugger".into(),
+                );
+            }
+        }
+    }
+    if let Err(e) = s.plan().dependencies() {
+        return err("phase", e.replace("activity", "phase"));
+    }
     for (i, e) in s.events.iter().enumerate() {
-        if !(e.at_s.is_finite() && e.at_s >= 0.0) {
-            return err(&format!("event.{i}.at_s"), format!("must be >= 0, got {}", e.at_s));
+        match (e.at_s, &e.phase) {
+            (Some(t), None) if !(t.is_finite() && t >= 0.0) => {
+                return err(&format!("event.{i}.at_s"), format!("must be >= 0, got {t}"));
+            }
+            (Some(_), None) => {}
+            (None, Some(p)) if !names.contains(p.as_str()) => {
+                return err(&format!("event.{i}.phase"), format!("no phase named '{p}'"));
+            }
+            (None, Some(_)) => {}
+            _ => return err(&format!("event.{i}"), "give either at_s or phase (with after_s)".into()),
+        }
+        if !(e.after_s.is_finite() && e.after_s >= 0.0) {
+            return err(&format!("event.{i}.after_s"), format!("must be >= 0, got {}", e.after_s));
         }
     }
     let l = &s.logging;

@@ -131,6 +131,10 @@ pub struct Score {
     pub speed: f64,
     /// Phases in plan order.
     pub phases: Vec<PhaseResult>,
+    /// The faults Autonomy detected during the plan and its responses (retry, restart, continue,
+    /// abort, safe), in order.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub faults: Vec<framework::data::FaultReport>,
     /// Criteria checked.
     pub criteria: Vec<CriterionResult>,
     /// Metrics.

@@ -101,6 +101,11 @@ pub struct Dispersion {
     /// One of these values, equally likely.
     #[serde(default)]
     pub choice: Option<Vec<toml::Value>>,
+    /// Each of these values in turn, drawn by the run index, not at random: the grid dispersions
+    /// of a sweep together enumerate every combination (the first varies fastest), a table of
+    /// cases such as fault kind x mission phase.
+    #[serde(default)]
+    pub grid: Option<Vec<toml::Value>>,
 }
 
 impl Dispersion {
@@ -113,6 +118,9 @@ impl Dispersion {
             toml::Value::Float(Normal::new(n.mean, n.sigma).expect("validated").sample(rng))
         } else if let Some(c) = &self.choice {
             c[rng.random_range(0..c.len())].clone()
+        } else if let Some(g) = &self.grid {
+            // Placed by the run index in `Sweep::plan`; not random.
+            g[0].clone()
         } else {
             unreachable!("validated: one distribution")
         }
@@ -185,15 +193,27 @@ pub fn load(path: &Path) -> Result<Sweep, ConfigError> {
     }
     for (i, d) in file.dispersions.iter().enumerate() {
         let idx = i.to_string();
-        let n = [d.uniform.is_some(), d.uniform_int.is_some(), d.normal.is_some(), d.choice.is_some()]
-            .iter()
-            .filter(|b| **b)
-            .count();
+        let n = [
+            d.uniform.is_some(),
+            d.uniform_int.is_some(),
+            d.normal.is_some(),
+            d.choice.is_some(),
+            d.grid.is_some(),
+        ]
+        .iter()
+        .filter(|b| **b)
+        .count();
         if n != 1 {
             return err(
                 &["dispersion", &idx],
-                format!("'{}' needs exactly one of uniform, uniform_int, normal, choice (has {n})", d.key),
+                format!(
+                    "'{}' needs exactly one of uniform, uniform_int, normal, choice, grid (has {n})",
+                    d.key
+                ),
             );
+        }
+        if d.grid.as_ref().is_some_and(|c| c.is_empty()) {
+            return err(&["dispersion", &idx, "grid"], "needs at least one value".into());
         }
         if let Some([lo, hi]) = d.uniform
             && !(lo.is_finite() && hi.is_finite() && lo < hi)
@@ -280,8 +300,18 @@ impl Sweep {
         let mut overrides: Vec<(String, String)> =
             self.file.sweep.set.iter().map(|(k, v)| (k.clone(), value_text(v))).collect();
         let mut dispersed = Vec::new();
+        let mut stride = 1u64;
         for d in &self.file.dispersions {
-            let v = value_text(&d.draw(&mut rng));
+            let value = match &d.grid {
+                Some(g) => {
+                    let n = g.len() as u64;
+                    let v = g[((index / stride) % n) as usize].clone();
+                    stride = stride.saturating_mul(n);
+                    v
+                }
+                None => d.draw(&mut rng),
+            };
+            let v = value_text(&value);
             overrides.push((d.key.clone(), v.clone()));
             dispersed.push((d.key.clone(), v));
         }
@@ -902,6 +932,26 @@ mod tests {
         let v: f64 = s.plan(2).overrides[0].1.parse().unwrap();
         assert!((0.0..1.0).contains(&v));
         assert!(["\"p\"", "\"q\""].contains(&s.plan(2).overrides[1].1.as_str()));
+    }
+
+    #[test]
+    fn grid_dispersions_enumerate_every_combination_by_run_index() {
+        let text = "[sweep]\nscenario = \"x.toml\"\nruns = 6\n[[dispersion]]\nkey = \"event.0\"\ngrid = [{ to = \"a\", args = { n = 1 } }, { to = \"b\" }]\n[[dispersion]]\nkey = \"event.0.phase\"\ngrid = [\"p\", \"q\", \"r\"]\n[[dispersion]]\nkey = \"c\"\nuniform = [0.0, 1.0]\n";
+        let file: SweepFile = toml::from_str(text).unwrap();
+        let s = Sweep { file, path: "s.toml".into(), scenario_path: "x.toml".into() };
+        let cells: std::collections::BTreeSet<(String, String)> = (0..6)
+            .map(|i| {
+                let o = s.plan(i).overrides;
+                // A table's text reads back as the same table.
+                let v = scenario::parse_value(&o[0].1);
+                assert!(v.as_table().is_some_and(|t| t.contains_key("to")), "{}", o[0].1);
+                (o[0].1.clone(), o[1].1.clone())
+            })
+            .collect();
+        assert_eq!(cells.len(), 6, "{cells:?}");
+        // The first grid varies fastest.
+        assert_eq!(s.plan(0).overrides[1].1, s.plan(1).overrides[1].1);
+        assert_ne!(s.plan(0).overrides[0].1, s.plan(1).overrides[0].1);
     }
 
     #[test]

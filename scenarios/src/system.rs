@@ -46,6 +46,8 @@ pub const MODULES: &[&str] = &[
     "visual_tracking",
     "manipulator_control",
     "manipulation",
+    "autonomy",
+    framework::debugger::NAME,
     faults::NAME,
 ];
 
@@ -290,6 +292,8 @@ fn add_module(
         "locomotion" => b.add(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
         "arm" | "ptu" | "gripper" => b.add(name, JointGroupModule::new(map.joint_group(name)?), config),
         faults::NAME => b.add(name, TwinFaults::new(twin.clone()), config),
+        "autonomy" => b.add(name, gnc::autonomy::Autonomy::new(), config),
+        framework::debugger::NAME => b.add(name, framework::debugger::Debugger::new(), config),
         "cameras" => b.add(
             name,
             gnc::cameras::Cameras::new(

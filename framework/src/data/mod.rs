@@ -115,10 +115,15 @@ pub struct NavigationState {
     pub failures: u32,
 }
 
+mod autonomy;
 mod localization;
 mod manipulation;
 mod maps;
 mod tracking;
+pub use autonomy::{
+    Activity, ActivityReport, ActivityStatus, AutonomyState, FailurePolicy, FaultReport, MissionEnd, Plan,
+    PlanStep,
+};
 pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
 pub use manipulation::ManipulationState;
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};

@@ -6,8 +6,8 @@ use framework::Time;
 use framework::blackboard::SlotCell;
 use framework::camera::{GreyImage, TofFrame};
 use framework::data::{
-    ElevationMap, JointStates, LocomotionState, ManipulationState, MarkerDetections, NavigationMap,
-    ObjectPoses, PoseEstimate, StereoImages, TargetSelection, TargetTrack, VisualOdometry,
+    AutonomyState, ElevationMap, JointStates, LocomotionState, ManipulationState, MarkerDetections,
+    NavigationMap, ObjectPoses, PoseEstimate, StereoImages, TargetSelection, TargetTrack, VisualOdometry,
 };
 use std::any::Any;
 use std::sync::Arc;
@@ -33,6 +33,7 @@ pub(super) enum Known {
     Objects(Arc<Stamped<ObjectPoses>>),
     Track(Arc<Stamped<TargetTrack>>),
     Manipulation(Arc<Stamped<ManipulationState>>),
+    Autonomy(Arc<Stamped<AutonomyState>>),
     Other,
 }
 
@@ -76,6 +77,8 @@ pub(super) fn classify(any: &dyn Any, twin: &Twin) -> Known {
         Known::Track(s)
     } else if let Some(s) = latest::<ManipulationState>(any) {
         Known::Manipulation(s)
+    } else if let Some(s) = latest::<AutonomyState>(any) {
+        Known::Autonomy(s)
     } else {
         Known::Other
     }

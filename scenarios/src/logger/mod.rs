@@ -31,6 +31,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use twin::Twin;
 
+mod autonomy;
 mod framework_log;
 mod images;
 mod known;
@@ -97,6 +98,8 @@ struct Writer {
     last_stats: BTreeMap<String, (u64, i64)>,
     /// A moving target's velocity arrow is drawn (cleared once it is static again).
     target_arrow: bool,
+    /// Autonomy's faults logged so far.
+    autonomy_faults_seen: usize,
 }
 
 /// Records one run. The run loop only takes snapshots (link poses, new blackboard records, new
@@ -159,6 +162,7 @@ impl RunLogger {
             next_track: Time::ZERO,
             last_stats: BTreeMap::new(),
             target_arrow: false,
+            autonomy_faults_seen: 0,
         };
         let world = twin.world().clone();
         let modules: Vec<(String, framework::ModuleKind)> =
@@ -643,6 +647,7 @@ impl Writer {
                 Known::Objects(o) => self.objects(&o.value)?,
                 Known::Track(t) => self.target(&t.value)?,
                 Known::Manipulation(m) => self.manipulation(m.stamp, &m.value)?,
+                Known::Autonomy(a) => self.autonomy(a.stamp, &a.value)?,
                 Known::Other => {}
             }
             // Every slot, known type or not, goes to the MCAP as JSON with its stamp and sequence.

@@ -121,6 +121,9 @@ impl Twin {
         // Called every step: the poses are worked out only when a latch can form (the gripper
         // closes, no latch yet) or a kinematic latch or the kinematic cradle carries the canister.
         let closing = self.gripper_closing();
+        if !closing {
+            self.slipping = false;
+        }
         let kinematic = matches!(self.engine, Engine::Kinematic(_));
         let work = if kinematic {
             closing || self.latched_kinematic.is_some() || self.stowed_kinematic.is_some()
@@ -150,6 +153,15 @@ impl Twin {
         let ids = self.groups.get("gripper").cloned().unwrap_or_default();
         let reached = !ids.is_empty()
             && ids.iter().all(|&s| self.joints[self.servos[s].joint].q <= HANDLE_HALF_WIDTH + TOUCH_M);
+        // An injected slip: this closing, which would hold the handle, lets it go.
+        let latched = self.latch.is_some() || self.latched_kinematic.is_some();
+        if !latched && near && aligned && closing && reached && (self.slipping || self.slip_grasps > 0) {
+            if !self.slipping {
+                self.slip_grasps -= 1;
+                self.slipping = true;
+            }
+            return;
+        }
         if kinematic {
             if self.latched_kinematic.is_none() && near && aligned && closing && reached {
                 self.latched_kinematic = Some(tcp.inverse() * can);

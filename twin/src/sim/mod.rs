@@ -260,6 +260,12 @@ pub struct Twin {
     wheel_cmd: Vec<f64>,
     /// Injected faults: wheels whose drive is jammed (the wheel holds still whatever is commanded).
     stalled: Vec<bool>,
+    /// Injected faults: when each jammed wheel frees itself (a stone caught in it), if it does.
+    unjam_at: Vec<Option<Time>>,
+    /// Injected faults: closings of the gripper on the handle that will not hold (the handle slips
+    /// out), and whether the current closing is one of them.
+    slip_grasps: u32,
+    slipping: bool,
     /// Injected faults: sensor devices that deliver no new data until the given time.
     dropouts: BTreeMap<String, Time>,
     /// Reference wheel angles: the integral of the commanded rates (the drives hold position).
@@ -338,6 +344,9 @@ impl Twin {
             rockers: Vec::new(),
             wheel_cmd: vec![0.0; WHEELS.len()],
             stalled: vec![false; WHEELS.len()],
+            unjam_at: vec![None; WHEELS.len()],
+            slip_grasps: 0,
+            slipping: false,
             dropouts: BTreeMap::new(),
             wheel_ref: vec![0.0; WHEELS.len()],
             servos: Vec::new(),
@@ -446,7 +455,22 @@ impl Twin {
             .position(|w| *w == wheel)
             .ok_or_else(|| format!("no wheel '{wheel}' (have: {})", WHEELS.join(", ")))?;
         self.stalled[k] = stalled;
+        self.unjam_at[k] = None;
         Ok(())
+    }
+
+    /// Fault injection: jams wheel `wheel` until `until`, when it frees itself.
+    pub fn set_wheel_stalled_until(&mut self, wheel: &str, until: Time) -> Result<(), String> {
+        self.set_wheel_stalled(wheel, true)?;
+        let k = WHEELS.iter().position(|w| *w == wheel).expect("checked");
+        self.unjam_at[k] = Some(until);
+        Ok(())
+    }
+
+    /// Fault injection: the next `n` closings of the gripper on the handle do not hold it (the
+    /// handle slips out between the fingers, which close on nothing).
+    pub fn slip_next_grasps(&mut self, n: u32) {
+        self.slip_grasps = n;
     }
 
     /// Which wheels are jammed, [`WHEELS`] order.
@@ -521,6 +545,12 @@ impl Twin {
             Engine::Kinematic(_) => self.step_kinematic(dt),
         }
         self.time += self.dt;
+        for k in 0..WHEELS.len() {
+            if self.unjam_at[k].is_some_and(|t| self.time >= t) {
+                self.stalled[k] = false;
+                self.unjam_at[k] = None;
+            }
+        }
         self.update_measurements();
         let (now, wheels, joints, dropouts) = (self.time, &self.wheels, &self.joints, &self.dropouts);
         self.proprio.step(

@@ -1,0 +1,190 @@
+//! The runner's side of the mission: the ground plan handed to Autonomy (which runs it, seed 004's
+//! decision layer), its progress read back from `autonomy/state` as phase results, and the
+//! scenario's events sent when their time or their phase comes, debug commands through the
+//! Debugger.
+
+use crate::scenario::{QueueName, Scenario, TimedEvent};
+use crate::score::{PhaseResult, PhaseStatus};
+use framework::data::{ActivityStatus, AutonomyState, MissionEnd};
+use framework::events::{EventKind, EventLog};
+use framework::{AckStatus, Command, Endpoint, Lifecycle, MessageId, Reader, Time};
+
+/// The module that runs the plan.
+pub const AUTONOMY: &str = "autonomy";
+
+/// The plan handed to Autonomy and what it reports.
+pub struct Mission {
+    names: Vec<String>,
+    reader: Option<Reader<AutonomyState>>,
+    execute: Option<MessageId>,
+    state: AutonomyState,
+    /// Why the plan could not be run at all.
+    refused: Option<String>,
+    /// Set by [`Mission::close`]: the reason the runner ended the mission.
+    closed: Option<(Time, String)>,
+}
+
+impl Mission {
+    /// A mission of scenario `s`'s phases, progress read from `board`.
+    pub fn new(s: &Scenario, board: &framework::BlackBoard) -> Self {
+        Mission {
+            names: s.phases.iter().map(|p| p.name.clone()).collect(),
+            reader: board.reader::<AutonomyState>(gnc::autonomy::SLOT).ok().flatten(),
+            execute: None,
+            state: AutonomyState::default(),
+            refused: None,
+            closed: None,
+        }
+    }
+
+    /// Hands the plan to Autonomy (once).
+    pub fn start(&mut self, s: &Scenario, ground: &Endpoint) {
+        if self.execute.is_some() || self.refused.is_some() || s.phases.is_empty() {
+            return;
+        }
+        let args = serde_json::to_value(s.plan()).unwrap_or_default();
+        match ground.send(Command::new(AUTONOMY, "execute").json(args)) {
+            Ok(id) => self.execute = Some(id),
+            Err(e) => self.refused = Some(format!("cannot hand the plan to '{AUTONOMY}': {e}")),
+        }
+    }
+
+    /// Reads Autonomy's latest state and the plan's acknowledgement.
+    pub fn update(&mut self, ground: &Endpoint) {
+        if let Some(st) = self.reader.as_ref().and_then(|r| r.read()) {
+            self.state = st.value.clone();
+        }
+        if let Some(AckStatus::Rejected(r)) = self.execute.and_then(|id| ground.status(id)) {
+            self.refused = Some(format!("'{AUTONOMY}' refused the plan: {r}"));
+        }
+    }
+
+    /// True once the plan has ended (every activity run, or the mission ended early), or has no
+    /// phases.
+    pub fn finished(&self, s: &Scenario) -> bool {
+        s.phases.is_empty() || self.refused.is_some() || self.state.end.is_some()
+    }
+
+    /// The phase under way, for progress lines.
+    pub fn current_name(&self) -> &str {
+        self.state.current.as_deref().unwrap_or("-")
+    }
+
+    /// When phase `name` first started, if it has.
+    pub fn started(&self, name: &str) -> Option<f64> {
+        self.state.activity(name).and_then(|a| a.start_s)
+    }
+
+    /// The system state the mission's end asks for (Hold after an abort, Safe).
+    pub fn end_state(&self) -> Option<Lifecycle> {
+        match self.state.end? {
+            MissionEnd::Completed => None,
+            MissionEnd::Aborted => Some(Lifecycle::Hold),
+            MissionEnd::Safe => Some(Lifecycle::Safe),
+        }
+    }
+
+    /// The faults Autonomy detected and its responses.
+    pub fn faults(&self) -> &[framework::data::FaultReport] {
+        &self.state.faults
+    }
+
+    /// Ends the plan at `now` from outside (time limit, abort): the phase under way fails, the
+    /// later ones are not run.
+    pub fn close(&mut self, now: Time, reason: &str) {
+        self.closed = Some((now, reason.to_string()));
+    }
+
+    /// One result per phase, in plan order.
+    pub fn results(&self) -> Vec<PhaseResult> {
+        self.names
+            .iter()
+            .map(|name| {
+                let a = self.state.activity(name);
+                let (mut status, mut reason) = match a.map(|a| a.status) {
+                    Some(ActivityStatus::Succeeded) => (PhaseStatus::Succeeded, None),
+                    Some(ActivityStatus::Failed) => (PhaseStatus::Failed, a.and_then(|a| a.reason.clone())),
+                    Some(ActivityStatus::NotRun) => (PhaseStatus::NotRun, a.and_then(|a| a.reason.clone())),
+                    Some(ActivityStatus::Running) => (PhaseStatus::Failed, None),
+                    Some(ActivityStatus::Pending) | None => (PhaseStatus::NotRun, None),
+                };
+                let mut end_s = a.and_then(|a| a.end_s);
+                if let Some(r) = &self.refused {
+                    (status, reason) = (PhaseStatus::NotRun, Some(r.clone()));
+                } else if reason.is_none() && status != PhaseStatus::Succeeded {
+                    let closed = self.closed.as_ref().map(|(t, r)| (t.as_secs_f64(), r.as_str()));
+                    reason = Some(match (status.clone(), closed) {
+                        (PhaseStatus::Failed, Some((t, r))) => {
+                            end_s = Some(t);
+                            r.to_string()
+                        }
+                        (_, Some((_, r))) => format!("mission ended first ({r})"),
+                        _ => "mission ended first".to_string(),
+                    });
+                }
+                // A success after retries says what the earlier tries met.
+                if status == PhaseStatus::Succeeded && a.is_some_and(|a| a.attempts > 1) {
+                    let a = a.expect("checked");
+                    reason = Some(format!(
+                        "succeeded on attempt {} (before: {})",
+                        a.attempts,
+                        a.reason.as_deref().unwrap_or("a module restarted")
+                    ));
+                }
+                PhaseResult {
+                    name: name.clone(),
+                    success: status == PhaseStatus::Succeeded,
+                    status,
+                    start_s: a.and_then(|a| a.start_s),
+                    end_s,
+                    reason,
+                }
+            })
+            .collect()
+    }
+}
+
+/// The scenario's events not sent yet.
+pub struct Events {
+    pending: Vec<TimedEvent>,
+}
+
+impl Events {
+    /// The events of `s`.
+    pub fn new(s: &Scenario) -> Self {
+        Events { pending: s.events.clone() }
+    }
+
+    /// Sends those whose time has come by `now` (in file order): commands on the debug queue as the
+    /// Debugger's `inject`, the others directly. A send that fails is noted in the event log.
+    pub fn send_due(&mut self, now: Time, mission: &Mission, ep: &Endpoint, log: &EventLog) {
+        let due = |e: &TimedEvent| match (e.at_s, &e.phase) {
+            (Some(t), _) => Some(t),
+            (None, Some(p)) => mission.started(p).map(|t| t + e.after_s),
+            (None, None) => None,
+        };
+        let mut i = 0;
+        while i < self.pending.len() {
+            let Some(t) = due(&self.pending[i]).filter(|t| Time::from_secs_f64(*t) <= now) else {
+                i += 1;
+                continue;
+            };
+            let e = self.pending.remove(i);
+            let args = e.args.as_ref().and_then(|a| serde_json::to_value(a).ok()).unwrap_or_default();
+            let cmd = match e.queue {
+                QueueName::Debug => Command::new(framework::debugger::NAME, "inject")
+                    .json(serde_json::json!({ "to": e.to, "command": e.command, "args": args })),
+                q => Command::new(e.to.clone(), e.command.clone()).json(args).on(q.into()),
+            };
+            if let Err(err) = ep.send(cmd) {
+                log.raise(
+                    now,
+                    EventKind::Note {
+                        module: "events".into(),
+                        text: format!("event {}.{} due at {t} s not sent: {err}", e.to, e.command),
+                    },
+                );
+            }
+        }
+    }
+}

@@ -148,6 +148,7 @@ impl Autonomy {
         };
         ctx.note(format!("plan of {} activities accepted", plan.activities.len()));
         let retries_used = vec![0; plan.activities.len()];
+        self.restarts.clear();
         self.execution = Some(Execution { request, plan, deps, running: None, retries_used });
         Outcome::Accepted
     }
@@ -187,6 +188,7 @@ impl Autonomy {
                 ActivityStatus::Running => {
                     r.status = ActivityStatus::Failed;
                     r.end_s = Some(now);
+                    r.reason = Some(reason.clone().unwrap_or_else(|| "the mission ended".into()));
                 }
                 ActivityStatus::Pending => {
                     r.status = ActivityStatus::NotRun;
@@ -223,6 +225,24 @@ impl Autonomy {
 
     /// The next activity to start, marking those that can never run; `None` when none is left.
     fn next_activity(&mut self, ctx: &Ctx<'_>) -> Option<usize> {
+        // Marking one activity NotRun can block one listed before it: scan until nothing changes.
+        loop {
+            let not_run = self.count(ActivityStatus::NotRun);
+            if let Some(i) = self.scan(ctx) {
+                return Some(i);
+            }
+            if self.count(ActivityStatus::NotRun) == not_run {
+                return None;
+            }
+        }
+    }
+
+    fn count(&self, status: ActivityStatus) -> usize {
+        self.state.activities.iter().filter(|a| a.status == status).count()
+    }
+
+    /// One pass of [`Autonomy::next_activity`] in plan order.
+    fn scan(&mut self, ctx: &Ctx<'_>) -> Option<usize> {
         let ex = self.execution.as_ref()?;
         for i in 0..ex.plan.activities.len() {
             if self.state.activities[i].status != ActivityStatus::Pending {
@@ -241,7 +261,7 @@ impl Autonomy {
                 continue;
             }
             let a = &ex.plan.activities[i];
-            if let Some(s) = a.steps.iter().chain(&a.recovery).find(|s| ctx.module_status(&s.to).is_none()) {
+            if let Some(s) = a.steps.iter().find(|s| ctx.module_status(&s.to).is_none()) {
                 let r = &mut self.state.activities[i];
                 r.status = ActivityStatus::NotRun;
                 r.reason = Some(format!("needs module '{}', which this system does not have yet", s.to));
@@ -249,7 +269,6 @@ impl Autonomy {
             }
             return Some(i);
         }
-        // Anything still pending waits on something pending: cannot happen with checked preconditions.
         None
     }
 
@@ -263,10 +282,17 @@ impl Autonomy {
                     run.awaited = Some(Self::send_step(ctx, &a.steps[k])?);
                     return Ok(run);
                 }
-                Stage::Recovery(k) if k < a.recovery.len() => {
-                    run.awaited = Some(Self::send_step(ctx, &a.recovery[k])?);
-                    return Ok(run);
-                }
+                Stage::Recovery(k) if k < a.recovery.len() => match Self::send_step(ctx, &a.recovery[k]) {
+                    Ok(awaited) => {
+                        run.awaited = Some(awaited);
+                        return Ok(run);
+                    }
+                    Err(e) => {
+                        // A recovery command that cannot be sent (no such module) is skipped.
+                        ctx.note(format!("'{}': {e} (recovery goes on)", a.name));
+                        run.stage = Stage::Recovery(k + 1);
+                    }
+                },
                 Stage::Recovery(_) => run.stage = Stage::Step(0),
                 Stage::Restart { module, to } => {
                     let cmd = Command::new(module.clone(), "lifecycle")
@@ -329,6 +355,10 @@ impl Autonomy {
             let names: Vec<String> = ctx_modules(ctx, &ex.plan);
             (a.name.clone(), names)
         };
+        let Some((id, _, deadline)) = run.awaited.clone() else {
+            self.activity_done(ctx, run);
+            return;
+        };
         // Fault detection: a module isolated in Safe (unless it is being restarted).
         let restarting = match &run.stage {
             Stage::Restart { module, .. } => Some(module.clone()),
@@ -340,10 +370,6 @@ impl Autonomy {
             self.on_isolated(ctx, run, &name, m);
             return;
         }
-        let Some((id, to, deadline)) = run.awaited.clone() else {
-            self.activity_done(ctx, run);
-            return;
-        };
         let what = self.describe(&run);
         let failure = match ctx.ack_status(id) {
             Some(AckStatus::Completed(_)) => {
@@ -367,7 +393,6 @@ impl Autonomy {
             Some(AckStatus::Rejected(r)) => format!("{what} refused: {r}"),
             Some(AckStatus::Failed(r)) => format!("{what} failed: {r}"),
             _ if ctx.now() >= deadline => {
-                let _ = ctx.send(Command::new(to.clone(), "stop").on(Queue::Emergency));
                 format!("{what} did not complete within {} s", self.timeout_of(&run))
             }
             _ => {
@@ -375,6 +400,15 @@ impl Autonomy {
                 return;
             }
         };
+        if let Stage::Recovery(k) = run.stage {
+            // Recovery is best effort (a `recover` refused because nothing is in fault): noted,
+            // the next recovery command runs; the activity's reason stays the step's failure.
+            Self::stop_awaited(ctx, &run);
+            ctx.note(format!("'{name}': {failure} (recovery goes on)"));
+            let run = Running { activity: run.activity, stage: Stage::Recovery(k + 1), awaited: None };
+            self.resume(ctx, run);
+            return;
+        }
         if restarting.is_some() {
             self.fault(ctx, &name, failure.clone(), "safe".into());
             self.fail_activity(ctx, run.activity, failure.clone());
@@ -563,6 +597,11 @@ impl Module for Autonomy {
     fn on_transition(&mut self, ctx: &mut Ctx<'_>, _from: Lifecycle, to: Lifecycle) -> Result<(), String> {
         if matches!(to, Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown) && self.execution.is_some() {
             self.cancel(ctx, &format!("'{}' left Run for {to}", ctx.name()));
+            // The state functions do not run outside Run: the final state is written here.
+            if let Some(w) = &self.writer {
+                let s = self.state.clone();
+                ctx.write(w, s);
+            }
         }
         Ok(())
     }

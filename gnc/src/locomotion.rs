@@ -600,7 +600,8 @@ impl Module for Locomotion {
         });
         d.command("recover", |m, ctx, _: ()| {
             if m.fault.take().is_none() {
-                return Outcome::reject("locomotion is not in fault");
+                // Nothing to recover from: done (as a joint group's `recover` is).
+                return Outcome::Completed(serde_json::json!("not in fault"));
             }
             match ctx.goto("idle") {
                 Ok(()) => Outcome::done(),

@@ -149,13 +149,17 @@ fn activities_run_in_plan_order_and_the_plan_completes() {
 #[test]
 fn a_failed_step_is_recovered_and_retried_and_a_failure_for_good_follows_its_policy() {
     let mut ex = system();
-    // The arm fails twice: with one retry (after `recover`) the first activity still fails, so
+    // The arm fails twice: with one retry (after `recover`; a refused recovery command is passed
+    // over, best effort, and costs no retry) the first activity still fails, so
     // its dependant is not run; the free one still runs; the mission fails without Hold or Safe.
     let plan = r#"
         [[activities]]
         name = "grasp"
         retries = 1
-        recovery = [{ to = "arm", command = "recover", timeout_s = 2.0 }]
+        recovery = [
+            { to = "arm", command = "nonsense", timeout_s = 2.0 },
+            { to = "arm", command = "recover", timeout_s = 2.0 },
+        ]
         on_failure = "continue"
         steps = [{ to = "arm", command = "work", args = { duration_s = 0.5, failures = 2 }, timeout_s = 5.0 }]
         [[activities]]
@@ -246,15 +250,17 @@ fn a_crashed_module_is_restarted_and_the_activity_tried_again_until_the_restarts
     assert!(st.faults[0].response.starts_with("restart 'driver' (1 of 1)"), "{:?}", st.faults);
     assert_eq!(counts(&mut ex, "driver")[0], 2, "worked twice");
 
-    // The restart budget spent (max_restarts = 1): the next crash ends the mission Safe.
-    let mut crashed = false;
+    // A new plan gets its own restart budget (max_restarts = 1): restarted after the first crash,
+    // the second ends the mission Safe.
+    let mut crashes = 0;
     let start = ex.now();
     let (ack, st) = run(&mut ex, plan, 20.0, |ex, now| {
-        if !crashed && now >= start + Duration::from_secs_f64(1.0) {
-            crashed = true;
+        if crashes < 2 && now >= start + Duration::from_secs_f64(1.0 + 1.5 * crashes as f64) {
+            crashes += 1;
             crash(ex);
         }
     });
+    assert_eq!(st.faults[0].response, "restart 'driver' (1 of 1), retry", "{:?}", st.faults);
     assert!(matches!(&ack, AckStatus::Failed(r) if r.contains("no restart left")), "{ack:?}");
     assert_eq!(st.end, Some(MissionEnd::Safe));
     assert_eq!(st.faults.last().unwrap().response, "safe");

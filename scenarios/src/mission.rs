@@ -22,6 +22,8 @@ pub struct Mission {
     refused: Option<String>,
     /// Set by [`Mission::close`]: the reason the runner ended the mission.
     closed: Option<(Time, String)>,
+    /// Autonomy itself failed: nothing supervises the robot any more.
+    lost: bool,
 }
 
 impl Mission {
@@ -34,6 +36,7 @@ impl Mission {
             state: AutonomyState::default(),
             refused: None,
             closed: None,
+            lost: false,
         }
     }
 
@@ -49,20 +52,37 @@ impl Mission {
         }
     }
 
-    /// Reads Autonomy's latest state and the plan's acknowledgement.
-    pub fn update(&mut self, ground: &Endpoint) {
+    /// Reads Autonomy's latest state and the plan's acknowledgement; notices an Autonomy that can
+    /// no longer run the plan (isolated in Safe, or its command failed without an end).
+    pub fn update(&mut self, now: Time, ground: &Endpoint, core: &framework::system::Core) {
         if let Some(st) = self.reader.as_ref().and_then(|r| r.read()) {
             self.state = st.value.clone();
         }
-        if let Some(AckStatus::Rejected(r)) = self.execute.and_then(|id| ground.status(id)) {
-            self.refused = Some(format!("'{AUTONOMY}' refused the plan: {r}"));
+        match self.execute.and_then(|id| ground.status(id)) {
+            Some(AckStatus::Rejected(r)) => {
+                self.refused = Some(format!("'{AUTONOMY}' refused the plan: {r}"))
+            }
+            Some(AckStatus::Failed(r)) if self.state.end.is_none() && self.closed.is_none() => {
+                self.closed = Some((now, format!("'{AUTONOMY}' failed: {r}")));
+                self.lost = true;
+            }
+            _ => {}
+        }
+        let isolated = core
+            .modules()
+            .iter()
+            .find(|m| m.name == AUTONOMY)
+            .is_some_and(|m| core.status(m.id).is_isolated());
+        if isolated && self.state.end.is_none() && self.closed.is_none() {
+            self.closed = Some((now, format!("'{AUTONOMY}' is isolated in Safe: the plan stopped")));
+            self.lost = true;
         }
     }
 
     /// True once the plan has ended (every activity run, or the mission ended early), or has no
     /// phases.
     pub fn finished(&self, s: &Scenario) -> bool {
-        s.phases.is_empty() || self.refused.is_some() || self.state.end.is_some()
+        s.phases.is_empty() || self.refused.is_some() || self.state.end.is_some() || self.closed.is_some()
     }
 
     /// The phase under way, for progress lines.
@@ -77,6 +97,10 @@ impl Mission {
 
     /// The system state the mission's end asks for (Hold after an abort, Safe).
     pub fn end_state(&self) -> Option<Lifecycle> {
+        if self.lost {
+            // Without its decision layer the robot is put in Safe.
+            return Some(Lifecycle::Safe);
+        }
         match self.state.end? {
             MissionEnd::Completed => None,
             MissionEnd::Aborted => Some(Lifecycle::Hold),
@@ -92,7 +116,9 @@ impl Mission {
     /// Ends the plan at `now` from outside (time limit, abort): the phase under way fails, the
     /// later ones are not run.
     pub fn close(&mut self, now: Time, reason: &str) {
-        self.closed = Some((now, reason.to_string()));
+        if self.closed.is_none() {
+            self.closed = Some((now, reason.to_string()));
+        }
     }
 
     /// One result per phase, in plan order.

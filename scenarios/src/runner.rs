@@ -218,6 +218,7 @@ fn canister_stowed(t: &Twin) -> bool {
 
 fn check_criteria(
     s: &Scenario,
+    faults: &[framework::data::FaultReport],
     phases: &[PhaseResult],
     m: &Metrics,
     sc: &Scorer,
@@ -294,6 +295,15 @@ fn check_criteria(
             d <= g.tolerance_m,
             format!("{d:.3} m"),
             format!("<= {} m", g.tolerance_m),
+        );
+    }
+    for want in c.autonomy_responses.iter().flatten() {
+        let lines: Vec<String> = faults.iter().map(|f| format!("{} -> {}", f.fault, f.response)).collect();
+        add(
+            format!("autonomy reports '{want}'"),
+            lines.iter().any(|l| l.contains(want.as_str())),
+            if lines.is_empty() { "no fault reported".into() } else { lines.join("; ") },
+            want.clone(),
         );
     }
     if let Some(want) = c.canister_stowed {
@@ -422,7 +432,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         if now >= settle {
             mission.start(s, &ground);
         }
-        mission.update(&ground);
+        mission.update(now, &ground, ex.core());
         events.send_due(now, &mission, &events_ep, &ex.core().events);
         if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
             abort = Some(e);
@@ -521,7 +531,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             .collect(),
         module_cpu_s: reports.iter().map(|r| (r.name.clone(), r.stats.exec_total_ns as f64 * 1e-9)).collect(),
     };
-    let criteria = check_criteria(s, &phases, &metrics, &scorer, final_state, &t);
+    let criteria = check_criteria(s, mission.faults(), &phases, &metrics, &scorer, final_state, &t);
     let success = abort.is_none() && criteria.iter().all(|c| c.passed);
     let wall = wall0.elapsed().as_secs_f64();
     let mut score = Score {

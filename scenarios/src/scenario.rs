@@ -78,7 +78,8 @@ impl Scenario {
                 .map(|p| Activity {
                     name: p.name.clone(),
                     steps: p.steps.iter().map(step).collect(),
-                    after: p.after.clone(),
+                    // In file order, whatever the earlier phases' ends, unless preconditions are named.
+                    after: Some(p.after.clone().unwrap_or_default()),
                     retries: p.retries,
                     recovery: p.recovery.iter().map(step).collect(),
                     on_failure: match p.on_failure {
@@ -250,8 +251,9 @@ pub struct Phase {
     /// The commands.
     #[serde(default)]
     pub steps: Vec<Step>,
-    /// Phases that must have succeeded before this one starts (absent: the phase before it; `[]`:
-    /// none, its order is free).
+    /// Phases that must have succeeded before this one starts (else it is not run). Phases run one
+    /// at a time in file order, each once those before it have ended, whatever their end (a
+    /// phase after a failed `continue` one still runs unless it names it here).
     #[serde(default)]
     pub after: Option<Vec<String>>,
     /// Times the phase is tried again from its first step after a step fails or times out.
@@ -396,6 +398,10 @@ pub struct Criteria {
     /// The rover (truth) must move less than this after `after_s`, m (it stopped on a fault).
     #[serde(default)]
     pub max_travel_after: Option<TravelAfter>,
+    /// Each text must appear in one of Autonomy's fault reports (`<fault> -> <response>`): the
+    /// fault was detected and handled that way (`"restart 'navigator'"`, `"-> retry"`).
+    #[serde(default)]
+    pub autonomy_responses: Option<Vec<String>>,
 }
 
 /// How near the canister the rover must end, and how straight it must face it.

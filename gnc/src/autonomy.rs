@@ -76,6 +76,8 @@ impl Default for AutonomyParams {
 enum Stage {
     /// Its step `k`.
     Step(usize),
+    /// Waiting until the time given before the next try's recovery.
+    Wait(Time),
     /// Its recovery command `k`, before the next try.
     Recovery(usize),
     /// A restart of `module`: its lifecycle command towards `to`.
@@ -294,6 +296,10 @@ impl Autonomy {
                     }
                 },
                 Stage::Recovery(_) => run.stage = Stage::Step(0),
+                Stage::Wait(_) => {
+                    run.awaited = None;
+                    return Ok(run);
+                }
                 Stage::Restart { module, to } => {
                     let cmd = Command::new(module.clone(), "lifecycle")
                         .json(serde_json::json!({ "to": to }))
@@ -355,6 +361,15 @@ impl Autonomy {
             let names: Vec<String> = ctx_modules(ctx, &ex.plan);
             (a.name.clone(), names)
         };
+        if let Stage::Wait(until) = run.stage {
+            if ctx.now() >= until {
+                run.stage = Stage::Recovery(0);
+                self.resume(ctx, run);
+            } else {
+                self.put_back(run);
+            }
+            return;
+        }
         let Some((id, _, deadline)) = run.awaited.clone() else {
             self.activity_done(ctx, run);
             return;
@@ -376,6 +391,7 @@ impl Autonomy {
                 run.stage = match run.stage {
                     Stage::Step(k) => Stage::Step(k + 1),
                     Stage::Recovery(k) => Stage::Recovery(k + 1),
+                    Stage::Wait(_) => Stage::Recovery(0),
                     Stage::Restart { module, to: Lifecycle::Standby } => {
                         Stage::Restart { module, to: Lifecycle::Hold }
                     }
@@ -450,6 +466,7 @@ impl Autonomy {
                 .get(*k)
                 .map_or_else(String::new, |s| format!("recovery {} ({}.{})", k + 1, s.to, s.command)),
             Stage::Restart { module, to } => format!("restart of '{module}' ({to})"),
+            Stage::Wait(_) => "the wait before a retry".into(),
         }
     }
 
@@ -460,6 +477,7 @@ impl Autonomy {
             Stage::Step(k) => a.steps.get(*k).map_or(0.0, |s| s.timeout_s),
             Stage::Recovery(k) => a.recovery.get(*k).map_or(0.0, |s| s.timeout_s),
             Stage::Restart { .. } => self.params.restart_timeout_s,
+            Stage::Wait(_) => 0.0,
         }
     }
 
@@ -504,7 +522,7 @@ impl Autonomy {
         Self::stop_awaited(ctx, &run);
         let ex = self.execution.as_mut().expect("running without a plan");
         let a = &ex.plan.activities[run.activity];
-        let (retries, policy) = (a.retries, a.on_failure);
+        let (retries, policy, delay) = (a.retries, a.on_failure, a.retry_delay_s);
         let used = &mut ex.retries_used[run.activity];
         if *used < retries {
             *used += 1;
@@ -513,7 +531,8 @@ impl Autonomy {
             let r = &mut self.state.activities[run.activity];
             r.attempts += 1;
             r.reason = Some(failure);
-            let run = Running { activity: run.activity, stage: Stage::Recovery(0), awaited: None };
+            let until = ctx.now() + Duration::from_secs_f64(delay);
+            let run = Running { activity: run.activity, stage: Stage::Wait(until), awaited: None };
             self.resume(ctx, run);
             return;
         }

@@ -183,13 +183,18 @@ fn a_failed_step_is_recovered_and_retried_and_a_failure_for_good_follows_its_pol
     assert_eq!(responses, ["retry (1 of 1)", "continue"]);
     assert_eq!(counts(&mut ex, "arm")[1], 1, "recovered once");
 
-    // The same failing once: the retry succeeds.
+    // The same failing once, retried after a wait: the retry succeeds.
     let mut ex = system();
-    let plan = plan.replace("failures = 2", "failures = 1");
+    let plan = plan
+        .replace("failures = 2", "failures = 1")
+        .replace("retries = 1", "retries = 1\nretry_delay_s = 1.5");
     let (ack, st) = run(&mut ex, &plan, 10.0, |_, _| {});
     assert!(matches!(ack, AckStatus::Completed(_)), "{ack:?}");
     let g = st.activity("grasp").unwrap();
     assert_eq!((g.status, g.attempts), (ActivityStatus::Succeeded, 2));
+    // The wait, then the work's 0.5 s.
+    let waited = g.end_s.unwrap() - st.faults[0].at_s;
+    assert!(waited >= 2.0 && waited < 2.5, "{waited} s from the failure to the end");
 }
 
 #[test]

@@ -512,6 +512,15 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         canister_bearing_deg: canister_from_rover(&t).map(|c| c.1),
         collisions: t.collisions(),
         self_collisions: t.self_collisions(),
+        contacts: t
+            .contact_events()
+            .iter()
+            .take(20)
+            .map(|c| {
+                let kind = if c.self_collision { "self-collision" } else { "collision" };
+                format!("{:.2} s {kind}: {} / {}", c.t_s, c.parts[0], c.parts[1])
+            })
+            .collect(),
         grasp_position_error_m: t.grasp_truth().map(|g| g.position_error_m),
         grasp_angle_error_deg: t.grasp_truth().map(|g| g.angle_error_deg),
         max_tilt_deg: scorer.max_tilt,

@@ -81,6 +81,7 @@ impl Scenario {
                     // In file order, whatever the earlier phases' ends, unless preconditions are named.
                     after: Some(p.after.clone().unwrap_or_default()),
                     retries: p.retries,
+                    retry_delay_s: p.retry_delay_s,
                     recovery: p.recovery.iter().map(step).collect(),
                     on_failure: match p.on_failure {
                         OnFailure::Abort => FailurePolicy::Abort,
@@ -259,6 +260,9 @@ pub struct Phase {
     /// Times the phase is tried again from its first step after a step fails or times out.
     #[serde(default)]
     pub retries: u32,
+    /// Wait before each retry, s (a transient fault may clear).
+    #[serde(default)]
+    pub retry_delay_s: f64,
     /// Commands run before each retry (a joint group's `recover`, say), each awaited.
     #[serde(default)]
     pub recovery: Vec<Step>,

@@ -76,6 +76,9 @@ pub struct Metrics {
     pub collisions: u64,
     /// Self-collisions: the arm, the gripper or a held canister against the rover's body.
     pub self_collisions: u64,
+    /// When and between which parts each counted contact began (the first 20).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub contacts: Vec<String>,
     /// The latest grasp of the canister: the handle's distance from the tool centre point, m.
     pub grasp_position_error_m: Option<f64>,
     /// The latest grasp: the handle's rotation from the nominal grasp, degrees.

@@ -32,6 +32,18 @@ pub struct ContactTruth {
     pub depth: f64,
 }
 
+/// A contact the twin counted: the rover against a rock or an object (a collision), or the arm
+/// side (or a held canister) against the body side (a self-collision).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ContactEvent {
+    /// When it began, simulated s.
+    pub t_s: f64,
+    /// A self-collision (else a collision).
+    pub self_collision: bool,
+    /// The two parts (collider or link names, `rover footprint` in kinematic fidelity).
+    pub parts: [String; 2],
+}
+
 /// How the canister's handle sits in the gripper: its pose in the tool-centre-point frame against
 /// the nominal grasp (handle centred between the fingers, its narrow axis along the closing axis,
 /// its top towards the palm; either of the two symmetric ways round).

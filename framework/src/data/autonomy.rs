@@ -42,6 +42,9 @@ pub struct Activity {
     /// recovery commands).
     #[serde(default)]
     pub retries: u32,
+    /// Wait before each retry, s (a transient fault, a wheel jammed by a stone, may clear).
+    #[serde(default)]
+    pub retry_delay_s: f64,
     /// Commands run before each retry (e.g. a joint group's `recover`), each awaited; a failing one
     /// ends the activity.
     #[serde(default)]
@@ -162,6 +165,9 @@ impl Plan {
             if index(&a.name) != Some(i) {
                 return Err(format!("two activities are named '{}'", a.name));
             }
+            if !(a.retry_delay_s.is_finite() && a.retry_delay_s >= 0.0) {
+                return Err(format!("activity '{}': retry_delay_s {} must be >= 0", a.name, a.retry_delay_s));
+            }
             for s in a.steps.iter().chain(&a.recovery) {
                 if !(s.timeout_s.is_finite() && s.timeout_s > 0.0) {
                     return Err(format!(
@@ -215,6 +221,7 @@ mod tests {
             steps: vec![],
             after: after.map(|a| a.iter().map(|s| s.to_string()).collect()),
             retries: 0,
+            retry_delay_s: 0.0,
             recovery: vec![],
             on_failure: FailurePolicy::Abort,
         }

@@ -119,9 +119,12 @@ impl Twin {
                     .any(|c| (c.x - k.x) * dx + (c.y - k.y) * dy > 0.0)
             }
         };
+        let mut new_hits = Vec::new();
         for &h in &hits {
             if !self.blocked_by.contains(&h) {
                 self.collisions += 1;
+                new_hits
+                    .push(self.obstacles.get(h).map_or_else(|| format!("obstacle {h}"), |o| o.name.clone()));
             }
         }
         self.blocked_by = hits;
@@ -137,6 +140,9 @@ impl Twin {
         (k.x, k.y, k.yaw, k.twist) = (x, y, yaw, twist);
         k.prev_base = k.base;
         k.base = base;
+        for name in new_hits {
+            self.log_contact(false, "rover footprint", &name);
+        }
     }
 
     /// Kinematic fidelity: if the joints' new positions put the arm side into the body side, the
@@ -162,7 +168,11 @@ impl Twin {
             }
         }
         let now: std::collections::BTreeSet<(String, String)> = hit.iter().cloned().collect();
-        self.self_collisions += now.difference(&self.self_touching).count() as u64;
+        let new: Vec<(String, String)> = now.difference(&self.self_touching).cloned().collect();
+        self.self_collisions += new.len() as u64;
+        for (a, b) in &new {
+            self.log_contact(true, a, b);
+        }
         self.self_touching = now;
         let Some((a, b)) = hit else { return };
         let mut moved: Vec<&'static str> = Vec::new();
@@ -296,9 +306,19 @@ impl Twin {
                 self_now.insert(("canister".to_string(), b));
             }
         }
-        self.collisions += now.difference(&self.touching).count() as u64;
+        let new: Vec<(usize, usize)> = now.difference(&self.touching).copied().collect();
+        self.collisions += new.len() as u64;
+        for (a, b) in new {
+            let name = |k: usize| self.tags.get(k).map_or_else(String::new, |t| t.name.clone());
+            let (a, b) = (name(a), name(b));
+            self.log_contact(false, &a, &b);
+        }
         self.touching = now;
-        self.self_collisions += self_now.difference(&self.self_touching).count() as u64;
+        let new: Vec<(String, String)> = self_now.difference(&self.self_touching).cloned().collect();
+        self.self_collisions += new.len() as u64;
+        for (a, b) in &new {
+            self.log_contact(true, a, b);
+        }
         self.self_touching = self_now;
     }
 

@@ -289,6 +289,8 @@ pub struct Twin {
     /// Contacts of the arm side (or a held canister) with the rover's body since the start.
     self_collisions: u64,
     self_touching: std::collections::BTreeSet<(String, String)>,
+    /// Each new contact counted above, in order (ground truth, for the score's triage).
+    contact_log: Vec<crate::truth::ContactEvent>,
     /// The latest grasp: how the handle sat in the gripper when it latched.
     grasp: Option<crate::truth::GraspTruth>,
     /// Kinematic fidelity: a released canister resting in the stowage cradle, its pose there.
@@ -370,6 +372,7 @@ impl Twin {
             touching: Default::default(),
             self_collisions: 0,
             self_touching: Default::default(),
+            contact_log: Vec::new(),
             grasp: None,
             stowed_kinematic: None,
             cradle_clamp: None,
@@ -600,6 +603,23 @@ impl Twin {
     /// with the rover's body (chassis, mast, pan-tilt, rockers, wheels) since the start.
     pub fn self_collisions(&self) -> u64 {
         self.self_collisions
+    }
+
+    /// Every new contact counted by [`Twin::collisions`] and [`Twin::self_collisions`], in order:
+    /// when, which parts.
+    pub fn contact_events(&self) -> &[crate::truth::ContactEvent] {
+        &self.contact_log
+    }
+
+    fn log_contact(&mut self, self_collision: bool, a: &str, b: &str) {
+        // Bounded: a run that scrapes along a rock for minutes keeps its first contacts.
+        if self.contact_log.len() < 1000 {
+            self.contact_log.push(crate::truth::ContactEvent {
+                t_s: self.time.as_secs_f64(),
+                self_collision,
+                parts: [a.to_string(), b.to_string()],
+            });
+        }
     }
 
     /// True when nothing blocks the segment from `a` to `b` (world frame): not the terrain, a rock,

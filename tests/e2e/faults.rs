@@ -1,0 +1,72 @@
+//! End-to-end: faults injected into the flat canister mission (`scenarios/faults/*.toml`, kinematic)
+//! through the Debugger are detected and recovered by Autonomy, and the mission still succeeds; a
+//! Mission-context run refuses the injection.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn run(scenario: &str, out: &Path, extra: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_rover-twin"))
+        .arg("run")
+        .arg(root().join("scenarios/faults").join(scenario))
+        .arg("--out")
+        .arg(out)
+        .args(["--quiet", "--set", "logging.rrd=false", "--set", "logging.mcap=false"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn show(o: &Output) -> String {
+    format!(
+        "stdout:\n{}\nstderr:\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    )
+}
+
+fn score(out: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
+}
+
+fn responses(s: &serde_json::Value) -> Vec<String> {
+    s["faults"]
+        .as_array()
+        .map(|f| f.iter().map(|f| format!("{} -> {}", f["fault"], f["response"])).collect())
+        .unwrap_or_default()
+}
+
+#[test]
+fn a_navigator_crash_during_the_approach_is_restarted_and_the_mission_succeeds() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run("module_crash.toml", dir.path(), &[]);
+    let s = score(dir.path());
+    assert_eq!(o.status.code(), Some(0), "{}\n{s}", show(&o));
+    assert!(s["metrics"]["isolated_modules"]["navigator"].is_string(), "{s}");
+    let r = responses(&s);
+    assert!(
+        r.iter().any(|r| r.contains("'navigator' is isolated") && r.contains("restart 'navigator'")),
+        "{r:?}"
+    );
+    assert_eq!(s["metrics"]["canister_stowed"], true);
+}
+
+#[test]
+fn an_arm_servo_trip_during_the_acquisition_is_recovered_and_the_mission_succeeds() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run("arm_joint_fault.toml", dir.path(), &[]);
+    let s = score(dir.path());
+    assert_eq!(o.status.code(), Some(0), "{}\n{s}", show(&o));
+    assert!(responses(&s).iter().any(|r| r.contains("is in fault") && r.contains("retry")), "{s}");
+
+    // The same scenario in a Mission context: the Debugger refuses to inject, nothing happens.
+    let dir = tempfile::tempdir().unwrap();
+    let o = run("arm_joint_fault.toml", dir.path(), &["--set", "run.purpose=\"mission\""]);
+    let s = score(dir.path());
+    assert_eq!(o.status.code(), Some(0), "{}\n{s}", show(&o));
+    assert!(responses(&s).is_empty(), "{s}");
+}

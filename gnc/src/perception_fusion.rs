@@ -15,9 +15,7 @@
 //!   known cells, or fails with the pan-tilt unit's reason. Without poses, the configured scan.
 //! - `reset`: forgets the map.
 
-use crate::navigation::fusion::{
-    FusionParams, PlacementVariance, fill_blind_area, fuse, new_ages, realign_stale, touch_ages,
-};
+use crate::navigation::fusion::{FusionParams, PlacementVariance, fill_blind_area, fuse};
 use framework::data::{ElevationMap, GridGeometry, PoseEstimate};
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
@@ -87,8 +85,6 @@ pub struct PerceptionDataFusion {
     pose: Option<Reader<PoseEstimate>>,
     out: Option<Writer<ElevationMap>>,
     map: Option<ElevationMap>,
-    /// When each cell of the map was last measured (its stale part is re-registered in height).
-    ages: Option<Vec<f64>>,
     last_local: u64,
     last_local_stamp: Option<Time>,
     last_publish: Option<Time>,
@@ -110,7 +106,6 @@ impl PerceptionDataFusion {
             pose: None,
             out: None,
             map: None,
-            ages: None,
             last_local: 0,
             last_local_stamp: None,
             last_publish: None,
@@ -147,13 +142,7 @@ impl PerceptionDataFusion {
             let cells = (p.size_m / g.resolution_m).round() as usize;
             ElevationMap::unknown(GridGeometry::centred(&g.frame, centre, g.resolution_m, cells, cells))
         });
-        let now_s = local.stamp.as_secs_f64();
-        let ages = self.ages.get_or_insert_with(|| new_ages(map));
-        if let Some(d) = realign_stale(map, ages, now_s, &local.value, &p.fusion) {
-            ctx.note(format!("the map's stale cells moved {:+.3} m in height onto the new view", d));
-        }
         let report = fuse(map, &local.value, placement, &p.fusion);
-        touch_ages(map, ages, now_s, &local.value);
         self.last_shift_m = report.shift_m;
         fill_blind_area(map, centre, &p.fusion);
         self.dirty = true;
@@ -276,7 +265,6 @@ impl Module for PerceptionDataFusion {
         });
         d.command("reset", |m, _ctx, _: ()| {
             m.map = None;
-            m.ages = None;
             m.dirty = false;
             Outcome::done()
         });

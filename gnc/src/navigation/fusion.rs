@@ -26,13 +26,6 @@ pub struct FusionParams {
     /// shifted vertically by the median height difference over them: the pose estimate's height
     /// drifts, and a map re-observed after a drift would otherwise meet itself at a false step.
     pub align_min_cells: usize,
-    /// Cells not measured for this long are stale, s: when a local map meets stale cells at a
-    /// consistent height offset (the pose estimate's height drifted since they were mapped, a
-    /// rover coming back), every stale cell is moved by that offset before fusing, so the old map
-    /// joins the new one without a patchwork of false steps.
-    pub stale_after_s: f64,
-    /// ... when the offset is larger than this, m.
-    pub stale_shift_min_m: f64,
 }
 
 impl Default for FusionParams {
@@ -44,8 +37,6 @@ impl Default for FusionParams {
             fill_sigma_per_m: 0.05,
             fill_iterations: 150,
             align_min_cells: 50,
-            stale_after_s: 30.0,
-            stale_shift_min_m: 0.02,
         }
     }
 }
@@ -83,24 +74,6 @@ fn vertical_offset(
     offset: (i64, i64),
     min_cells: usize,
 ) -> Option<f64> {
-    median_difference(global, local, offset, min_cells, |_| true)
-}
-
-/// When each cell of a global map was last measured (simulated s; NaN: never), kept beside it by
-/// its owner.
-pub fn new_ages(global: &ElevationMap) -> Vec<f64> {
-    vec![f64::NAN; global.height.len()]
-}
-
-/// The median of `local - global` over the overlapping measured cells that `pick` accepts (by their
-/// age), if at least `min_cells` are.
-fn median_difference(
-    global: &ElevationMap,
-    local: &ElevationMap,
-    offset: (i64, i64),
-    min_cells: usize,
-    pick: impl Fn(usize) -> bool,
-) -> Option<f64> {
     let lg = &local.geometry;
     let mut d = Vec::new();
     for j in 0..lg.height {
@@ -112,7 +85,6 @@ fn median_difference(
             if let Some(g) = to_global(&global.geometry, offset, i, j)
                 && global.count[g] > 0
                 && global.height[g].is_finite()
-                && pick(g)
             {
                 d.push(f64::from(local.height[k]) - f64::from(global.height[g]));
             }
@@ -123,53 +95,6 @@ fn median_difference(
     }
     d.sort_by(f64::total_cmp);
     Some(d[d.len() / 2])
-}
-
-/// Re-registers the stale part of `global` (cells measured more than `stale_after_s` before
-/// `now_s`, by `ages`) onto `local` in height: the offset of the stale cells under `local` (after
-/// `local` is put onto the recent cells, when it overlaps enough of them) is applied to every stale
-/// cell when it exceeds `stale_shift_min_m`. Returns the shift applied, m.
-pub fn realign_stale(
-    global: &mut ElevationMap,
-    ages: &[f64],
-    now_s: f64,
-    local: &ElevationMap,
-    p: &FusionParams,
-) -> Option<f64> {
-    let offset = local.geometry.offset_to(&global.geometry)?;
-    let stale = |g: usize| ages.get(g).is_some_and(|&t| t.is_finite() && now_s - t > p.stale_after_s);
-    let recent = median_difference(global, local, offset, p.align_min_cells, |g| !stale(g)).unwrap_or(0.0);
-    let delta = median_difference(global, local, offset, p.align_min_cells, stale)? - recent;
-    if delta.abs() <= p.stale_shift_min_m {
-        return None;
-    }
-    let d = delta as f32;
-    for g in 0..global.height.len() {
-        if stale(g) && global.count[g] > 0 {
-            global.height[g] += d;
-            global.min[g] += d;
-            global.max[g] += d;
-        }
-    }
-    Some(delta)
-}
-
-/// Marks the cells of `global` that `local` measured as measured at `now_s`.
-pub fn touch_ages(global: &ElevationMap, ages: &mut [f64], now_s: f64, local: &ElevationMap) {
-    let Some(offset) = local.geometry.offset_to(&global.geometry) else { return };
-    let lg = &local.geometry;
-    for j in 0..lg.height {
-        for i in 0..lg.width {
-            let k = lg.index(i, j);
-            if local.count[k] > 0
-                && local.height[k].is_finite()
-                && let Some(g) = to_global(&global.geometry, offset, i, j)
-                && let Some(a) = ages.get_mut(g)
-            {
-                *a = now_s;
-            }
-        }
-    }
 }
 
 /// Fuses `local` into `global` (same frame and resolution, aligned cells), after shifting it
@@ -426,29 +351,6 @@ mod tests {
         let report = fuse(&mut global, &lifted, PlacementVariance::default(), &aligning);
         assert!((report.shift_m - 0.12).abs() < 1e-5, "{report:?}");
         assert!((global.height[k] - 1.5).abs() < 1e-5);
-        // Placement uncertainty on a slope inflates the variance (below).
-        //
-        // A rover back on ground it mapped long ago, its height estimate drifted by -0.11 m since:
-        // the recent strip (mapped at the drifted height) and the stale rest meet the new view at
-        // different heights; the stale rest is moved onto it, and no false step remains.
-        let mut old = ElevationMap::unknown(GridGeometry::centred("map", [0.0, 0.0], 0.1, 20, 20));
-        let whole = plane(&old.geometry.clone(), |_, _| 0.0);
-        fuse(&mut old, &whole, PlacementVariance::default(), &p);
-        let mut ages = new_ages(&old);
-        touch_ages(&old, &mut ages, 0.0, &whole);
-        let strip = plane(&GridGeometry::centred("map", [-0.6, 0.0], 0.1, 8, 20), |_, _| -0.11);
-        let replace = FusionParams { align_min_cells: 100_000, ..p.clone() };
-        fuse(&mut old, &strip, PlacementVariance::default(), &replace);
-        touch_ages(&old, &mut ages, 100.0, &strip);
-        let view = plane(&GridGeometry::centred("map", [0.0, 0.0], 0.1, 14, 20), |_, _| -0.11);
-        let shift = realign_stale(&mut old, &ages, 101.0, &view, &aligning).expect("a stale offset");
-        assert!((shift + 0.11).abs() < 1e-5, "{shift}");
-        fuse(&mut old, &view, PlacementVariance::default(), &aligning);
-        let known: Vec<f32> =
-            old.height.iter().zip(&old.count).filter(|(_, c)| **c > 0).map(|(h, _)| *h).collect();
-        assert!(known.iter().all(|h| (h + 0.11).abs() < 1e-4), "{known:?}");
-        // Nothing stale, or too small an offset: nothing moves.
-        assert_eq!(realign_stale(&mut old, &ages, 101.0, &view, &aligning), None);
         // Placement uncertainty on a slope inflates the variance.
         let mut g2 = ElevationMap::unknown(g);
         let s = plane(&local, |x, _| 0.5 * x);

@@ -194,7 +194,7 @@ fn a_failed_step_is_recovered_and_retried_and_a_failure_for_good_follows_its_pol
     assert_eq!((g.status, g.attempts), (ActivityStatus::Succeeded, 2));
     // The wait, then the work's 0.5 s.
     let waited = g.end_s.unwrap() - st.faults[0].at_s;
-    assert!(waited >= 2.0 && waited < 2.5, "{waited} s from the failure to the end");
+    assert!((2.0..2.5).contains(&waited), "{waited} s from the failure to the end");
 }
 
 #[test]

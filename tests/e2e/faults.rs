@@ -63,10 +63,15 @@ fn an_arm_servo_trip_during_the_acquisition_is_recovered_and_the_mission_succeed
     assert_eq!(o.status.code(), Some(0), "{}\n{s}", show(&o));
     assert!(responses(&s).iter().any(|r| r.contains("is in fault") && r.contains("retry")), "{s}");
 
-    // The same scenario in a Mission context: the Debugger refuses to inject, nothing happens.
+    // The same scenario in a Mission context: the Debugger refuses to inject, nothing happens; the
+    // mission succeeds but the scenario's criterion (the fault handled) is not met: exit 1.
     let dir = tempfile::tempdir().unwrap();
     let o = run("arm_joint_fault.toml", dir.path(), &["--set", "run.purpose=\"mission\""]);
     let s = score(dir.path());
-    assert_eq!(o.status.code(), Some(0), "{}\n{s}", show(&o));
+    assert_eq!(o.status.code(), Some(1), "{}\n{s}", show(&o));
     assert!(responses(&s).is_empty(), "{s}");
+    assert!(s["phases"].as_array().unwrap().iter().all(|p| p["success"] == true), "{s}");
+    let unmet: Vec<&serde_json::Value> =
+        s["criteria"].as_array().unwrap().iter().filter(|c| c["passed"] == false).collect();
+    assert!(unmet.len() == 1 && unmet[0]["value"] == "no fault reported", "{unmet:?}");
 }

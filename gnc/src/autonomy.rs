@@ -317,12 +317,12 @@ impl Autonomy {
         }
     }
 
-    /// A module of the system found isolated in Safe, other than this one.
-    fn isolated_module(&self, ctx: &Ctx<'_>, names: &[String]) -> Option<String> {
-        names
-            .iter()
-            .find(|n| *n != ctx.name() && ctx.module_status(n).is_some_and(|s| s.is_isolated()))
-            .cloned()
+    /// A module of the system (a crash anywhere is a fault) found isolated in Safe, other than this
+    /// one, in registration order.
+    fn isolated_module(&self, ctx: &Ctx<'_>) -> Option<String> {
+        ctx.module_names()
+            .into_iter()
+            .find(|n| n != ctx.name() && ctx.module_status(n).is_some_and(|s| s.is_isolated()))
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
@@ -355,12 +355,7 @@ impl Autonomy {
             }
             return;
         };
-        let (name, modules) = {
-            let ex = self.execution.as_ref().expect("checked");
-            let a = &ex.plan.activities[run.activity];
-            let names: Vec<String> = ctx_modules(ctx, &ex.plan);
-            (a.name.clone(), names)
-        };
+        let name = self.state.activities[run.activity].name.clone();
         if let Stage::Wait(until) = run.stage {
             if ctx.now() >= until {
                 run.stage = Stage::Recovery(0);
@@ -380,7 +375,7 @@ impl Autonomy {
             _ => None,
         };
         if restarting.is_none()
-            && let Some(m) = self.isolated_module(ctx, &modules)
+            && let Some(m) = self.isolated_module(ctx)
         {
             self.on_isolated(ctx, run, &name, m);
             return;
@@ -576,20 +571,6 @@ impl Autonomy {
             self.finish(ctx, MissionEnd::Aborted, Some(reason.to_string()));
         }
     }
-}
-
-/// The modules a plan commands, and every module of the system besides (a crash anywhere is a fault).
-fn ctx_modules(ctx: &Ctx<'_>, plan: &Plan) -> Vec<String> {
-    let mut names: Vec<String> = plan
-        .activities
-        .iter()
-        .flat_map(|a| a.steps.iter().chain(&a.recovery))
-        .map(|s| s.to.clone())
-        .collect();
-    names.extend(ctx.module_names());
-    names.sort();
-    names.dedup();
-    names
 }
 
 impl Module for Autonomy {

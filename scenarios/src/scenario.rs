@@ -63,7 +63,7 @@ pub struct Scenario {
 impl Scenario {
     /// The ground plan as Autonomy takes it: each phase an activity.
     pub fn plan(&self) -> framework::data::Plan {
-        use framework::data::{Activity, FailurePolicy, Plan, PlanStep};
+        use framework::data::{Activity, Plan, PlanStep};
         let step = |st: &Step| PlanStep {
             to: st.to.clone(),
             command: st.command.clone(),
@@ -83,11 +83,7 @@ impl Scenario {
                     retries: p.retries,
                     retry_delay_s: p.retry_delay_s,
                     recovery: p.recovery.iter().map(step).collect(),
-                    on_failure: match p.on_failure {
-                        OnFailure::Abort => FailurePolicy::Abort,
-                        OnFailure::Continue => FailurePolicy::Continue,
-                        OnFailure::Safe => FailurePolicy::Safe,
-                    },
+                    on_failure: p.on_failure,
                 })
                 .collect(),
         }
@@ -230,19 +226,6 @@ pub struct Operator {
     pub select_target: bool,
 }
 
-/// What to do when a phase fails.
-#[derive(Copy, Clone, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum OnFailure {
-    /// End the mission (failure) and stop the system in Hold.
-    #[default]
-    Abort,
-    /// Go on with the next phase.
-    Continue,
-    /// Put the whole system in Safe and end the mission.
-    Safe,
-}
-
 /// One phase of the ground plan: commands sent in order, each awaited.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -268,7 +251,7 @@ pub struct Phase {
     pub recovery: Vec<Step>,
     /// What happens when it has failed for good (its retries spent).
     #[serde(default)]
-    pub on_failure: OnFailure,
+    pub on_failure: framework::data::FailurePolicy,
 }
 
 /// One command of a phase.

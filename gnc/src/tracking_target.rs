@@ -26,10 +26,10 @@
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
 use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
-use crate::tracking::locate::{LocateParams, locate};
+use crate::tracking::locate::{LocateParams, Located, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::search::{LostSearch, search_radius_px};
-use crate::tracking::template::{BBox, Prior, TemplateTracker, TrackStatus, TrackerParams};
+use crate::tracking::template::{BBox, Prior, TemplateTracker, TrackStatus, TrackerParams, Verdict};
 use framework::camera::{GreyImage, StereoCalibration};
 use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
 use framework::mechanism::MechanismModel;
@@ -201,6 +201,24 @@ fn pose_drift(then: Option<Matrix3<f64>>, now: &PoseEstimate, p: &Point3<f64>) -
     let change = SymmetricEigen::new(pose_term(now, p) - then);
     let d = Matrix3::from_diagonal(&change.eigenvalues.map(f64::abs));
     change.eigenvectors * d * change.eigenvectors.transpose()
+}
+
+/// A location `loc` (rectified left camera) placed in `map` through `map_from_rect`: the
+/// position, its covariance and the bias part of it. Relative to the rover's pose estimate
+/// (`pose`): that estimate's own error moves the rover and the target alike in `map`; what it
+/// adds is how far it drifts between the images (counted as this location's noise: `fix` is the
+/// pose term of the last location fused) and until the position is used (`settle`).
+fn in_map(
+    loc: &Located,
+    map_from_rect: &Isometry3<f64>,
+    pose: &PoseEstimate,
+    fix: Option<Matrix3<f64>>,
+) -> (Point3<f64>, Matrix3<f64>, Matrix3<f64>) {
+    let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
+    let p = *map_from_rect * loc.position;
+    let cov = r * loc.covariance * r.transpose() + pose_drift(fix, pose, &p);
+    let bias = r * loc.bias_covariance * r.transpose();
+    (p, cov, bias)
 }
 
 /// The transform and its inverse between raw left pixels and rectified left pixels.
@@ -401,6 +419,8 @@ impl TrackingTarget {
             });
         let prior = self.prior(stamp, placed.as_ref().ok());
         let Some(tracker) = &mut self.tracker else { return };
+        // The re-detection candidates located (and their locations), not to locate one twice.
+        let mut checked: Vec<(BBox, Result<Located, String>)> = Vec::new();
         let mut searched = false;
         let result = if track {
             // Where the estimate says the target is out of the image (the head looks elsewhere:
@@ -418,7 +438,34 @@ impl TrackingTarget {
                 }
             } else {
                 searched = true;
-                let r = tracker.update(&h.left, &prior);
+                // An established estimate checks each re-detection candidate: one whose stereo
+                // location disagrees with it is a look-alike (the ground beside a small target,
+                // a rock), and the next best is tried; one stereo cannot locate (a few pixels far
+                // away) says nothing either way.
+                let established = self.estimate.count() >= CONFIRM_AFTER;
+                let (estimate, params, rect, fix) =
+                    (&self.estimate, &self.params, &self.rect, self.fix_pose_term);
+                let mut check = |b: &BBox| {
+                    let Some((map_from_rect, pose)) = placed.as_ref().ok() else { return Verdict::Unknown };
+                    let loc = locate(&h.left, &h.right, &rect.model, *b, &params.locate);
+                    let verdict = match &loc {
+                        Err(_) => Verdict::Unknown,
+                        Ok(loc) => {
+                            let (p, cov, _) = in_map(loc, map_from_rect, pose, fix);
+                            let gate = params.redetect_gate_sigma;
+                            if estimate.agrees(&p, &cov, stamp, params.target_walk, gate) {
+                                Verdict::Agrees
+                            } else {
+                                Verdict::Disagrees
+                            }
+                        }
+                    };
+                    checked.push((*b, loc));
+                    verdict
+                };
+                let check =
+                    (established && placed.is_ok()).then_some(&mut check as &mut dyn FnMut(&BBox) -> Verdict);
+                let r = tracker.update_checked(&h.left, &prior, check);
                 // The selection's own image could not be placed: the first placed image where the
                 // target is found stands for it.
                 if self.selected_view.is_none()
@@ -451,18 +498,14 @@ impl TrackingTarget {
         let located = match (&placed, result.status) {
             (_, TrackStatus::Lost) => None,
             (Err(e), _) => Some(Err(format!("not placed: {e}"))),
-            (Ok(_), _) => Some(locate(&h.left, &h.right, &self.rect.model, result.bbox, &self.params.locate)),
+            (Ok(_), _) => match checked.into_iter().find(|(b, _)| *b == result.bbox) {
+                Some((_, loc)) => Some(loc),
+                None => Some(locate(&h.left, &h.right, &self.rect.model, result.bbox, &self.params.locate)),
+            },
         };
         match (located, &placed) {
             (Some(Ok(loc)), Ok((map_from_rect, pose))) => {
-                let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
-                let p = *map_from_rect * loc.position;
-                // Relative to the rover's pose estimate: that estimate's own error moves the rover
-                // and the target alike in `map`; what it adds is how far it drifts between the
-                // images (counted as this location's noise) and until the position is used
-                // (`settle`).
-                let cov = r * loc.covariance * r.transpose() + pose_drift(self.fix_pose_term, pose, &p);
-                let bias = r * loc.bias_covariance * r.transpose();
+                let (p, cov, bias) = in_map(&loc, map_from_rect, pose, self.fix_pose_term);
                 let gate = if result.status == TrackStatus::Redetected {
                     self.params.redetect_gate_sigma
                 } else {

@@ -13,6 +13,9 @@
 //!   once faced, as a refined or moving estimate can say, it locates and approaches again);
 //! - `stop`: ends the command in progress (the navigation it started is cancelled) and the pursuit.
 //!
+//! A far target that is tracked but cannot be located to a leg's accuracy (a few pixels wide,
+//! stereo ranges it poorly or not at all) is approached along its line of sight: a leg over part
+//! of its assumed range, after which it is nearer, larger, and located again.
 //! An approach leg that fails (a wheel stalls short of the goal) with the rover already within the
 //! boundary by the target's estimate ends in facing the target as an arrival would.
 //! A turn to face the target that stalls a wheel (turning in place on loose ground) is tried once
@@ -28,11 +31,13 @@
 
 use crate::peer::send;
 use crate::tracking::pointing::PanTiltCamera;
-use framework::data::{JointStates, NavigationState, PoseEstimate, TargetTrack, VisualTrackingState};
+use framework::data::{
+    JointStates, NavigationState, PoseEstimate, TargetStatus, TargetTrack, VisualTrackingState,
+};
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
 use framework::prelude::*;
-use nalgebra::Point3;
+use nalgebra::{Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// A pan-tilt command unchanged is sent again after this many command periods off target.
@@ -70,6 +75,10 @@ pub struct VisualTrackingParams {
     pub max_legs: u32,
     /// Longest wait for TrackingTarget to locate the target to the asked accuracy, s.
     pub locate_timeout_s: f64,
+    /// A far target (a leg's accuracy asked) still tracked but not located to it after this long
+    /// (a few pixels wide, stereo cannot range it well enough) is driven towards along its line of
+    /// sight instead: a leg of `leg_fraction` of its assumed range (at most `max_leg_m`), s.
+    pub bearing_after_s: f64,
     /// Longest wait for a target to be tracked at all when a command starts, s.
     pub target_wait_s: f64,
 }
@@ -89,6 +98,7 @@ impl Default for VisualTrackingParams {
             leg_tolerance_m: 0.5,
             max_legs: 10,
             locate_timeout_s: 90.0,
+            bearing_after_s: 20.0,
             target_wait_s: 10.0,
         }
     }
@@ -282,6 +292,24 @@ pub fn next_leg(
     Leg::Drive { goal, tolerance }
 }
 
+/// A leg towards a target seen along `direction` (`map`) but not located well enough: from
+/// `rover`, along the direction's horizontal bearing, `leg_fraction` of the target's assumed
+/// `range` (at most `max_leg_m`). None for a line of sight with no bearing (straight up or down).
+pub fn bearing_goal(
+    rover: [f64; 2],
+    direction: &Vector3<f64>,
+    range: f64,
+    p: &VisualTrackingParams,
+) -> Option<[f64; 2]> {
+    let heading = Vector2::new(direction.x, direction.y);
+    if !(heading.norm() > 1e-6 && range.is_finite() && range > 0.0) {
+        return None;
+    }
+    let heading = heading.normalize();
+    let leg = (range * p.leg_fraction).min(p.max_leg_m);
+    Some([rover[0] + leg * heading.x, rover[1] + leg * heading.y])
+}
+
 /// The CoordinatorVisualTracking module.
 pub struct CoordinatorVisualTracking {
     peers: VisualTrackingPeers,
@@ -428,6 +456,48 @@ impl CoordinatorVisualTracking {
         Ok(Step::Locate(id, ctx.now(), sigma))
     }
 
+    /// A leg along the target's line of sight, for a far target still tracked (seen within the
+    /// last second) and ranged at least roughly that stereo cannot locate to a leg's accuracy:
+    /// None when it is not tracked, has no range, or the job has no legs left (the locate then
+    /// goes on until its timeout).
+    fn bearing_leg(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Option<Step> {
+        let track = self.track(ctx)?;
+        let now = ctx.now();
+        let seen = track.status != TargetStatus::Lost && (now - track.stamp).as_secs_f64() <= 1.0;
+        let sight = track.line_of_sight.filter(|_| seen)?;
+        let pose = self.pose(ctx)?;
+        let r = pose.pose.translation.vector;
+        // A range from stereo, however coarse (never the assumed one: legs on no evidence could
+        // drive past a target that is near but too small to range).
+        let range = self.distance(ctx).or(track.range_m)?;
+        let goal = bearing_goal([r.x, r.y], &sight.direction, range, &self.params)?;
+        let nav = self.peers.navigator.clone()?;
+        if job.legs >= self.params.max_legs {
+            return None;
+        }
+        let args =
+            serde_json::json!({ "x": goal[0], "y": goal[1], "tolerance_m": self.params.leg_tolerance_m });
+        let id = match send(ctx, &nav, "navigate_to", args) {
+            Ok(id) => id,
+            Err(e) => {
+                ctx.note(format!("cannot send a leg along the line of sight: {e}"));
+                return None;
+            }
+        };
+        job.legs += 1;
+        ctx.note(format!(
+            "{} leg {}: not located to a leg's accuracy within {} s: {:.2} m along the line of sight (bearing {:.1} deg), to ({:.2}, {:.2})",
+            job.kind.name(),
+            job.legs,
+            self.params.bearing_after_s,
+            (goal[0] - r.x).hypot(goal[1] - r.y),
+            sight.direction.y.atan2(sight.direction.x).to_degrees(),
+            goal[0],
+            goal[1]
+        ));
+        Some(Step::Approach(id, goal))
+    }
+
     /// The target's located position (carried by its velocity to now) and the rover's, in `map`.
     fn positions(&self, ctx: &Ctx<'_>) -> Result<(Point3<f64>, [f64; 2], TargetTrack), String> {
         let track = self.track(ctx).ok_or("no target tracked")?;
@@ -526,6 +596,16 @@ impl CoordinatorVisualTracking {
                 Some(AckStatus::Completed(_)) => return self.after_locate(ctx, job),
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     return Err(format!("locate failed: {r}"));
+                }
+                // A far leg's accuracy (above the job's own) not reached in a while: along the
+                // line of sight, if the target is tracked.
+                _ if matches!(job.kind, Kind::Track { .. })
+                    && sigma > job.max_sigma
+                    && (now - since).as_secs_f64() > self.params.bearing_after_s
+                    && let Some(step) = self.bearing_leg(ctx, job) =>
+                {
+                    let _ = ctx.send(Command::new(&self.peers.tracker, "stop"));
+                    job.step = step;
                 }
                 _ if (now - since).as_secs_f64() > self.params.locate_timeout_s => {
                     let _ = ctx.send(Command::new(&self.peers.tracker, "stop"));
@@ -750,10 +830,17 @@ impl Module for CoordinatorVisualTracking {
             ("leg_tolerance_m", p.leg_tolerance_m),
             ("max_legs", p.max_legs as f64),
             ("locate_timeout_s", p.locate_timeout_s),
+            ("bearing_after_s", p.bearing_after_s),
             ("target_wait_s", p.target_wait_s),
         ])?;
         if p.ptu_speed > 1.0 {
             return Err(format!("ptu_speed must be in (0, 1], got {}", p.ptu_speed));
+        }
+        if p.bearing_after_s >= p.locate_timeout_s {
+            return Err(format!(
+                "bearing_after_s ({}) must be below locate_timeout_s ({}): legs along the line of sight would never start",
+                p.bearing_after_s, p.locate_timeout_s
+            ));
         }
         if !(p.leg_fraction > 0.0 && p.leg_fraction < 1.0) {
             return Err(format!("leg_fraction must be in (0, 1), got {}", p.leg_fraction));
@@ -786,6 +873,23 @@ mod tests {
             Leg::Drive { goal, tolerance } => (goal, tolerance),
             Leg::Arrived => panic!("arrived"),
         }
+    }
+
+    #[test]
+    fn a_bearing_leg_follows_the_line_of_sight_s_horizontal_bearing_for_part_of_the_range() {
+        let p = VisualTrackingParams::default();
+        // Looking down and to the north-east at a target assumed 10 m away: half of it.
+        let d = Vector3::new(1.0, 1.0, -0.3);
+        let goal = bearing_goal([2.0, -1.0], &d, 10.0, &p).unwrap();
+        let (dx, dy) = (goal[0] - 2.0, goal[1] + 1.0);
+        assert!((dx.hypot(dy) - 10.0 * p.leg_fraction).abs() < 1e-9, "{goal:?}");
+        assert!((dy.atan2(dx) - std::f64::consts::FRAC_PI_4).abs() < 1e-9, "{goal:?}");
+        // Far away: capped.
+        let goal = bearing_goal([0.0, 0.0], &Vector3::new(0.0, -2.0, 0.1), 60.0, &p).unwrap();
+        assert!((goal[0]).abs() < 1e-9 && (goal[1] + p.max_leg_m).abs() < 1e-9, "{goal:?}");
+        // No bearing, or no range: no leg.
+        assert_eq!(bearing_goal([0.0, 0.0], &Vector3::new(0.0, 0.0, -1.0), 10.0, &p), None);
+        assert_eq!(bearing_goal([0.0, 0.0], &d, f64::NAN, &p), None);
     }
 
     #[test]

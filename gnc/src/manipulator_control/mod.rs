@@ -391,8 +391,14 @@ impl ManipulatorControl {
             }
             Action::Lift => {
                 let (q, _) = self.arm_now(ctx)?;
-                // Up: against the tool's x axis (the fingers point down).
-                let path = self.line(&q, -self.params.lift_m)?;
+                // Up: out of a slot along the vertical, the way the object went down (a descent
+                // that stopped short may leave the tool tilted); else against the tool's x axis
+                // (the fingers point down).
+                let path = if job.slot.is_some() {
+                    self.vertical(&q, self.params.lift_m)?
+                } else {
+                    self.line(&q, -self.params.lift_m)?
+                };
                 for p in path.into_iter().rev() {
                     job.actions.push_front(Action::Straight { to: p, contact: true });
                 }
@@ -675,6 +681,21 @@ impl ManipulatorControl {
         }
     }
 
+    /// The arm's values from `q` moving the tool by `dz` along the base's vertical (its
+    /// orientation kept), every descent step.
+    fn vertical(&self, q: &[f64], dz: f64) -> Result<Vec<Vec<f64>>, String> {
+        let start = self.kinematics.forward(q)?;
+        let n = (dz.abs() / self.params.descent_step_m).ceil().max(1.0) as usize;
+        let mut seed = q.to_vec();
+        let mut out = Vec::with_capacity(n);
+        for k in 1..=n {
+            let goal = Isometry3::translation(0.0, 0.0, dz * k as f64 / n as f64) * start;
+            seed = self.kinematics.inverse(&goal, &seed, &[])?;
+            out.push(seed.clone());
+        }
+        Ok(out)
+    }
+
     /// The actions of `place`: above the slot, down into it, open, up, away.
     fn place_actions(&self, ctx: &Ctx<'_>, slot: &str) -> Result<Vec<Action>, String> {
         let (kind, tool_from_object) = self.held.clone().ok_or("the gripper holds nothing")?;
@@ -685,9 +706,10 @@ impl ManipulatorControl {
         let full = |a: &[f64]| self.kinematics.full(a, &all);
         let held = self.held_shape();
         let mut why = String::new();
-        // The object upright on the slot, turned by a quarter turn at a time: the first reachable
-        // and clear, nearest the present joints.
-        let mut best: Option<(f64, Vec<f64>, Vec<f64>)> = None;
+        // The object upright on the slot, turned by a quarter turn at a time: of those reachable
+        // and clear (the way above the slot and the descent into it), the one nearest the present
+        // joints.
+        let mut best: Option<(f64, Vec<f64>, Vec<Vec<f64>>)> = None;
         for k in 0..4 {
             let yaw =
                 UnitQuaternion::from_axis_angle(&Vector3::z_axis(), k as f64 * std::f64::consts::FRAC_PI_2);
@@ -697,33 +719,36 @@ impl ManipulatorControl {
                 * object_from_tool;
             let above = Isometry3::translation(0.0, 0.0, self.params.place_height_m) * rest;
             let sol = self.kinematics.inverse(&above, &q, &self.seeds()).and_then(|qa| {
-                let qr = self.kinematics.inverse(&rest, &qa, &[])?;
+                self.kinematics.inverse(&rest, &qa, &[])?;
                 plan_path(&self.clearance, &full, &q, &qa, &self.vias(), held.as_ref())
                     .map_err(|e| e.to_string())?;
-                Ok((qa, qr))
+                // Down in steps along the vertical (the tool's own axis need not be vertical here).
+                let down = self.vertical(&qa, -self.params.place_height_m)?;
+                // Each step as `straight` will check it (a contact motion: the held object may
+                // touch the slot).
+                for (a, b) in std::iter::once(&qa).chain(&down).zip(&down) {
+                    if let Some((s, c)) = self.clearance.segment_contact(&full(a), &full(b), None, false)? {
+                        return Err(format!(
+                            "the way down into it stops at {:.0} % of a step: {c}",
+                            s * 100.0
+                        ));
+                    }
+                }
+                Ok((qa, down))
             });
             match sol {
-                Ok((qa, qr)) => {
+                Ok((qa, down)) => {
                     let d = distance(&qa, &q);
                     if best.as_ref().is_none_or(|(b, ..)| d < *b) {
-                        best = Some((d, qa, qr));
+                        best = Some((d, qa, down));
                     }
                 }
                 Err(e) => why = e,
             }
         }
-        let (_, qa, _) = best.ok_or_else(|| format!("cannot place the {kind} on '{slot}': {why}"))?;
-        let mut actions = vec![Action::Plan(qa.clone())];
-        // Down in steps along the vertical (the tool's own axis need not be vertical here).
-        let start = self.kinematics.forward(&qa)?;
-        let n = (self.params.place_height_m / self.params.descent_step_m).ceil().max(1.0) as usize;
-        let mut seed = qa;
-        for k in 1..=n {
-            let goal =
-                Isometry3::translation(0.0, 0.0, -self.params.place_height_m * k as f64 / n as f64) * start;
-            seed = self.kinematics.inverse(&goal, &seed, &[])?;
-            actions.push(Action::Straight { to: seed.clone(), contact: true });
-        }
+        let (_, qa, down) = best.ok_or_else(|| format!("cannot place the {kind} on '{slot}': {why}"))?;
+        let mut actions = vec![Action::Plan(qa)];
+        actions.extend(down.into_iter().map(|to| Action::Straight { to, contact: true }));
         actions.push(Action::Gripper(vec![self.params.open_m; self.fingers.len()]));
         actions.push(Action::Released);
         actions.push(Action::Lift);

@@ -123,11 +123,21 @@ impl Template {
     }
 }
 
-/// Dense correlation of `t` over `img` (`iw` x `ih`): the best score and its top-left offset,
-/// sub-cell by a parabola through the neighbours.
-pub(crate) fn ncc_search(t: &Template, img: &[f32], iw: usize, ih: usize) -> Option<(f64, f64, f64)> {
-    if iw < t.w || ih < t.h {
-        return None;
+/// Dense correlation of `t` over `img` (`iw` x `ih`): its `max` best local maxima, best first,
+/// their cells at least `min_separation` apart (each a score and its top-left offset, sub-cell by
+/// a parabola through the neighbours, which may bring two within a cell less), all but the best
+/// inside the window's edge. A small target's neighbourhood holds look-alikes: the
+/// caller may need the second best to find it.
+pub(crate) fn ncc_peaks(
+    t: &Template,
+    img: &[f32],
+    iw: usize,
+    ih: usize,
+    max: usize,
+    min_separation: usize,
+) -> Vec<(f64, f64, f64)> {
+    if iw < t.w || ih < t.h || max == 0 {
+        return Vec::new();
     }
     // Running sums of the image and its square for each window's mean and norm.
     let (sw, sh) = (iw + 1, ih + 1);
@@ -181,18 +191,46 @@ pub(crate) fn ncc_search(t: &Template, img: &[f32], iw: usize, ih: usize) -> Opt
             scores[y * nx + x] = f64::from(dot) / var.sqrt();
         }
     }
-    let (k, best) = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
-    if !best.is_finite() {
-        return None;
-    }
-    let (bx, by) = (k % nx, k / nx);
     let sub = |m: f64, c: f64, p: f64| {
         let den = m - 2.0 * c + p;
         if m.is_finite() && p.is_finite() && den < 0.0 { (0.5 * (m - p) / den).clamp(-0.5, 0.5) } else { 0.0 }
     };
-    let dx = if bx > 0 && bx + 1 < nx { sub(scores[k - 1], *best, scores[k + 1]) } else { 0.0 };
-    let dy = if by > 0 && by + 1 < ny { sub(scores[k - nx], *best, scores[k + nx]) } else { 0.0 };
-    Some((*best, bx as f64 + dx, by as f64 + dy))
+    let refined = |k: usize| {
+        let (bx, by, best) = (k % nx, k / nx, scores[k]);
+        let dx = if bx > 0 && bx + 1 < nx { sub(scores[k - 1], best, scores[k + 1]) } else { 0.0 };
+        let dy = if by > 0 && by + 1 < ny { sub(scores[k - nx], best, scores[k + nx]) } else { 0.0 };
+        (best, bx as f64 + dx, by as f64 + dy)
+    };
+    if max == 1 {
+        // The common case: the best alone.
+        let best = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1));
+        return best.filter(|(_, s)| s.is_finite()).map(|(k, _)| refined(k)).into_iter().collect();
+    }
+    // Greedy non-maximum suppression over the local maxima, best first.
+    let local_max = |k: usize| {
+        let (x, y) = (k % nx, k / nx);
+        (y.saturating_sub(1)..(y + 2).min(ny))
+            .flat_map(|j| (x.saturating_sub(1)..(x + 2).min(nx)).map(move |i| j * nx + i))
+            .all(|q| scores[q] <= scores[k])
+    };
+    let mut order: Vec<usize> =
+        (0..scores.len()).filter(|&k| scores[k].is_finite() && local_max(k)).collect();
+    order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+    let mut kept: Vec<usize> = Vec::with_capacity(max);
+    for k in order {
+        let (x, y) = (k % nx, k / nx);
+        // Past the best, a peak on the window's edge is likely the slope of a match outside it.
+        let edge = x == 0 || y == 0 || x + 1 == nx || y + 1 == ny;
+        if (kept.is_empty() || !edge)
+            && kept.iter().all(|&q| (q % nx).abs_diff(x).max((q / nx).abs_diff(y)) >= min_separation)
+        {
+            kept.push(k);
+            if kept.len() == max {
+                break;
+            }
+        }
+    }
+    kept.into_iter().map(refined).collect()
 }
 
 /// The best match of `t` whose centre lies within `m` cells (of `step` pixels) of (cx, cy): its
@@ -205,8 +243,26 @@ pub(crate) fn search_around(
     step: f64,
     m: usize,
 ) -> Option<(f64, f64, f64)> {
+    peaks_around(img, t, cx, cy, step, m, 1).into_iter().next()
+}
+
+/// The `max` best local maxima of `t` whose centres lie within `m` cells (of `step` pixels) of
+/// (cx, cy), at least half the template's shorter side apart, best first: each a score and its
+/// centre, pixels.
+pub(crate) fn peaks_around(
+    img: &GreyImage,
+    t: &Template,
+    cx: f64,
+    cy: f64,
+    step: f64,
+    m: usize,
+    max: usize,
+) -> Vec<(f64, f64, f64)> {
     let (iw, ih) = (t.w + 2 * m, t.h + 2 * m);
     let area = resample_centred(img, cx, cy, step, iw, ih);
-    let (score, ox, oy) = ncc_search(t, &area, iw, ih)?;
-    Some((score, cx + (ox - m as f64) * step, cy + (oy - m as f64) * step))
+    let separation = (t.w.min(t.h) / 2).max(1);
+    ncc_peaks(t, &area, iw, ih, max, separation)
+        .into_iter()
+        .map(|(score, ox, oy)| (score, cx + (ox - m as f64) * step, cy + (oy - m as f64) * step))
+        .collect()
 }

@@ -121,6 +121,37 @@ impl TargetEstimate {
         Some(carried(&f.position, &self.velocity, self.horizon_s, f.stamp, t))
     }
 
+    /// Whether a location `p` of covariance `cov` taken at `stamp` lies within `gate` sigmas of
+    /// the estimate (for a target wandering `walk` m/sqrt(s)), as [`fuse`](Self::fuse) would
+    /// find; true while there is no estimate. Nothing changes.
+    pub fn agrees(&self, p: &Point3<f64>, cov: &Matrix3<f64>, stamp: Time, walk: f64, gate: f64) -> bool {
+        if !p.coords.iter().chain(cov.iter()).all(|v| v.is_finite()) {
+            return false;
+        }
+        self.fused
+            .as_ref()
+            .is_none_or(|e| self.mahalanobis2(e, p, cov, stamp, walk).is_some_and(|d2| d2 <= gate.powi(2)))
+    }
+
+    /// The squared Mahalanobis distance of a location `p` of covariance `cov` at `stamp` from the
+    /// estimate `e` carried to then. The gate allows for both biases in full: it is there to
+    /// reject a location of something else, metres away.
+    fn mahalanobis2(
+        &self,
+        e: &Fused,
+        p: &Point3<f64>,
+        cov: &Matrix3<f64>,
+        stamp: Time,
+        walk: f64,
+    ) -> Option<f64> {
+        let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
+        let carried = carried(&e.position, &self.velocity, self.horizon_s, e.stamp, stamp);
+        let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
+        let innovation = p - carried;
+        let gate_inv = (prior + e.bias + cov).try_inverse()?;
+        Some(innovation.dot(&(gate_inv * innovation)))
+    }
+
     /// Fuses a location `p` of covariance `cov`, of which `bias` other images may repeat, taken
     /// at `stamp`, for a target wandering `walk` m/sqrt(s); false when it lies more than `gate`
     /// sigmas from the estimate (after [`RESTART_AFTER`] such in a row, if `restart` allows, the
@@ -141,19 +172,13 @@ impl TargetEstimate {
         }
         let noise = cov - bias;
         let fresh = Fused { position: p, noise, bias, stamp };
-        let Some(e) = &mut self.fused else {
+        let Some(e) = &self.fused else {
             self.fused = Some(fresh);
             self.count = 1;
             return true;
         };
-        let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
-        let carried = carried(&e.position, &self.velocity, self.horizon_s, e.stamp, stamp);
-        let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
-        // The gate allows for both biases in full: it is there to reject a location of something
-        // else, metres away.
-        let innovation = p - carried;
-        let Some(gate_inv) = (prior + e.bias + cov).try_inverse() else { return false };
-        if innovation.dot(&(gate_inv * innovation)) > gate.powi(2) {
+        let Some(d2) = self.mahalanobis2(e, &p, &cov, stamp, walk) else { return false };
+        if d2 > gate.powi(2) {
             self.rejected += 1;
             if restart && self.rejected >= RESTART_AFTER {
                 self.fused = Some(fresh);
@@ -165,6 +190,10 @@ impl TargetEstimate {
             }
             return false;
         }
+        let Some(e) = &mut self.fused else { return false };
+        let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
+        let carried = carried(&e.position, &self.velocity, self.horizon_s, e.stamp, stamp);
+        let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
         // The bias weight minimizing the fused covariance's trace (convex in it): golden section.
         let (a, b) = ((carried, prior, e.bias), (p, noise, bias));
         let trace = |w: f64| {
@@ -280,6 +309,31 @@ mod tests {
         assert!((held.position().unwrap() - right).norm() < 1e-9);
         // Non-finite input is refused.
         assert!(!e.fuse(Point3::new(f64::NAN, 0.0, 0.0), cov, bias, t(21.0), 0.01, 5.0, true));
+    }
+
+    #[test]
+    fn agreeing_is_what_fusing_would_accept_and_changes_nothing() {
+        let (cov, bias) = (Matrix3::identity() * 0.04, Matrix3::identity() * 0.01);
+        let mut e = TargetEstimate::default();
+        assert!(e.agrees(&Point3::new(100.0, 0.0, 0.0), &cov, t(0.0), 0.01, 3.0), "nothing to disagree with");
+        assert!(e.fuse(Point3::new(5.0, 2.0, 0.3), cov, bias, t(0.0), 0.01, 3.0, false));
+        let (mut agreed, mut disagreed) = (0, 0);
+        for k in 0..40 {
+            // Drifting away, then jumping back and forth.
+            let off = if k < 20 { 0.06 * k as f64 } else { 2.5 * (k % 2) as f64 };
+            let p = Point3::new(5.0 + off, 2.0 - 0.5 * off, 0.3);
+            let before = e.position();
+            let agrees = e.agrees(&p, &cov, t(1.0 + k as f64), 0.01, 3.0);
+            assert_eq!(before, e.position(), "agrees moved the estimate");
+            assert_eq!(agrees, e.fuse(p, cov, bias, t(1.0 + k as f64), 0.01, 3.0, false), "at {p:?}");
+            if agrees {
+                agreed += 1;
+            } else {
+                disagreed += 1;
+            }
+        }
+        assert!(agreed > 5 && disagreed > 5, "{agreed} agreed, {disagreed} disagreed");
+        assert!(!e.agrees(&Point3::new(f64::NAN, 0.0, 0.0), &cov, t(50.0), 0.01, 3.0));
     }
 
     #[test]

@@ -25,7 +25,7 @@
 //! box would end up on a part of the target or on the ground around it.
 
 use crate::tracking::correlation::{
-    Template, Weights, ncc_search, resample, resample_centred, search_around,
+    Template, Weights, ncc_peaks, peaks_around, resample, resample_centred, search_around,
 };
 use framework::camera::GreyImage;
 
@@ -128,6 +128,25 @@ pub struct Prior {
 /// it converges over a few frames rather than jumping.
 const MAX_TRACK_RESCALE: f64 = 1.25;
 
+/// Re-detection candidates offered to the caller's check per search (guided, then the area), best
+/// first: a small target's neighbourhood holds look-alikes that may match its learnt look better
+/// than it does.
+const MAX_CANDIDATES: usize = 4;
+
+/// A candidate match: confidence, box, region.
+type Candidate = (f64, BBox, (f64, f64));
+
+/// What a caller's check says of a re-detection candidate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// Its other evidence says it is the target: taken.
+    Agrees,
+    /// Its other evidence says it is something else: the next candidate is tried.
+    Disagrees,
+    /// No other evidence (a target too small to locate): taken if no candidate agrees.
+    Unknown,
+}
+
 /// The tracker.
 #[derive(Clone, Debug)]
 pub struct TemplateTracker {
@@ -228,6 +247,23 @@ impl TemplateTracker {
     /// looked for there first, then within the prior's radius (else the whole image), at the
     /// re-detection scales. Without an `init` it is lost.
     pub fn update(&mut self, img: &GreyImage, prior: &Prior) -> TrackResult {
+        self.update_checked(img, prior, None)
+    }
+
+    /// [`update`](Self::update), where a lost target's re-detection candidates (those above the
+    /// re-detection threshold, wholly in the image, best first: around the prior's centre, then
+    /// in its radius; each place once) are each put to `check` (the caller's other evidence, such
+    /// as a stereo location that must agree with the target's 3D estimate) until one agrees;
+    /// none agreeing, the best one it could say nothing of is taken, else the target stays lost.
+    /// Without a check each search's best alone is taken (the next best is as likely a
+    /// look-alike as the target).
+    pub fn update_checked(
+        &mut self,
+        img: &GreyImage,
+        prior: &Prior,
+        mut check: Option<&mut dyn FnMut(&BBox) -> Verdict>,
+    ) -> TrackResult {
+        let max = if check.is_some() { MAX_CANDIDATES } else { 1 };
         let Some(last) = self.bbox else {
             return TrackResult { bbox: [0.0; 4], confidence: 0.0, status: TrackStatus::Lost };
         };
@@ -243,24 +279,50 @@ impl TemplateTracker {
             let rescale = rescale.clamp(0.25, 4.0);
             let scales: Vec<f64> = self.params.redetect_scales.iter().map(|s| s * rescale).collect();
             let (w, h) = (img.width as f64, img.height as f64);
-            let guided = prior.centre.and_then(|(cx, cy)| {
-                self.search_scales(img, cx, cy, &scales).filter(|(c, b, _)| {
-                    *c >= self.params.redetect_threshold
-                        && b[0] >= 0.0
-                        && b[1] >= 0.0
-                        && b[2] <= w
-                        && b[3] <= h
-                })
-            });
-            guided
-                .or_else(|| {
-                    let area = prior
-                        .centre
-                        .zip(prior.radius_px)
-                        .map(|((cx, cy), r)| [cx - r, cy - r, cx + r, cy + r]);
-                    self.redetect(img, &scales, area)
-                })
-                .map(|(c, b, s)| (c, b, s, TrackStatus::Redetected))
+            let threshold = self.params.redetect_threshold;
+            let passing = |(c, b, _): &Candidate| {
+                *c >= threshold && b[0] >= 0.0 && b[1] >= 0.0 && b[2] <= w && b[3] <= h
+            };
+            let guided = match prior.centre {
+                // Unchecked: the best match there alone.
+                Some((cx, cy)) if max == 1 => self.search_scales(img, cx, cy, &scales).into_iter().collect(),
+                Some((cx, cy)) => self.candidates_around(img, cx, cy, &scales, max),
+                None => Vec::new(),
+            };
+            // The places checked already (the area search finds the guided ones again).
+            let mut checked: Vec<BBox> = Vec::new();
+            let mut unknown: Option<Candidate> = None;
+            let mut best_seen: Option<Candidate> = None;
+            let mut consider = |c: &Candidate| {
+                if best_seen.is_none_or(|b| c.0 > b.0) {
+                    best_seen = Some(*c);
+                }
+                if !passing(c) || checked.iter().any(|b| near(b, &c.1)) {
+                    return false;
+                }
+                let Some(check) = check.as_mut() else { return true };
+                checked.push(c.1);
+                match check(&c.1) {
+                    Verdict::Agrees => true,
+                    Verdict::Disagrees => false,
+                    Verdict::Unknown => {
+                        unknown.get_or_insert(*c);
+                        false
+                    }
+                }
+            };
+            let mut found = guided.iter().find(|c| consider(c)).copied();
+            if found.is_none() {
+                let area =
+                    prior.centre.zip(prior.radius_px).map(|((cx, cy), r)| [cx - r, cy - r, cx + r, cy + r]);
+                found = self.redetect(img, &scales, area, max).iter().find(|c| consider(c)).copied();
+            }
+            match found.or(unknown) {
+                Some((c, b, s)) => Some((c, b, s, TrackStatus::Redetected)),
+                // Nothing taken: the best seen says how close it came (below the threshold, as it
+                // was not taken).
+                None => best_seen.map(|(c, b, s)| (c.min(threshold - 1e-9), b, s, TrackStatus::Lost)),
+            }
         } else {
             let rescale = rescale.clamp(1.0 / MAX_TRACK_RESCALE, MAX_TRACK_RESCALE);
             let scales: Vec<f64> = self.params.scales.iter().map(|s| s * rescale).collect();
@@ -311,6 +373,31 @@ impl TemplateTracker {
         let (_, x, y, s) = best?;
         let (bbox, region) = self.scaled(&last, x, y, s);
         Some((self.confidence(img, x, y, region), bbox, region))
+    }
+
+    /// The `max` best distinct matches of the tracking model around (cx, cy), over `scales` of
+    /// the last box, by confidence against the model and all templates, best first.
+    fn candidates_around(
+        &self,
+        img: &GreyImage,
+        cx: f64,
+        cy: f64,
+        scales: &[f64],
+        max: usize,
+    ) -> Vec<Candidate> {
+        let (Some(last), Some(newest)) = (self.bbox, self.model.as_ref().or(self.templates.last())) else {
+            return Vec::new();
+        };
+        let m = self.params.search_cells;
+        let mut found: Vec<Candidate> = Vec::new();
+        for &s in scales {
+            let step = self.region.0 * s / newest.w as f64;
+            for (_, x, y) in peaks_around(img, newest, cx, cy, step, m, max) {
+                let (bbox, region) = self.scaled(&last, x, y, s);
+                found.push((self.confidence(img, x, y, region), bbox, region));
+            }
+        }
+        distinct(found, max)
     }
 
     /// The box `last` scaled by `s` and centred at (x, y), and the region around it.
@@ -383,19 +470,15 @@ impl TemplateTracker {
     /// Searches `area` (pixels, [u_min, v_min, u_max, v_max]; None: the whole image) at `scales`
     /// with the operator's template and the three newest learnt ones (a whole-image search costs
     /// tens of milliseconds per template and scale for a small target): coarse (every other cell),
-    /// then fine around the best coarse match. The match's centre lies in the area.
-    fn redetect(
-        &self,
-        img: &GreyImage,
-        scales: &[f64],
-        area: Option<BBox>,
-    ) -> Option<(f64, BBox, (f64, f64))> {
-        let last = self.bbox?;
+    /// then fine around the best coarse matches. The matches' centres lie in the area; the `max`
+    /// best distinct ones, best first.
+    fn redetect(&self, img: &GreyImage, scales: &[f64], area: Option<BBox>, max: usize) -> Vec<Candidate> {
+        let Some(last) = self.bbox else { return Vec::new() };
         let (w, h) = (img.width as f64, img.height as f64);
         let area =
             area.map_or([0.0, 0.0, w, h], |a| [a[0].max(0.0), a[1].max(0.0), a[2].min(w), a[3].min(h)]);
         if !(area[2] > area[0] && area[3] > area[1]) {
-            return None;
+            return Vec::new();
         }
         let n = self.templates.len();
         let chosen: Vec<&Template> = self
@@ -405,7 +488,7 @@ impl TemplateTracker {
             .filter(|(k, _)| *k == 0 || *k + 3 >= n)
             .map(|(_, t)| t)
             .collect();
-        let mut best: Option<(f64, f64, f64, f64)> = None;
+        let mut found: Vec<Candidate> = Vec::new();
         for &s in scales {
             let region = (self.region.0 * s, self.region.1 * s);
             // A re-detected box lies wholly in the image (a box cut by the border is matched
@@ -444,23 +527,47 @@ impl TemplateTracker {
                     ((area[3] - area[1] + region.1) / (2.0 * step)) as usize,
                 );
                 let patch = resample(img, x0 + step, y0 + step, 2.0 * step, iw, ih);
-                let Some((_, ox, oy)) = ncc_search(&coarse_t, &patch, iw, ih) else { continue };
-                // Its centre in pixels, then the fine search there.
-                let cx = x0 + step + (ox + 0.5 * (coarse_t.w as f64 - 1.0)) * 2.0 * step;
-                let cy = y0 + step + (oy + 0.5 * (coarse_t.h as f64 - 1.0)) * 2.0 * step;
-                if let Some((score, x, y)) = search_around(img, t, cx, cy, step, 3)
-                    && (area[0]..=area[2]).contains(&x)
-                    && (area[1]..=area[3]).contains(&y)
-                    && best.is_none_or(|b| score > b.0)
-                {
-                    best = Some((score, x, y, s));
+                let separation = (coarse_t.w.min(coarse_t.h) / 2).max(1);
+                for (_, ox, oy) in ncc_peaks(&coarse_t, &patch, iw, ih, max, separation) {
+                    // Its centre in pixels, then the fine search there.
+                    let cx = x0 + step + (ox + 0.5 * (coarse_t.w as f64 - 1.0)) * 2.0 * step;
+                    let cy = y0 + step + (oy + 0.5 * (coarse_t.h as f64 - 1.0)) * 2.0 * step;
+                    if let Some((score, x, y)) = search_around(img, t, cx, cy, step, 3)
+                        && (area[0]..=area[2]).contains(&x)
+                        && (area[1]..=area[3]).contains(&y)
+                    {
+                        let (bbox, region) = self.scaled(&last, x, y, s);
+                        found.push((score, bbox, region));
+                    }
                 }
             }
         }
-        let (score, x, y, s) = best?;
-        let (bbox, region) = self.scaled(&last, x, y, s);
-        Some((score, bbox, region))
+        distinct(found, max)
     }
+}
+
+/// Whether boxes `a` and `b` are at the same place: centred within half the smaller one's shorter
+/// side.
+fn near(a: &BBox, b: &BBox) -> bool {
+    let ((ax, ay), (bx, by)) = (centre(a), centre(b));
+    let side = (a[2] - a[0]).min(a[3] - a[1]).min(b[2] - b[0]).min(b[3] - b[1]);
+    (ax - bx).hypot(ay - by) < 0.5 * side
+}
+
+/// The `max` best of `found`, best first, none at the place of a better one (the same place at
+/// another scale or through another template).
+fn distinct(mut found: Vec<Candidate>, max: usize) -> Vec<Candidate> {
+    found.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut kept: Vec<Candidate> = Vec::with_capacity(max);
+    for c in found {
+        if !kept.iter().any(|k| near(&k.1, &c.1)) {
+            kept.push(c);
+            if kept.len() == max {
+                break;
+            }
+        }
+    }
+    kept
 }
 
 #[cfg(test)]
@@ -603,6 +710,105 @@ mod tests {
         }
         let uniform = Template::new(w, h, patch, Weights::uniform(w, h)).unwrap();
         assert!(t.ncc(&other) > uniform.ncc(&other) + 0.02, "{} {}", t.ncc(&other), uniform.ncc(&other));
+    }
+
+    /// Two look-alike targets: `scene`'s at `a` and `b` (same ground, the brighter pixel).
+    fn twins(a: (f64, f64), b: (f64, f64), size: f64) -> GreyImage {
+        let mut img = scene(a.0, a.1, size, false);
+        let other = scene(b.0, b.1, size, false);
+        img.data.iter_mut().zip(&other.data).for_each(|(p, q)| *p = (*p).max(*q));
+        img
+    }
+
+    #[test]
+    fn correlation_peaks_are_distinct_local_maxima_best_first() {
+        let img = twins((60.0, 120.0), (220.0, 120.0), 16.0);
+        let (w, h) = (24, 24);
+        let t = Template::new(w, h, resample_centred(&img, 60.0, 120.0, 1.0, w, h), Weights::uniform(w, h))
+            .unwrap();
+        let (iw, ih) = (img.width as usize, img.height as usize);
+        let full = resample(&img, 0.5, 0.5, 1.0, iw, ih);
+        let peaks = ncc_peaks(&t, &full, iw, ih, 3, 12);
+        assert_eq!(peaks.len(), 3, "{peaks:?}");
+        // Its own place first (a perfect match), the twin second, then something weaker.
+        let centre = |(_, x, y): (f64, f64, f64)| (x + 12.0, y + 12.0);
+        let (x0, y0) = centre(peaks[0]);
+        assert!(
+            (peaks[0].0 - 1.0).abs() < 1e-3 && (x0 - 60.0).abs() < 1.0 && (y0 - 120.0).abs() < 1.0,
+            "{peaks:?}"
+        );
+        let (x1, y1) = centre(peaks[1]);
+        assert!((x1 - 220.0).abs() < 1.5 && (y1 - 120.0).abs() < 1.5 && peaks[1].0 > 0.5, "{peaks:?}");
+        assert!(peaks[2].0 < peaks[1].0, "{peaks:?}");
+        for (i, a) in peaks.iter().enumerate() {
+            for b in &peaks[i + 1..] {
+                assert!((a.1 - b.1).abs().max((a.2 - b.2).abs()) >= 11.0, "{peaks:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn a_rejected_look_alike_gives_way_to_the_next_candidate() {
+        // Lost (its look is the target's alone, little ground), then two look-alikes in view:
+        // the caller's check (its stereo says which is at the target's estimate) rejects the one
+        // to the left.
+        let lost = || {
+            let params = TrackerParams { context: 0.1, min_region_px: 8.0, ..TrackerParams::default() };
+            let mut t = TemplateTracker::new(params);
+            t.init(&scene(100.0, 120.0, 16.0, false), boxed(100.0, 120.0, 16.0)).unwrap();
+            t.reject();
+            t
+        };
+        // The left one where it was (its ground too: the better match), the right elsewhere.
+        let img = twins((100.0, 120.0), (220.0, 120.0), 16.0);
+        let mut asked = Vec::new();
+        let mut right_only = |b: &BBox| {
+            asked.push(*b);
+            if centre(b).0 > 150.0 { Verdict::Agrees } else { Verdict::Disagrees }
+        };
+        let r = lost().update_checked(&img, &Prior::default(), Some(&mut right_only));
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+        assert!(overlap(&r.bbox, &boxed(220.0, 120.0, 16.0)) > 0.6, "{r:?}");
+        assert!(overlap(&asked[0], &boxed(100.0, 120.0, 16.0)) > 0.6, "{asked:?}");
+        // Every candidate rejected: still lost, and its last box is kept.
+        let mut t = lost();
+        let last = t.bbox().unwrap();
+        let r = t.update_checked(&img, &Prior::default(), Some(&mut |_: &BBox| Verdict::Disagrees));
+        assert_eq!((r.status, r.bbox), (TrackStatus::Lost, last), "{r:?}");
+        assert!(r.confidence > 0.0 && r.confidence < t.params.redetect_threshold, "{r:?}");
+        // Where the check can say nothing of any, the best is taken, as without a check.
+        let r = lost().update_checked(&img, &Prior::default(), Some(&mut |_: &BBox| Verdict::Unknown));
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+        assert!(overlap(&r.bbox, &boxed(100.0, 120.0, 16.0)) > 0.6, "{r:?}");
+        // Around a predicted centre (the guided search), with both twins within its reach: the
+        // better one is asked about first, rejected, and each place is asked about once.
+        let img = twins((100.0, 120.0), (112.0, 124.0), 8.0);
+        let mut t = TemplateTracker::new(TrackerParams {
+            context: 0.1,
+            min_region_px: 8.0,
+            ..TrackerParams::default()
+        });
+        t.init(&scene(100.0, 120.0, 8.0, false), boxed(100.0, 120.0, 8.0)).unwrap();
+        t.reject();
+        let mut asked = Vec::new();
+        let prior = Prior { centre: Some((106.0, 122.0)), radius_px: Some(30.0), ..Prior::default() };
+        let r = t.update_checked(
+            &img,
+            &prior,
+            Some(&mut |b: &BBox| {
+                asked.push(*b);
+                if centre(b).0 > 106.0 { Verdict::Agrees } else { Verdict::Disagrees }
+            }),
+        );
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?} asked {asked:?}");
+        assert!(overlap(&r.bbox, &boxed(112.0, 124.0, 8.0)) > 0.5, "{r:?} asked {asked:?}");
+        assert!(overlap(&asked[0], &boxed(100.0, 120.0, 8.0)) > 0.5, "{asked:?}");
+        for (i, a) in asked.iter().enumerate() {
+            assert!(asked[i + 1..].iter().all(|b| !near(a, b)), "asked twice: {asked:?}");
+        }
+        // Unchecked, the best alone is taken: one of the two.
+        let r = lost().update(&img, &Prior::default());
+        assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
     }
 
     #[test]

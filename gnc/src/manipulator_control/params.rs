@@ -69,6 +69,16 @@ pub struct ManipulatorParams {
     pub grip_tolerance_m: f64,
     /// The held object is lowered into the slot from this far above its resting place, m.
     pub place_height_m: f64,
+    /// A place's descent that stops (blocked) more than this above the object's resting place
+    /// has not put it into the slot (it sits on a wall): it is tried again to the side
+    /// (`seat_search_m`, `seat_tries`), then kept and the place fails, m. Within it, the object
+    /// is let go there (the believed kinematics put the slot a little low).
+    pub seat_tolerance_m: f64,
+    /// A held object stopped on a wall is tried again this far to the side (the believed arm
+    /// kinematics put the slot a few centimetres off), m ...
+    pub seat_search_m: f64,
+    /// ... in this many directions around (0: not tried again).
+    pub seat_tries: u32,
     /// The pose the arm goes to after placing an object.
     pub after_place: String,
     /// Objects the manipulator can grasp, by kind (the object database's names).
@@ -100,6 +110,9 @@ impl Default for ManipulatorParams {
             arrive_tolerance_m: 0.005,
             grip_tolerance_m: 0.004,
             place_height_m: 0.1,
+            seat_tolerance_m: 0.02,
+            seat_search_m: 0.03,
+            seat_tries: 6,
             after_place: "stowed".into(),
             objects: BTreeMap::new(),
         }

@@ -5,7 +5,8 @@
 //! HAL. Frames arrive after each camera's latency, so a slot's stamp lags its write.
 //!
 //! Command `set_rate {device, hz}` changes one camera's rate while running (the wrist camera is
-//! turned on when a task needs it: it renders, and costs, only while it has a rate).
+//! turned on when a task needs it: it renders, and costs, only while it has a rate); without `hz`
+//! the device goes back to its configured rate.
 //!
 //! A device that delivers nothing (a dropout, a renderer fault) is noted once and skipped until it
 //! recovers; the module itself keeps running.
@@ -56,8 +57,9 @@ impl CamerasParams {
 pub struct SetRateArgs {
     /// The camera device (`wrist_camera`, `head_stereo`, `tof_left`, ...).
     pub device: String,
-    /// Frames per second, at most the camera's own; 0: off.
-    pub hz: f64,
+    /// Frames per second, at most the camera's own; 0: off; absent: the configured rate.
+    #[serde(default)]
+    pub hz: Option<f64>,
 }
 
 /// A camera, the slot it publishes to, and the rate it was last set to.
@@ -97,17 +99,19 @@ impl Cameras {
         self.overrides.get(device).copied().unwrap_or_else(|| self.params.rate(device))
     }
 
-    /// `set_rate`: sets the device's rate now (the device refuses rates beyond its own).
+    /// `set_rate`: sets the device's rate now (the device refuses rates beyond its own); without a
+    /// rate, back to the configured one.
     fn set_rate(&mut self, a: &SetRateArgs) -> Result<(), String> {
-        if !(a.hz.is_finite() && a.hz >= 0.0) {
-            return Err(format!("hz must be >= 0 (0: off), got {}", a.hz));
+        let hz = a.hz.unwrap_or_else(|| self.params.rate(&a.device));
+        if !(hz.is_finite() && hz >= 0.0) {
+            return Err(format!("hz must be >= 0 (0: off), got {hz}"));
         }
         let r = if let Some(c) = self.stereo.iter_mut().find(|c| c.0.device() == a.device) {
-            c.0.set_rate(a.hz).map(|_| c.2 = Some(a.hz))
+            c.0.set_rate(hz).map(|_| c.2 = Some(hz))
         } else if let Some(c) = self.mono.iter_mut().find(|c| c.0.device() == a.device) {
-            c.0.set_rate(a.hz).map(|_| c.2 = Some(a.hz))
+            c.0.set_rate(hz).map(|_| c.2 = Some(hz))
         } else if let Some(c) = self.tof.iter_mut().find(|c| c.0.device() == a.device) {
-            c.0.set_rate(a.hz).map(|_| c.2 = Some(a.hz))
+            c.0.set_rate(hz).map(|_| c.2 = Some(hz))
         } else {
             let mut have: Vec<&str> = self.stereo.iter().map(|c| c.0.device()).collect();
             have.extend(self.mono.iter().map(|c| c.0.device()));
@@ -115,7 +119,10 @@ impl Cameras {
             return Err(format!("no camera '{}' (have: {})", a.device, have.join(", ")));
         };
         r.map_err(|e| e.to_string())?;
-        self.overrides.insert(a.device.clone(), a.hz);
+        match a.hz {
+            Some(hz) => self.overrides.insert(a.device.clone(), hz),
+            None => self.overrides.remove(&a.device),
+        };
         Ok(())
     }
 

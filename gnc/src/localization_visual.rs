@@ -9,6 +9,13 @@
 //! (`localization/visual_pose`, from the operator's start, level) so its drift can be compared: it
 //! cannot bridge a loss, and does not pretend to.
 //!
+//! The module rests while the rover stands (seed 000 runs visual odometry for motion): once the
+//! locomotion has been idle with a zero command for `standing_after_s`, it asks the cameras module
+//! for the localization pair at `standing_hz` (`set_rate`), and for the configured rate again as
+//! soon as a motion is commanded. Each standing frame is a keyframe that measured no motion; the
+//! first frame after the rover starts is matched against the last one taken standing. A rover
+//! standing still costs the renderer and the odometry a fraction of a driving one.
+//!
 //! The localization pair sees parts of the rover (the stowed arm, a wheel): a keyframe keeps no
 //! point that lies on the robot as the believed mechanism places it with the latest joint states
 //! (`arm/joints`, `ptu/joints`), or those points, moving with the camera, would vote for standing
@@ -19,8 +26,11 @@ use crate::localization::visual::{
 };
 use crate::params::require_positive;
 use framework::camera::StereoCalibration;
-use framework::data::{JointStates, PoseEstimate, StereoImages, VisualOdometry, VisualOdometryStatus};
+use framework::data::{
+    JointStates, LocomotionState, PoseEstimate, StereoImages, VisualOdometry, VisualOdometryStatus,
+};
 use framework::mechanism::MechanismModel;
+use framework::message::{AckStatus, MessageId};
 use framework::prelude::*;
 use nalgebra::{Isometry3, Matrix6, Point3, Translation3, UnitQuaternion};
 use serde::{Deserialize, Serialize};
@@ -77,6 +87,12 @@ pub struct VisualModuleParams {
     pub body_box: [f64; 6],
     /// Points within this of the robot's link segments are on the robot, m.
     pub self_radius_m: f64,
+    /// Ask for fewer frames while the rover stands (when the module is wired to the cameras).
+    pub rest_when_standing: bool,
+    /// The localization pair's frame rate while the rover stands, Hz (0: none) ...
+    pub standing_hz: f64,
+    /// ... once the locomotion has been idle with a zero command this long, s.
+    pub standing_after_s: f64,
 }
 
 impl Default for VisualModuleParams {
@@ -102,6 +118,9 @@ impl Default for VisualModuleParams {
             rotation_sigma_deg: 0.1,
             body_box: [-0.75, 0.75, -0.6, 0.6, -0.3, 1.6],
             self_radius_m: 0.2,
+            rest_when_standing: true,
+            standing_hz: 0.5,
+            standing_after_s: 1.0,
         }
     }
 }
@@ -141,6 +160,22 @@ pub struct LocalizationVisual {
     /// The vision-only pose of the keyframe, and of the latest frame.
     keyframe_pose: Option<Isometry3<f64>>,
     lost: bool,
+    rest: Option<Rest>,
+}
+
+/// Resting while the rover stands: the camera module and device asked for frames, the
+/// locomotion's state, and where the asking stands.
+struct Rest {
+    cameras: String,
+    device: String,
+    locomotion_slot: String,
+    locomotion: Option<Reader<LocomotionState>>,
+    /// Since when the rover has stood (no motion commanded).
+    standing_since: Option<Time>,
+    /// The standing rate is asked for (or granted).
+    resting: bool,
+    /// The last rate command, to see it refused.
+    pending: Option<MessageId>,
 }
 
 impl LocalizationVisual {
@@ -165,10 +200,77 @@ impl LocalizationVisual {
             last_seq: 0,
             keyframe_pose: None,
             lost: false,
+            rest: None,
+        }
+    }
+
+    /// Rests while the rover stands: asks module `cameras` for fewer frames of `device` while the
+    /// locomotion's state (`locomotion_slot`) shows the rover standing, and for the configured
+    /// rate again when it moves.
+    pub fn resting_with(mut self, cameras: &str, device: &str, locomotion_slot: &str) -> Self {
+        self.rest = Some(Rest {
+            cameras: cameras.to_string(),
+            device: device.to_string(),
+            locomotion_slot: locomotion_slot.to_string(),
+            locomotion: None,
+            standing_since: None,
+            resting: false,
+            pending: None,
+        });
+        self
+    }
+
+    /// Asks for the standing rate once the rover has stood `standing_after_s`, and for the
+    /// configured rate as soon as it moves (no locomotion state yet counts as moving). A refused
+    /// request is noted and resting stops.
+    fn pace(&mut self, ctx: &mut Ctx<'_>) {
+        let p = &self.params;
+        let Some(r) = &mut self.rest else { return };
+        if let Some(id) = r.pending {
+            match ctx.ack_status(id) {
+                Some(AckStatus::Rejected(why) | AckStatus::Failed(why)) => {
+                    ctx.note(format!("the localization camera's rate was refused ({why}): resting stops"));
+                    self.rest = None;
+                    return;
+                }
+                Some(AckStatus::Completed(_)) => r.pending = None,
+                _ => {}
+            }
+        }
+        let standing = r.locomotion.as_ref().and_then(|l| ctx.read(l)).is_some_and(|s| {
+            s.value.command.v == 0.0
+                && s.value.command.omega == 0.0
+                && matches!(s.value.mode.as_str(), "idle" | "fault")
+        });
+        let now = ctx.now();
+        if !standing {
+            r.standing_since = None;
+        }
+        let since = *r.standing_since.get_or_insert(now);
+        let rest = p.rest_when_standing && standing && (now - since).as_secs_f64() >= p.standing_after_s;
+        if rest == r.resting {
+            return;
+        }
+        let hz = rest.then_some(p.standing_hz);
+        match crate::peer::send(
+            ctx,
+            &r.cameras,
+            "set_rate",
+            serde_json::json!({ "device": r.device, "hz": hz }),
+        ) {
+            Ok(id) => {
+                r.pending = Some(id);
+                r.resting = rest;
+            }
+            Err(why) => {
+                ctx.note(format!("the localization camera's rate cannot be set ({why}): resting stops"));
+                self.rest = None;
+            }
         }
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        self.pace(ctx);
         let Some(frame) = self.images.as_ref().and_then(|r| ctx.read(r)) else { return Ok(()) };
         if frame.seq == self.last_seq {
             return Ok(());
@@ -291,6 +393,10 @@ impl Module for LocalizationVisual {
         }
         self.out = Some(d.writes(SLOT));
         self.pose_out = Some(d.writes(POSE_SLOT));
+        if let Some(r) = &mut self.rest {
+            r.locomotion = Some(d.reads(&r.locomotion_slot));
+            d.sends_to(&r.cameras);
+        }
         d.context_switchable();
         d.state("tracking", |m, ctx| m.cycle(ctx));
         d.command("reset", |m, _ctx, _: ()| {
@@ -333,6 +439,12 @@ impl Module for LocalizationVisual {
         }
         if !(p.rotation_sigma_deg.is_finite() && p.rotation_sigma_deg >= 0.0) {
             return Err(format!("rotation_sigma_deg must be >= 0, got {}", p.rotation_sigma_deg));
+        }
+        if !(p.standing_hz.is_finite() && p.standing_hz >= 0.0) {
+            return Err(format!("standing_hz must be >= 0 (0: no frames), got {}", p.standing_hz));
+        }
+        if !(p.standing_after_s.is_finite() && p.standing_after_s >= 0.0) {
+            return Err(format!("standing_after_s must be >= 0, got {}", p.standing_after_s));
         }
         if !(p.scale_sigma.is_finite() && p.scale_sigma >= 0.0) {
             return Err(format!("scale_sigma must be >= 0, got {}", p.scale_sigma));

@@ -282,7 +282,8 @@ fn add_module(
                 "cameras/loc_stereo",
                 map.mechanism()?,
                 &["ptu/joints", "arm/joints"],
-            ),
+            )
+            .resting_with("cameras", "loc_stereo", "locomotion/state"),
             config,
         ),
         "localization_fusion" => {

@@ -84,6 +84,9 @@ enum Action {
     Lift,
     /// The object is let go: the manipulator holds nothing.
     Released,
+    /// The open fingers over the slot's centre, where the cradle's clamp centres an object let
+    /// go off it (the tool may have set it down to the side), before they lift off its handle.
+    Recentre,
     /// A joint group's motors out of fault (the arm after a blocked set-down stalled one, the
     /// gripper before a grasp: a close that stalled faults it).
     Recover(Group),
@@ -413,10 +416,11 @@ impl ManipulatorControl {
             }
             Action::Lift => {
                 let (q, _) = self.arm_now(ctx)?;
-                // Up: out of a slot along the vertical, the way the object went down (a descent
-                // that stopped short may leave the tool tilted); else against the tool's x axis
-                // (the fingers point down).
-                let path = if job.slot.is_some() {
+                // Up: an object still held out of a slot along the vertical, the way it went down
+                // (a descent that stopped short may leave the tool tilted); else, and the open
+                // fingers off an object let go, against the tool's x axis (the way the fingers
+                // point: a tilted tool going up vertically drags a finger along the handle).
+                let path = if job.slot.is_some() && self.held.is_some() {
                     self.vertical(&q, self.params.lift_m)?
                 } else {
                     self.line(&q, -self.params.lift_m)?
@@ -427,6 +431,15 @@ impl ManipulatorControl {
                 return self.next_action(ctx, job);
             }
             Action::CheckGrip => self.check_grip(ctx, job)?,
+            Action::Recentre => {
+                let (q, _) = self.arm_now(ctx)?;
+                let path =
+                    job.seat.as_ref().map(|seat| self.recentre(&q, seat)).transpose()?.unwrap_or_default();
+                for p in path.into_iter().rev() {
+                    job.actions.push_front(Action::Straight { to: p, contact: true });
+                }
+                return self.next_action(ctx, job);
+            }
             Action::Released => {
                 // Let go in the slot, the object stays there: the arm keeps clear of it.
                 if let (Some(shape), Some(slot)) = (self.held_shape(), job.slot.clone()) {

@@ -22,6 +22,9 @@ pub(super) struct Seat {
     tried: u32,
 }
 
+/// A tool let go of its object this near the slot's centre (horizontally) lifts from there, m.
+const RECENTRE_MIN_M: f64 = 0.005;
+
 /// The direction (rad, base frame) of the `k`-th sideways try of a seat search over `n`
 /// directions: opposite sides in turn, then the ones between (for 8: 0, 4, 2, 6, 1, 5, 3, 7
 /// eighths of a turn).
@@ -127,6 +130,19 @@ impl ManipulatorControl {
         Some((actions, offset))
     }
 
+    /// The arm's values along a level line from the tool at `q` to over the slot's centre (where
+    /// the cradle's clamp centres the object let go): none when it is within a few millimetres
+    /// already.
+    pub(super) fn recentre(&self, q: &[f64], seat: &Seat) -> Result<Vec<Vec<f64>>, String> {
+        let at = self.kinematics.forward(q)?;
+        let d = (seat.above.translation.vector - at.translation.vector).xy();
+        if d.norm() < RECENTRE_MIN_M {
+            return Ok(Vec::new());
+        }
+        let dir = Vector3::new(d.x, d.y, 0.0) / d.norm();
+        self.stepped(q, d.norm(), |start, s| Isometry3::translation(dir.x * s, dir.y * s, 0.0) * start)
+    }
+
     /// The actions of `place`: above the slot, down into it, open, up, away; and where the object
     /// is set down.
     pub(super) fn place_actions(&self, ctx: &Ctx<'_>, slot: &str) -> Result<(Vec<Action>, Seat), String> {
@@ -188,6 +204,10 @@ impl ManipulatorControl {
         actions.extend(down.into_iter().map(|to| Action::Straight { to, contact: true }));
         actions.push(Action::Gripper(vec![self.params.open_m; self.fingers.len()]));
         actions.push(Action::Released);
+        // A descent that pressed on the slot can leave a servo stalled (in fault) as the fingers
+        // let go: cleared before the lift (a servo not in fault refuses, and that is fine).
+        actions.push(Action::Recover(Group::Arm));
+        actions.push(Action::Recentre);
         actions.push(Action::Lift);
         if let Some(p) = self.params.poses.get(&self.params.after_place) {
             actions.push(Action::Plan(p.clone()));

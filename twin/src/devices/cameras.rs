@@ -31,6 +31,8 @@ struct Schedule {
     period: Option<Duration>,
     max_rate_hz: f64,
     next_due: Time,
+    /// When the last frame was captured.
+    last: Option<Time>,
     seq: u64,
     latency_s: f64,
     jitter_s: f64,
@@ -44,6 +46,7 @@ impl Schedule {
             period: Some(Duration::from_hz(rate_hz)),
             max_rate_hz: rate_hz,
             next_due: Time::ZERO,
+            last: None,
             seq: 0,
             latency_s,
             jitter_s,
@@ -51,7 +54,8 @@ impl Schedule {
         }
     }
 
-    /// The frame rate the software asks for: (0, the camera's maximum], or 0 to stop.
+    /// The frame rate the software asks for: (0, the camera's maximum], or 0 to stop. A faster
+    /// rate takes effect at once: the next frame is due one new period after the last.
     fn set_rate(&mut self, hz: f64) -> Result<(), DeviceError> {
         if !(hz.is_finite() && hz >= 0.0 && hz <= self.max_rate_hz + 1e-9) {
             return Err(DeviceError::InvalidCommand {
@@ -60,6 +64,9 @@ impl Schedule {
             });
         }
         self.period = (hz > 0.0).then(|| Duration::from_hz(hz));
+        if let (Some(period), Some(last)) = (self.period, self.last) {
+            self.next_due = self.next_due.min(last + period);
+        }
         Ok(())
     }
 
@@ -78,6 +85,7 @@ impl Schedule {
         while self.next_due <= now {
             self.next_due += period;
         }
+        self.last = Some(now);
         let at = arrival(self.seed, self.seq, now, self.latency_s, self.jitter_s);
         self.seq += 1;
         Ok(Some(at))

@@ -46,6 +46,23 @@ pub fn next_tool_pose(
     base_from_tool * Isometry3::from_parts(Translation3::from(v), r)
 }
 
+/// The mean of poses that scatter a little (views of one object at rest): the mean translation
+/// and the normalized mean of the unit quaternions, each turned to the first's hemisphere (the
+/// chordal L2 mean, within a small fraction of a degree of the geodesic one at these spreads).
+/// The identity when there are none.
+pub fn mean_pose(poses: &[Isometry3<f64>]) -> Isometry3<f64> {
+    let Some(first) = poses.first() else { return Isometry3::identity() };
+    let n = poses.len() as f64;
+    let t = poses.iter().map(|p| p.translation.vector).sum::<nalgebra::Vector3<f64>>() / n;
+    let q0 = first.rotation.coords;
+    let q = poses
+        .iter()
+        .map(|p| if p.rotation.coords.dot(&q0) < 0.0 { -p.rotation.coords } else { p.rotation.coords })
+        .sum::<nalgebra::Vector4<f64>>();
+    let rotation = UnitQuaternion::from_quaternion(nalgebra::Quaternion::from(q));
+    Isometry3::from_parts(Translation3::from(t), rotation)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -75,5 +92,35 @@ mod tests {
             commanded = next_tool_pose(&commanded, &corr, 0.8, 0.05);
         }
         assert!(last.position_m < 1e-3 && last.angle_rad < 1e-3, "{last:?}");
+    }
+
+    #[test]
+    fn the_mean_of_scattered_views_is_their_centre() {
+        use nalgebra::Vector3;
+        let centre = Isometry3::from_parts(
+            Translation3::new(0.1, -0.02, 0.3),
+            UnitQuaternion::from_euler_angles(0.3, -0.2, 2.0),
+        );
+        // Symmetric scatter: +-3 mm and +-1.5 deg about each axis, and one quaternion negated
+        // (the same rotation).
+        let mut views = Vec::new();
+        for axis in [Vector3::x_axis(), Vector3::y_axis(), Vector3::z_axis()] {
+            for s in [-1.0, 1.0] {
+                let d = Isometry3::from_parts(
+                    Translation3::from(axis.into_inner() * 0.003 * s),
+                    UnitQuaternion::from_axis_angle(&axis, (1.5f64 * s).to_radians()),
+                );
+                views.push(centre * d);
+            }
+        }
+        let q = views[0].rotation.into_inner();
+        views[0].rotation = UnitQuaternion::new_unchecked(-q);
+        let m = mean_pose(&views);
+        assert!((m.translation.vector - centre.translation.vector).norm() < 1e-4);
+        assert!((m.rotation.inverse() * centre.rotation).angle() < 0.01f64.to_radians());
+        let one = mean_pose(&views[..1]);
+        assert!((one.translation.vector - views[0].translation.vector).norm() < 1e-12);
+        assert!((one.rotation.inverse() * views[0].rotation).angle() < 1e-9);
+        assert_eq!(mean_pose(&[]), Isometry3::identity());
     }
 }

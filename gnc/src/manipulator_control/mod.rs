@@ -29,7 +29,7 @@
 use crate::body::joint_values;
 use crate::manipulation::clearance::{Clearance, ClearanceParams, Held};
 use crate::manipulation::kinematics::{ArmKinematics, distance, top_down_grasps};
-use crate::manipulation::servo::{next_tool_pose, tool_correction};
+use crate::manipulation::servo::{mean_pose, next_tool_pose, tool_correction};
 use crate::manipulation::trajectory::{plan_path, segment_speed};
 use crate::peer::send;
 use framework::data::{JointStates, ManipulationState, ObjectPoses};
@@ -108,7 +108,7 @@ enum Wait {
     /// arm still short of its goal then is stopped: near enough, the motion goes on).
     Command(MessageId, &'static str, Option<(Time, Vec<f64>)>),
     /// An image of the object taken at rest after this time (asked since).
-    View { after: Time, since: Time },
+    View { after: Time, since: Time, views: Vec<(Time, Isometry3<f64>)> },
 }
 
 /// A command in progress.
@@ -352,7 +352,7 @@ impl ManipulatorControl {
     }
 
     /// The object's newest pose seen at rest after `after`, in the tool frame (the arm at `q`).
-    fn view(&self, ctx: &Ctx<'_>, object: &str, after: Time, q: &[f64]) -> Option<Isometry3<f64>> {
+    fn view(&self, ctx: &Ctx<'_>, object: &str, after: Time, q: &[f64]) -> Option<(Time, Isometry3<f64>)> {
         let poses = ctx.read(self.objects.as_ref()?)?;
         if poses.value.stamp < after {
             return None;
@@ -361,7 +361,7 @@ impl ManipulatorControl {
         // The arm rests: the believed kinematics that placed the camera at the stamp place the tool
         // now, so their errors cancel between the two.
         let base_from_tool = self.kinematics.forward(q).ok()?;
-        Some(base_from_tool.inverse() * o.base_from_object)
+        Some((poses.value.stamp, base_from_tool.inverse() * o.base_from_object))
     }
 
     fn object_params(&self, object: &str) -> Result<&GraspableObject, String> {
@@ -403,8 +403,8 @@ impl ManipulatorControl {
                 // queue and runs when the view comes (see `viewed`).
                 job.actions.push_front(action);
                 let now = ctx.now();
-                job.wait =
-                    Wait::View { after: now + Duration::from_secs_f64(self.params.settle_s), since: now };
+                let after = now + Duration::from_secs_f64(self.params.settle_s);
+                job.wait = Wait::View { after, since: now, views: Vec::new() };
             }
             Action::Descend => {
                 let (q, _) = self.arm_now(ctx)?;
@@ -632,23 +632,29 @@ impl ManipulatorControl {
                 }
                 _ => return Ok(None),
             },
-            Wait::View { after, since } => {
+            Wait::View { after, since, mut views } => {
                 let object = job.object.clone().ok_or("no object")?;
                 let (q, _) = self.arm_now(ctx)?;
-                match self.view(ctx, &object, after, &q) {
-                    Some(t) => {
-                        job.wait = Wait::Idle;
-                        self.viewed(ctx, job, t)?;
-                        return Ok(None);
-                    }
-                    None if (ctx.now() - since).as_secs_f64() > self.params.observe_timeout_s => {
-                        return Err(format!(
-                            "the wrist camera did not see the {object} within {} s",
-                            self.params.observe_timeout_s
-                        ));
-                    }
-                    None => return Ok(None),
+                if let Some((stamp, t)) = self.view(ctx, &object, after, &q)
+                    && views.last().is_none_or(|(last, _)| stamp > *last)
+                {
+                    views.push((stamp, t));
                 }
+                let timed_out = (ctx.now() - since).as_secs_f64() > self.params.observe_timeout_s;
+                if views.len() >= self.params.view_frames as usize || (timed_out && !views.is_empty()) {
+                    job.wait = Wait::Idle;
+                    let poses: Vec<Isometry3<f64>> = views.into_iter().map(|(_, t)| t).collect();
+                    self.viewed(ctx, job, mean_pose(&poses))?;
+                    return Ok(None);
+                }
+                if timed_out {
+                    return Err(format!(
+                        "the wrist camera did not see the {object} within {} s",
+                        self.params.observe_timeout_s
+                    ));
+                }
+                job.wait = Wait::View { after, since, views };
+                return Ok(None);
             }
         }
         if self.next_action(ctx, job)? {
@@ -864,6 +870,7 @@ impl Module for ManipulatorControl {
             ("arrive_tolerance_m", p.arrive_tolerance_m),
             ("grip_tolerance_m", p.grip_tolerance_m),
             ("place_height_m", p.place_height_m),
+            ("view_frames", f64::from(p.view_frames)),
         ])?;
         if p.speed > 1.0 || p.servo_gain > 1.0 {
             return Err(format!(

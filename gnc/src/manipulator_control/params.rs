@@ -58,6 +58,9 @@ pub struct ManipulatorParams {
     pub max_servo_steps: u32,
     /// The arm rests this long after a move before an image is taken as its view, s.
     pub settle_s: f64,
+    /// A view of the object is the mean of this many images at rest (the marker pose's noise,
+    /// millimetres and a degree at the pre-grasp pose, is the servo loop's floor).
+    pub view_frames: u32,
     /// Longest wait for the wrist camera to see the object, s.
     pub observe_timeout_s: f64,
     /// An arm move is stopped once it runs this long past twice its planned duration, s ...
@@ -105,6 +108,7 @@ impl Default for ManipulatorParams {
             servo_tolerance_deg: 1.5,
             max_servo_steps: 10,
             settle_s: 0.3,
+            view_frames: 3,
             observe_timeout_s: 4.0,
             move_slack_s: 3.0,
             arrive_tolerance_m: 0.005,

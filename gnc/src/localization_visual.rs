@@ -9,12 +9,13 @@
 //! (`localization/visual_pose`, from the operator's start, level) so its drift can be compared: it
 //! cannot bridge a loss, and does not pretend to.
 //!
-//! The module rests while the rover stands (seed 000 runs visual odometry for motion): once the
-//! locomotion has been idle with a zero command for `standing_after_s`, it asks the cameras module
-//! for the localization pair at `standing_hz` (`set_rate`), and for the configured rate again as
-//! soon as a motion is commanded. Each standing frame is a keyframe that measured no motion; the
-//! first frame after the rover starts is matched against the last one taken standing. A rover
-//! standing still costs the renderer and the odometry a fraction of a driving one.
+//! The module rests while the rover stands: once the locomotion has been idle (or in fault) with a
+//! zero command for `standing_after_s`, it asks the cameras module for the localization pair at
+//! `standing_hz` (`set_rate`), and for the configured rate again as soon as a motion is commanded.
+//! The standing frames measure no motion (at the default 0.5 Hz each closes a keyframe, its age
+//! reaching `keyframe_max_interval_s`); the first frame after the rover starts is matched against
+//! the last one taken standing. A rover standing still costs the renderer and the odometry a
+//! fraction of a driving one.
 //!
 //! The localization pair sees parts of the rover (the stowed arm, a wheel): a keyframe keeps no
 //! point that lies on the robot as the believed mechanism places it with the latest joint states
@@ -170,12 +171,14 @@ struct Rest {
     device: String,
     locomotion_slot: String,
     locomotion: Option<Reader<LocomotionState>>,
-    /// Since when the rover has stood (no motion commanded).
+    /// Since when the rover has stood (no motion commanded); None while it moves.
     standing_since: Option<Time>,
     /// The standing rate is asked for (or granted).
     resting: bool,
-    /// The last rate command, to see it refused.
-    pending: Option<MessageId>,
+    /// The rate command in flight (true: the slow-down), to see it refused.
+    pending: Option<(MessageId, bool)>,
+    /// A restore of the configured rate was refused and is being asked again (noted once).
+    restore_refused: bool,
 }
 
 impl LocalizationVisual {
@@ -216,25 +219,40 @@ impl LocalizationVisual {
             standing_since: None,
             resting: false,
             pending: None,
+            restore_refused: false,
         });
         self
     }
 
     /// Asks for the standing rate once the rover has stood `standing_after_s`, and for the
-    /// configured rate as soon as it moves (no locomotion state yet counts as moving). A refused
-    /// request is noted and resting stops.
+    /// configured rate as soon as it moves (no locomotion state yet counts as moving); one request
+    /// at a time. A refused slow-down is noted and resting stops (the camera keeps its rate); a
+    /// refused or unsendable restore (the cameras module in Safe, say) is asked again every cycle
+    /// until granted: the pair is never left slow while the rover moves.
     fn pace(&mut self, ctx: &mut Ctx<'_>) {
         let p = &self.params;
         let Some(r) = &mut self.rest else { return };
-        if let Some(id) = r.pending {
+        if let Some((id, slow)) = r.pending {
             match ctx.ack_status(id) {
-                Some(AckStatus::Rejected(why) | AckStatus::Failed(why)) => {
-                    ctx.note(format!("the localization camera's rate was refused ({why}): resting stops"));
+                Some(AckStatus::Completed(_)) => r.pending = None,
+                Some(AckStatus::Rejected(why) | AckStatus::Failed(why)) if slow => {
+                    ctx.note(format!(
+                        "the localization camera's slower rate was refused ({why}): resting stops"
+                    ));
                     self.rest = None;
                     return;
                 }
-                Some(AckStatus::Completed(_)) => r.pending = None,
-                _ => {}
+                Some(AckStatus::Rejected(why) | AckStatus::Failed(why)) => {
+                    if !r.restore_refused {
+                        ctx.note(format!(
+                            "the localization camera's rate was not restored ({why}): asking again"
+                        ));
+                    }
+                    r.restore_refused = true;
+                    r.pending = None;
+                    r.resting = true;
+                }
+                _ => return,
             }
         }
         let standing = r.locomotion.as_ref().and_then(|l| ctx.read(l)).is_some_and(|s| {
@@ -243,11 +261,9 @@ impl LocalizationVisual {
                 && matches!(s.value.mode.as_str(), "idle" | "fault")
         });
         let now = ctx.now();
-        if !standing {
-            r.standing_since = None;
-        }
-        let since = *r.standing_since.get_or_insert(now);
-        let rest = p.rest_when_standing && standing && (now - since).as_secs_f64() >= p.standing_after_s;
+        r.standing_since = if standing { Some(r.standing_since.unwrap_or(now)) } else { None };
+        let rest = p.rest_when_standing
+            && r.standing_since.is_some_and(|since| (now - since).as_secs_f64() >= p.standing_after_s);
         if rest == r.resting {
             return;
         }
@@ -259,12 +275,23 @@ impl LocalizationVisual {
             serde_json::json!({ "device": r.device, "hz": hz }),
         ) {
             Ok(id) => {
-                r.pending = Some(id);
+                r.pending = Some((id, rest));
                 r.resting = rest;
+                if !rest {
+                    r.restore_refused = false;
+                }
             }
-            Err(why) => {
+            Err(why) if rest => {
                 ctx.note(format!("the localization camera's rate cannot be set ({why}): resting stops"));
                 self.rest = None;
+            }
+            Err(why) => {
+                if !r.restore_refused {
+                    ctx.note(format!(
+                        "the localization camera's rate cannot be restored ({why}): asking again"
+                    ));
+                }
+                r.restore_refused = true;
             }
         }
     }

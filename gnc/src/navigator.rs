@@ -14,7 +14,9 @@
 //!   when a replan finds no path the rover stops, scans and plans again.
 //!
 //! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` before
-//! scanning again. Progress is published on `navigation/state`.
+//! scanning again; the planner is asked to keep the rover out of the spot ahead where it stalled
+//! (`stall_keep_out_m` around the point `stall_ahead_m` ahead: something there the map does not
+//! show), so the next plan goes round it instead of into it again. Progress is published on `navigation/state`.
 
 use crate::peer::send;
 use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
@@ -37,6 +39,11 @@ pub struct NavigatorParams {
     pub max_failures: u32,
     /// After a stall, the rover backs off this far before scanning again, m.
     pub back_off_m: f64,
+    /// After a stall, the planner keeps the rover's centre this far from the spot `stall_ahead_m`
+    /// ahead of where it stalled (something there the map does not show), m (0: not).
+    pub stall_keep_out_m: f64,
+    /// See `stall_keep_out_m`, m.
+    pub stall_ahead_m: f64,
     /// Longest wait for a fresh navigation map after a scan, s.
     pub map_wait_s: f64,
 }
@@ -49,6 +56,8 @@ impl Default for NavigatorParams {
             speed: 0.25,
             max_failures: 4,
             back_off_m: 0.3,
+            stall_keep_out_m: 0.7,
+            stall_ahead_m: 0.5,
             map_wait_s: 3.0,
         }
     }
@@ -171,6 +180,23 @@ impl CoordinatorNavigator {
             let c = p.value.position();
             [c.x, c.y]
         })
+    }
+
+    /// Asks the planner to keep out of the spot ahead of the rover (where a wheel stalled on
+    /// something the map does not show), so that the next plan goes round it.
+    fn keep_out_ahead(&self, ctx: &mut Ctx<'_>) {
+        let p = &self.params;
+        let Some(pose) = self.pose.as_ref().and_then(|r| ctx.read(r)) else { return };
+        if p.stall_keep_out_m <= 0.0 {
+            return;
+        }
+        let c = pose.value.position();
+        let (_, _, yaw) = pose.value.pose.rotation.euler_angles();
+        let (x, y) = (c.x + p.stall_ahead_m * yaw.cos(), c.y + p.stall_ahead_m * yaw.sin());
+        let args = serde_json::json!({ "x": x, "y": y, "radius_m": p.stall_keep_out_m });
+        if let Err(e) = send(ctx, &self.peers.planner, "avoid", args) {
+            ctx.note(format!("the stall's spot is not kept out: {e}"));
+        }
     }
 
     fn distance_to_goal(&self, ctx: &Ctx<'_>) -> Option<f64> {
@@ -325,6 +351,7 @@ impl CoordinatorNavigator {
                     }
                     Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                         if r.contains("stalled") || r.contains("fault") {
+                            self.keep_out_ahead(ctx);
                             Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None))
                         } else {
                             Next::Fail(format!("drive failed: {r}"))
@@ -507,6 +534,11 @@ impl Module for CoordinatorNavigator {
             ("map_wait_s", p.map_wait_s),
             ("back_off_m", p.back_off_m),
         ])?;
+        for (k, v) in [("stall_keep_out_m", p.stall_keep_out_m), ("stall_ahead_m", p.stall_ahead_m)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{k} must be >= 0, got {v}"));
+            }
+        }
         self.params = p.clone();
         Ok(())
     }

@@ -5,6 +5,9 @@
 //!   `navigation/path` and completes with its summary; "no path" (walled off, goal in an obstacle,
 //!   no map yet) fails the command with the reason, never silently.
 //! - `clear`: forgets the goal.
+//! - `avoid {x, y, radius_m}`: keeps the rover's centre out of a disc (`map`) from now on, over
+//!   what the navigation map says (a place where a wheel stalled on something the map does not
+//!   show); the newest `MAX_KEEP_OUTS` are kept. `clear_avoid` forgets them.
 //!
 //! While a goal is set, every new navigation map is planned on again (the map grows as the rover
 //! drives) and the new path published; a replan that finds no path publishes an empty path and
@@ -28,6 +31,45 @@ pub struct PlanArgs {
     pub tolerance_m: Option<f64>,
 }
 
+/// Arguments of `avoid`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AvoidArgs {
+    /// Centre x, m (`map` frame).
+    pub x: f64,
+    /// Centre y, m.
+    pub y: f64,
+    /// Radius, m.
+    pub radius_m: f64,
+}
+
+/// Keep-out discs kept (the oldest is dropped beyond).
+pub const MAX_KEEP_OUTS: usize = 32;
+
+/// `map` with the cells whose centres lie in a keep-out disc (x, y, radius) made obstacles.
+pub fn with_keep_outs(map: &NavigationMap, keep_outs: &[[f64; 3]]) -> NavigationMap {
+    let mut out = map.clone();
+    let g = &map.geometry;
+    let res = g.resolution_m;
+    for &[x, y, r] in keep_outs {
+        // The cells whose index ranges could hold a centre within r, clamped to the grid.
+        let span = |c: f64, o: f64, n: usize| {
+            let lo = ((c - r - o) / res).floor().max(0.0) as usize;
+            let hi = (((c + r - o) / res).ceil().max(0.0) as usize).min(n);
+            lo..hi
+        };
+        for j in span(y, g.origin[1], g.height) {
+            for i in span(x, g.origin[0], g.width) {
+                let [cx, cy] = g.centre(i, j);
+                if (cx - x).hypot(cy - y) <= r {
+                    out.cost[g.index(i, j)] = framework::data::cost::OBSTACLE;
+                }
+            }
+        }
+    }
+    out
+}
+
 /// The PathPlanning module.
 pub struct PathPlanning {
     pose_slot: String,
@@ -38,6 +80,8 @@ pub struct PathPlanning {
     last_map: u64,
     failing: bool,
     params: PlannerParams,
+    /// Keep-out discs (x, y, radius) in `map`.
+    keep_outs: Vec<[f64; 3]>,
 }
 
 impl PathPlanning {
@@ -52,6 +96,7 @@ impl PathPlanning {
             last_map: 0,
             failing: false,
             params: PlannerParams::default(),
+            keep_outs: Vec::new(),
         }
     }
 
@@ -66,7 +111,14 @@ impl PathPlanning {
             .and_then(|r| ctx.read(r))
             .ok_or_else(|| format!("no pose estimate on '{}'", self.pose_slot))?;
         let p = pose.value.position();
-        let result = plan(&map.value, [p.x, p.y], goal, tol, &self.params).map_err(|e| e.to_string());
+        let kept;
+        let on = if self.keep_outs.is_empty() {
+            &map.value
+        } else {
+            kept = with_keep_outs(&map.value, &self.keep_outs);
+            &kept
+        };
+        let result = plan(on, [p.x, p.y], goal, tol, &self.params).map_err(|e| e.to_string());
         if let Some(w) = &self.out {
             let published = result
                 .clone()
@@ -131,6 +183,21 @@ impl Module for PathPlanning {
             m.goal = None;
             Outcome::done()
         });
+        d.command("avoid", |m, ctx, a: AvoidArgs| {
+            if !(a.x.is_finite() && a.y.is_finite() && a.radius_m.is_finite() && a.radius_m > 0.0) {
+                return Outcome::reject("avoid needs a finite centre and a positive radius_m");
+            }
+            if m.keep_outs.len() >= MAX_KEEP_OUTS {
+                m.keep_outs.remove(0);
+            }
+            m.keep_outs.push([a.x, a.y, a.radius_m]);
+            ctx.note(format!("keeping out of ({:.2}, {:.2}), radius {:.2} m", a.x, a.y, a.radius_m));
+            Outcome::done()
+        });
+        d.command("clear_avoid", |m, _ctx, _: ()| {
+            m.keep_outs.clear();
+            Outcome::done()
+        });
     }
 
     fn configure(&mut self, p: &PlannerParams) -> Result<(), String> {
@@ -139,5 +206,33 @@ impl Module for PathPlanning {
         }
         self.params = p.clone();
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::with_keep_outs;
+    use framework::data::{GridGeometry, NavigationMap, cost};
+
+    #[test]
+    fn a_keep_out_makes_the_cells_of_its_disc_obstacles_and_no_others() {
+        let map = NavigationMap {
+            geometry: GridGeometry::centred("map", [0.0, 0.0], 0.1, 40, 40),
+            cost: vec![10; 1600],
+            unknown_cost: 50,
+        };
+        let kept = with_keep_outs(&map, &[[0.5, -0.3, 0.25], [1.95, 1.95, 0.3]]);
+        let g = &map.geometry;
+        for j in 0..g.height {
+            for i in 0..g.width {
+                let [x, y] = g.centre(i, j);
+                let inside = (x - 0.5).hypot(y + 0.3) <= 0.25 || (x - 1.95).hypot(y - 1.95) <= 0.3;
+                let want = if inside { cost::OBSTACLE } else { 10 };
+                assert_eq!(kept.cost[g.index(i, j)], want, "cell ({x:.2}, {y:.2})");
+            }
+        }
+        // About pi r^2 / cell area cells in the first disc.
+        let n = kept.cost.iter().filter(|c| **c == cost::OBSTACLE).count();
+        assert!(n > 20, "{n} cells kept out");
     }
 }

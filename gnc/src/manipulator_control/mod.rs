@@ -84,8 +84,8 @@ enum Action {
     Lift,
     /// The object is let go: the manipulator holds nothing.
     Released,
-    /// The open fingers over the slot's centre, where the cradle's clamp centres an object let
-    /// go off it (the tool may have set it down to the side), before they lift off its handle.
+    /// The open fingers towards the slot's centre, where the cradle's clamp centres an object let
+    /// go off it (a seat search set it down to the side), before they lift off its handle.
     Recentre,
     /// A joint group's motors out of fault (the arm after a blocked set-down stalled one, the
     /// gripper before a grasp: a close that stalled faults it).

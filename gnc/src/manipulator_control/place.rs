@@ -130,12 +130,15 @@ impl ManipulatorControl {
         Some((actions, offset))
     }
 
-    /// The arm's values along a level line from the tool at `q` to over the slot's centre (where
-    /// the cradle's clamp centres the object let go): none when it is within a few millimetres
-    /// already.
+    /// The arm's values along a level line from the tool at `q` halfway to over the slot's believed
+    /// centre; none when it is within a few millimetres already (a first descent that went in).
+    /// After a seat search the object was let go to the side, and the cradle's clamp centres it on
+    /// the true slot: if the believed centre is right, the handle is now there; if the release point
+    /// was (the search found the slot where the believed kinematics miss it), it stayed. Halfway
+    /// leaves the open fingers at most half the search offset from the handle either way.
     pub(super) fn recentre(&self, q: &[f64], seat: &Seat) -> Result<Vec<Vec<f64>>, String> {
         let at = self.kinematics.forward(q)?;
-        let d = (seat.above.translation.vector - at.translation.vector).xy();
+        let d = (seat.above.translation.vector - at.translation.vector).xy() * 0.5;
         if d.norm() < RECENTRE_MIN_M {
             return Ok(Vec::new());
         }

@@ -78,9 +78,14 @@ impl Schedule {
                 reason: "no frames (dropout)".into(),
             });
         }
-        let (Some(period), now) = (self.period, twin.time()) else { return Ok(None) };
+        Ok(self.due_at(twin.time()))
+    }
+
+    /// Whether a frame is captured at `now`; if so, when it arrives.
+    fn due_at(&mut self, now: Time) -> Option<Time> {
+        let period = self.period?;
         if now < self.next_due {
-            return Ok(None);
+            return None;
         }
         while self.next_due <= now {
             self.next_due += period;
@@ -88,7 +93,7 @@ impl Schedule {
         self.last = Some(now);
         let at = arrival(self.seed, self.seq, now, self.latency_s, self.jitter_s);
         self.seq += 1;
-        Ok(Some(at))
+        Some(at)
     }
 }
 
@@ -308,5 +313,34 @@ impl TofCamera for DryRunTof {
             self.pending.push_back((at, frame));
         }
         Ok(newest(&mut self.pending, twin.time()))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Schedule;
+    use framework::time::Time;
+
+    /// The capture times of `s` polled every 50 ms over [from, to) s, in ms.
+    fn captures(s: &mut Schedule, from_ms: i64, to_ms: i64) -> Vec<i64> {
+        (from_ms..to_ms).step_by(50).filter(|t| s.due_at(Time::from_nanos(t * 1_000_000)).is_some()).collect()
+    }
+
+    #[test]
+    fn a_slower_rate_waits_its_period_and_a_faster_one_takes_effect_at_once() {
+        let mut s = Schedule::new("loc_stereo", 10.0, 0.05, 0.0, 1);
+        assert_eq!(captures(&mut s, 0, 500), [0, 100, 200, 300, 400]);
+        s.set_rate(0.5).unwrap();
+        // The frame already due at 0.5 s, then one every 2 s.
+        assert_eq!(captures(&mut s, 500, 5000), [500, 2500, 4500]);
+        // Back to 10 Hz at 5.2 s: the next frame is due 0.1 s after the last, so at once.
+        s.set_rate(10.0).unwrap();
+        assert_eq!(captures(&mut s, 5200, 5500), [5200, 5300, 5400]);
+        // Stopped and started again: at once.
+        s.set_rate(0.0).unwrap();
+        assert!(captures(&mut s, 5500, 7000).is_empty());
+        s.set_rate(10.0).unwrap();
+        assert_eq!(captures(&mut s, 7000, 7200), [7000, 7100]);
+        assert!(s.set_rate(20.0).is_err(), "beyond the camera's own rate");
     }
 }

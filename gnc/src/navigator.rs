@@ -14,9 +14,10 @@
 //!   when a replan finds no path the rover stops, scans and plans again.
 //!
 //! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` before
-//! scanning again; the planner is asked to keep the rover out of the spot ahead where it stalled
-//! (`stall_keep_out_m` around the point `stall_ahead_m` ahead: something there the map does not
-//! show), so the next plan goes round it instead of into it again. Progress is published on `navigation/state`.
+//! scanning again; after a front wheel's stall the planner is asked to keep the rover out of the
+//! spot ahead (`stall_keep_out_m` around the point `stall_ahead_m` ahead: something there the map
+//! does not show; the rover's centre where it stalled on the disc's edge, outside once backed off),
+//! so the next plan goes round it instead of into it again. Progress is published on `navigation/state`.
 
 use crate::peer::send;
 use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
@@ -39,8 +40,9 @@ pub struct NavigatorParams {
     pub max_failures: u32,
     /// After a stall, the rover backs off this far before scanning again, m.
     pub back_off_m: f64,
-    /// After a stall, the planner keeps the rover's centre this far from the spot `stall_ahead_m`
-    /// ahead of where it stalled (something there the map does not show), m (0: not).
+    /// After a front wheel's stall, the planner keeps the rover's centre this far from the spot
+    /// `stall_ahead_m` ahead of where it stalled (something there the map does not show), m (0:
+    /// not). At most `stall_ahead_m`, or the rover would stand in it.
     pub stall_keep_out_m: f64,
     /// See `stall_keep_out_m`, m.
     pub stall_ahead_m: f64,
@@ -56,7 +58,7 @@ impl Default for NavigatorParams {
             speed: 0.25,
             max_failures: 4,
             back_off_m: 0.3,
-            stall_keep_out_m: 0.7,
+            stall_keep_out_m: 0.5,
             stall_ahead_m: 0.5,
             map_wait_s: 3.0,
         }
@@ -351,7 +353,12 @@ impl CoordinatorNavigator {
                     }
                     Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                         if r.contains("stalled") || r.contains("fault") {
-                            self.keep_out_ahead(ctx);
+                            // A front wheel stalled: something ahead the map does not show. (A
+                            // rear wheel's obstacle is behind or beside: nothing to keep out of
+                            // on the way ahead.)
+                            if r.contains("wheel_front") {
+                                self.keep_out_ahead(ctx);
+                            }
                             Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None))
                         } else {
                             Next::Fail(format!("drive failed: {r}"))
@@ -538,6 +545,12 @@ impl Module for CoordinatorNavigator {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{k} must be >= 0, got {v}"));
             }
+        }
+        if p.stall_keep_out_m > p.stall_ahead_m {
+            return Err(format!(
+                "stall_keep_out_m ({}) must be at most stall_ahead_m ({}): the rover would stand in its own keep-out",
+                p.stall_keep_out_m, p.stall_ahead_m
+            ));
         }
         self.params = p.clone();
         Ok(())

@@ -329,7 +329,13 @@ impl ManipulatorControl {
     /// The arm's values from `q` moving the tool by `dz` along the base's vertical (its
     /// orientation kept), every descent step.
     fn vertical(&self, q: &[f64], dz: f64) -> Result<Vec<Vec<f64>>, String> {
-        self.stepped(q, dz, |start, d| Isometry3::translation(0.0, 0.0, d) * start)
+        self.along_base(q, &Vector3::z(), dz)
+    }
+
+    /// The arm's values from `q` moving the tool by `length` along the unit direction `dir` of the
+    /// base frame (its orientation kept), every descent step.
+    fn along_base(&self, q: &[f64], dir: &Vector3<f64>, length: f64) -> Result<Vec<Vec<f64>>, String> {
+        self.stepped(q, length, |start, d| Isometry3::from(dir * d) * start)
     }
 
     /// The arm's values every descent step as the tool moves `length` from where it is at `q`,

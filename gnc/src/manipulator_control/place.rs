@@ -142,8 +142,7 @@ impl ManipulatorControl {
         if d.norm() < RECENTRE_MIN_M {
             return Ok(Vec::new());
         }
-        let dir = Vector3::new(d.x, d.y, 0.0) / d.norm();
-        self.stepped(q, d.norm(), |start, s| Isometry3::translation(dir.x * s, dir.y * s, 0.0) * start)
+        self.along_base(q, &(Vector3::new(d.x, d.y, 0.0) / d.norm()), d.norm())
     }
 
     /// The actions of `place`: above the slot, down into it, open, up, away; and where the object

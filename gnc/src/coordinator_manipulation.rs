@@ -55,6 +55,9 @@ pub struct CoordinatorManipulationParams {
     pub max_attempts: u32,
     /// Rover moves after looking before the command fails.
     pub max_repositions: u32,
+    /// When no look pose saw anything of the object (it may lie nearer than the wrist camera's
+    /// views reach, or beside them), the rover backs up this far once and looks again, m (0: never).
+    pub search_back_m: f64,
 }
 
 impl Default for CoordinatorManipulationParams {
@@ -73,6 +76,7 @@ impl Default for CoordinatorManipulationParams {
             locate_timeout_s: 8.0,
             max_attempts: 3,
             max_repositions: 3,
+            search_back_m: 0.35,
         }
     }
 }
@@ -148,6 +152,8 @@ struct Job {
     look: usize,
     /// The object's position in `map` from the last locate, for the turn after a reposition.
     object_map: Option<Point3<f64>>,
+    /// Whether the rover has backed up to search for an object no look pose saw.
+    searched_back: bool,
     result: serde_json::Value,
     /// When the step awaited began.
     since: Time,
@@ -263,6 +269,28 @@ impl CoordinatorManipulation {
         self.look(ctx, job)
     }
 
+    /// No look pose saw anything of the object: the rover backs up `search_back_m` (once) so that
+    /// the views reach nearer, and looks again from the first pose; the second time, the locate
+    /// fails with `reason`.
+    fn search_back(&self, ctx: &mut Ctx<'_>, job: &mut Job, reason: &str) -> Result<(), String> {
+        let back = self.params.search_back_m;
+        if job.searched_back || back <= 0.0 {
+            return Err(format!("Locate failed: {reason}"));
+        }
+        job.searched_back = true;
+        job.repositions += 1;
+        ctx.note(format!(
+            "{}: not located and not seen from any look pose ({reason}): backing up {back} m to look again",
+            job.kind.name()
+        ));
+        let args =
+            serde_json::json!({ "v": -DRIVE_SPEED_MPS, "omega": 0.0, "duration_s": back / DRIVE_SPEED_MPS });
+        job.id = send(ctx, &self.peers.locomotion, "drive", args)?;
+        job.look = 0;
+        job.step = Step::Reposition;
+        Ok(())
+    }
+
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
         let status = match ctx.ack_status(job.id) {
             Some(AckStatus::Completed(v)) => Ok(v),
@@ -362,7 +390,9 @@ impl CoordinatorManipulation {
                         .then(|| o.value.objects.iter().find(|x| x.object == self.params.object).cloned())
                         .flatten()
                 });
-                let Some(seen) = glimpse else { return Err(format!("Locate failed: {r}")) };
+                let Some(seen) = glimpse else {
+                    return self.search_back(ctx, job, &r).map(|()| None);
+                };
                 job.repositions += 1;
                 let target = Point3::from(seen.map_from_object.translation.vector);
                 job.object_map = Some(target);
@@ -422,6 +452,7 @@ impl CoordinatorManipulation {
                     prepares: 0,
                     look: 0,
                     object_map: None,
+                    searched_back: false,
                     result: serde_json::Value::Null,
                     since: ctx.now(),
                     look_since: ctx.now(),
@@ -506,6 +537,9 @@ impl Module for CoordinatorManipulation {
             ("locate_timeout_s", p.locate_timeout_s),
             ("max_attempts", p.max_attempts as f64),
         ])?;
+        if !(p.search_back_m >= 0.0 && p.search_back_m.is_finite()) {
+            return Err(format!("search_back_m {} must be a finite distance >= 0", p.search_back_m));
+        }
         if p.look_poses.is_empty() {
             return Err("look_poses must name at least one pose".into());
         }

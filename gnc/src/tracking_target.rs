@@ -29,6 +29,7 @@ use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
 use crate::tracking::locate::{LocateParams, Located, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::search::{LostSearch, search_radius_px};
+use crate::tracking::size::{SelectedView, range_bounds};
 use crate::tracking::template::{BBox, Prior, TemplateTracker, TrackStatus, TrackerParams, Verdict};
 use framework::camera::{GreyImage, StereoCalibration};
 use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
@@ -37,7 +38,7 @@ use framework::module::Request;
 use framework::prelude::*;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector3};
 use serde::{Deserialize, Serialize};
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 
 /// Locations fused since the estimate (re)started after which it is established: one that agrees
 /// confirms the box's look, disagreeing ones no longer restart it.
@@ -93,6 +94,14 @@ pub struct TrackingTargetParams {
     /// ... until it has been searched for there this long (time with the estimate out of view
     /// not counted), s; then over the whole image (the estimate may be what is wrong).
     pub redetect_whole_after_s: f64,
+    /// Targets of known size, by the name a selection gives them: the smallest and the largest
+    /// extent (m) the longer side of a box drawn around one spans, over the sides it may be seen
+    /// from. The selected box's size then bounds the target's range from where it was selected:
+    /// a location outside the bounds is a wrong match and is rejected (see [`range_bounds`]).
+    pub known_sizes: BTreeMap<String, [f64; 2]>,
+    /// The selected box's slack in those bounds (factors >= 1), towards the near bound and the
+    /// far one (a loosely drawn box makes the target look nearer, never farther).
+    pub size_tolerance: [f64; 2],
 }
 
 impl Default for TrackingTargetParams {
@@ -113,6 +122,8 @@ impl Default for TrackingTargetParams {
             sight_range_m: 20.0,
             redetect_margin_px: 16.0,
             redetect_whole_after_s: 10.0,
+            known_sizes: BTreeMap::new(),
+            size_tolerance: [1.25, 1.5],
         }
     }
 }
@@ -177,9 +188,10 @@ pub struct TrackingTarget {
     sight: Option<LineOfSight>,
     /// The pose estimate's share of the newest fused location's covariance (see `pose_drift`).
     fix_pose_term: Option<Matrix3<f64>>,
-    /// Where the camera was (`map`) in the selection's image, and the selected box's width there
-    /// (rectified pixels): the box's expected size at any range follows from them.
-    selected_view: Option<(Point3<f64>, f64)>,
+    /// Where the camera was (`map`) in the selection's image, and the selected box there: the
+    /// box's expected size at any range follows from them, and for a target of known size, the
+    /// ranges it may be at.
+    selected_view: Option<SelectedView>,
     /// The fused locations of the last `velocity_window_s` (capture time s, position in `map`).
     recent: Vec<(f64, Point3<f64>)>,
 }
@@ -254,7 +266,30 @@ fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>) -> Option<
     Some(out)
 }
 
+/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`.
+fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox) -> SelectedView {
+    let (w, h) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
+    SelectedView { camera: Point3::from(map_from_rect.translation.vector), width_px: w, extent_px: w.max(h) }
+}
+
+/// [`TrackingTarget::size_bounds`], of the parts it reads.
+fn size_bounds(
+    params: &TrackingTargetParams,
+    target: &str,
+    view: Option<SelectedView>,
+    rect: &Rectification,
+) -> Option<(f64, f64)> {
+    let extent = params.known_sizes.get(target)?;
+    range_bounds(*extent, rect.model.left.pinhole.fx, view?.extent_px, params.size_tolerance)
+}
+
 impl TrackingTarget {
+    /// The ranges from where it was selected that the selected box allows the target, if its
+    /// size is known (`known_sizes`).
+    fn size_bounds(&self) -> Option<(f64, f64)> {
+        size_bounds(&self.params, &self.target, self.selected_view, &self.rect)
+    }
+
     /// Target tracking on the stereo slot `cameras/<device>` from a pair with the believed
     /// `calibration`, placed on the robot of the believed `mechanism` with the rover's pose from
     /// `pose_slot` and joints from `joints_slots`; selections from `selection_slot` (a
@@ -368,8 +403,11 @@ impl TrackingTarget {
         let camera = Point3::from(map_from_rect.translation.vector);
         // A moving target is carried by its velocity since it was last located.
         let estimate = self.estimate.position_at(stamp);
-        let expected = estimate
-            .or_else(|| self.sight.map(|s| s.at(self.last_range.unwrap_or(self.params.sight_range_m))));
+        // Before stereo ranges it, the target is where its box's size says (if its size is
+        // known), else at the assumed range.
+        let size_range = self.size_bounds().map(|(lo, hi)| (lo * hi).sqrt());
+        let range = self.last_range.or(size_range).unwrap_or(self.params.sight_range_m);
+        let expected = estimate.or_else(|| self.sight.map(|s| s.at(range)));
         let Some(expected) = expected else { return Prior::default() };
         let in_camera = map_from_rect.inverse() * expected;
         let centre = self.rect.model.left.project(&in_camera).map(|uv| (uv.x, uv.y));
@@ -381,7 +419,7 @@ impl TrackingTarget {
         let width_px = estimate
             .zip(self.selected_view)
             .filter(|_| established)
-            .map(|(p, (then, w))| w * (p - then).norm() / (p - camera).norm())
+            .map(|(p, v)| v.width_px * (p - v.camera).norm() / (p - camera).norm())
             .filter(|w| w.is_finite());
         let radius_px = if established && self.searched_lost.searched_s() < self.params.redetect_whole_after_s
         {
@@ -445,6 +483,8 @@ impl TrackingTarget {
                 let established = self.estimate.count() >= CONFIRM_AFTER;
                 let (estimate, params, rect, fix) =
                     (&self.estimate, &self.params, &self.rect, self.fix_pose_term);
+                let view = self.selected_view;
+                let bounds = size_bounds(&self.params, &self.target, view, &self.rect);
                 let mut check = |b: &BBox| {
                     let Some((map_from_rect, pose)) = placed.as_ref().ok() else { return Verdict::Unknown };
                     let loc = locate(&h.left, &h.right, &rect.model, *b, &params.locate);
@@ -453,7 +493,8 @@ impl TrackingTarget {
                         Ok(loc) => {
                             let (p, cov, _) = in_map(loc, map_from_rect, pose, fix);
                             let gate = params.redetect_gate_sigma;
-                            if estimate.agrees(&p, &cov, stamp, params.target_walk, gate) {
+                            let sized = view.is_none_or(|v| v.allows(&p, bounds));
+                            if sized && estimate.agrees(&p, &cov, stamp, params.target_walk, gate) {
                                 Verdict::Agrees
                             } else {
                                 Verdict::Disagrees
@@ -472,14 +513,13 @@ impl TrackingTarget {
                     && r.status != TrackStatus::Lost
                     && let Ok((map_from_rect, _)) = &placed
                 {
-                    self.selected_view =
-                        Some((Point3::from(map_from_rect.translation.vector), r.bbox[2] - r.bbox[0]));
+                    self.selected_view = Some(selected_view(map_from_rect, &r.bbox));
                 }
                 r
             }
         } else {
             if let (Ok((map_from_rect, _)), Some(b)) = (&placed, tracker.bbox()) {
-                self.selected_view = Some((Point3::from(map_from_rect.translation.vector), b[2] - b[0]));
+                self.selected_view = Some(selected_view(map_from_rect, &b));
             }
             crate::tracking::template::TrackResult {
                 bbox: tracker.bbox().unwrap_or([0.0; 4]),
@@ -516,7 +556,22 @@ impl TrackingTarget {
                 // disagreeing locations: they mean the tracker is on something else. Before, a
                 // wrong first location must not lock out the right ones.
                 let established = self.estimate.count() >= CONFIRM_AFTER;
-                if self.estimate.fuse(p, cov, bias, stamp, walk, gate, !established) {
+                let bounds = size_bounds(&self.params, &self.target, self.selected_view, &self.rect);
+                let sized = self.selected_view.is_none_or(|v| v.allows(&p, bounds));
+                if !sized {
+                    // A location the box's size rules out counts as a disagreeing one (never as
+                    // one that restarts the estimate): the box is on something else, or stereo
+                    // matched the wrong thing.
+                    self.estimate.count_rejection();
+                    if let (Some(v), Some((lo, hi))) = (self.selected_view, bounds) {
+                        ctx.note(format!(
+                            "a {} location at {p:?} is {:.1} m from where it was selected, where its box's size puts it {lo:.1}-{hi:.1} m away: rejected",
+                            self.target,
+                            (p - v.camera).norm()
+                        ));
+                    }
+                }
+                if sized && self.estimate.fuse(p, cov, bias, stamp, walk, gate, !established) {
                     // Where an established estimate holds it, the box is the target: its look is
                     // learnt.
                     if established {
@@ -538,10 +593,12 @@ impl TrackingTarget {
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
                 } else {
-                    ctx.note(format!(
-                        "a {} location at {p:?} disagrees with the estimate: rejected",
-                        self.target
-                    ));
+                    if sized {
+                        ctx.note(format!(
+                            "a {} location at {p:?} disagrees with the estimate: rejected",
+                            self.target
+                        ));
+                    }
                     if established && self.estimate.rejected() >= REJECTS_TO_LOSE {
                         // The box is on something else: look for the target where it is.
                         tracker.reject();
@@ -766,6 +823,14 @@ impl Module for TrackingTarget {
         }
         if !(p.max_extrapolation_s.is_finite() && p.max_extrapolation_s >= 0.0) {
             return Err(format!("max_extrapolation_s must be >= 0, got {}", p.max_extrapolation_s));
+        }
+        if !p.size_tolerance.iter().all(|k| k.is_finite() && *k >= 1.0) {
+            return Err(format!("size_tolerance must be two factors >= 1, got {:?}", p.size_tolerance));
+        }
+        for (name, e) in &p.known_sizes {
+            if !e.iter().all(|v| v.is_finite() && *v > 0.0) {
+                return Err(format!("known_sizes.{name} must be two positive extents in m, got {e:?}"));
+            }
         }
         self.placement.configure(p.history_s, p.max_extrapolation_s);
         self.params = p.clone();

@@ -701,3 +701,45 @@ fn the_tracker_stays_on_a_canister_carried_across_its_view() {
         "the newest patch alone lags by {newest_offset:+.2} widths only"
     );
 }
+
+#[test]
+fn the_canisters_box_bounds_its_range_from_arms_reach_to_30_m_and_rules_out_a_quarter_nearer_far_off() {
+    // The shipped TrackingTarget configuration's known size of the canister and the box's slack,
+    // against the box around the canister (as the operator draws it) from 1.5 to 30 m, at the
+    // mast's height, from every side: the true range always lies within the bounds, and from 25 m
+    // on, where stereo's disparity is a few pixels, a location 25 % nearer (a range-biased match,
+    // a rock on the line of sight) never does.
+    use gnc::localization::rectify::Rectification;
+    use gnc::tracking::size::range_bounds;
+    let path = root().join("scenarios/config/modules/tracking_target.toml");
+    let doc: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let params = doc["params"].as_table().unwrap();
+    let extent: Vec<f64> =
+        params["known_sizes"]["canister"].as_array().unwrap().iter().map(|v| v.as_float().unwrap()).collect();
+    let tolerance: Vec<f64> =
+        params["size_tolerance"].as_array().unwrap().iter().map(|v| v.as_float().unwrap()).collect();
+    let rect = Rectification::new(&head_pair());
+    let cam = &rect.model.left;
+    for yaw_deg in [0.0, 20.0, 45.0, 70.0] {
+        let can = Isometry3::from_parts(
+            Translation3::identity(),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f64::to_radians(yaw_deg)),
+        );
+        let centre = nalgebra::Point3::new(0.0, 0.0, 0.1);
+        for range in [1.5, 2.5, 4.0, 8.0, 15.0, 25.0, 30.0] {
+            let eye = Vector3::new(-(range * range - 1.3f64 * 1.3).max(0.0).sqrt(), 0.0, 1.4);
+            let pose = look_at(eye, centre.coords);
+            let b = canister_box(cam, &pose, &can);
+            let extent_px = (b[2] - b[0]).max(b[3] - b[1]);
+            let (lo, hi) =
+                range_bounds([extent[0], extent[1]], cam.pinhole.fx, extent_px, [tolerance[0], tolerance[1]])
+                    .unwrap();
+            let truth = (eye - centre.coords).norm();
+            println!("yaw {yaw_deg} deg, {truth:.2} m: a {extent_px:.1} px box allows {lo:.2}-{hi:.2} m");
+            assert!((lo..=hi).contains(&truth), "yaw {yaw_deg}: {truth} m outside {lo}-{hi} m");
+            if range >= 25.0 {
+                assert!(lo > 0.75 * truth, "yaw {yaw_deg}: a location 25 % nearer than {truth} m passes");
+            }
+        }
+    }
+}

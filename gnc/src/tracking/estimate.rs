@@ -94,6 +94,13 @@ impl TargetEstimate {
         self.rejected
     }
 
+    /// Counts a location rejected before it came to the estimate (ruled out by something else
+    /// than its distance from the estimate), as one of the rejections in a row; it never restarts
+    /// the estimate.
+    pub fn count_rejection(&mut self) {
+        self.rejected += 1;
+    }
+
     /// The velocity the estimate moves by between locations, m/s.
     pub fn velocity(&self) -> Vector3<f64> {
         self.velocity

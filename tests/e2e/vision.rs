@@ -743,3 +743,100 @@ fn the_canisters_box_bounds_its_range_from_arms_reach_to_30_m_and_rules_out_a_qu
         }
     }
 }
+
+#[test]
+#[ignore = "known defect (issue 15): the box slides down off the canister onto the ground in front of it"]
+fn the_tracker_stays_on_the_canister_through_a_25_m_approach_on_the_mars_yard() {
+    // canister_sweep run 77's yard and placement (terrain seed 71586), where the box slid off the
+    // canister onto the ground in front of it and the approach ended 3.5 m short: the head camera
+    // approaches along the line from the rover's start, 24 m to 3 m, a frame every 0.3 m, the
+    // pointing wandering; the prior is what TrackingTarget gives from a perfect estimate (where it
+    // projects, the selected width scaled by the ranges), and each frame's box is learnt as
+    // TrackingTarget does when stereo agrees with the estimate (`confirm`).
+    //
+    // Measured (shipped parameters): on the canister in 14 of 69 frames; the box's centre is 0.3
+    // box heights below the canister's at 18 m, 1.0 at 12 m, 2.5 at 6 m. At 20-25 m the 24 px
+    // template region is mostly ground with the horizon 11 px above the canister; what is learnt
+    // each frame carries the looming ground's bias. Lower context weights and smaller regions
+    // halve the slide but do not stop it.
+    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
+    let mut world =
+        worlds::World::load_with_seed(worlds::worlds_dir().join("mars_yard.toml"), 71586).unwrap();
+    let (cx, cy) = (6.3158, 4.9284);
+    world.keep_clear(cx, cy, 1.5);
+    world.keep_clear(-10.81, -11.78, 2.0);
+    world.keep_clear(12.0, -12.0, 2.0);
+    let z = world.ground_height(cx, cy);
+    let obj = world.objects.iter_mut().find(|o| o.name == "canister").unwrap();
+    obj.position = nalgebra::Point3::new(cx, cy, z);
+    obj.yaw = 51.5f64.to_radians();
+    let t =
+        Twin::with_defaults(world.clone(), StartPose { x: 12.0, y: -12.0, yaw: 0.0 }, Fidelity::Kinematic)
+            .unwrap();
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let (cam, _) = head();
+    let can = t.canister_truth().unwrap();
+    let centre = can.translation.vector + Vector3::z() * 0.1;
+    let params: TrackerParams = {
+        let path = root().join("scenarios/config/modules/tracking_target.toml");
+        let doc: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        doc["params"]["tracker"].clone().try_into().unwrap()
+    };
+    let mut tracker = TemplateTracker::new(params);
+    let away = Vector3::new(-10.81 - cx, -11.78 - cy, 0.0).normalize();
+    let mut selected = None;
+    let (mut good, mut frames) = (0, 0);
+    let mut k = 0;
+    let mut range = 24.0;
+    while range > 3.0 {
+        let mut eye = centre + away * range;
+        eye.z = world.ground_height(eye.x, eye.y) + 1.45;
+        let aim = centre + Vector3::new((k as f64 * 0.7).sin(), (k as f64 * 0.5).cos(), 0.0) * 0.02 * range;
+        let pose = look_at(eye, aim);
+        let mut rng = Pcg64Mcg::seed_from_u64(500 + k as u64);
+        let img = r.grey(&t, &cam, &pose, &head().1, Exposure::NOMINAL, &mut rng).unwrap();
+        let truth = canister_box(&cam, &pose, &can);
+        let true_range = (eye - centre).norm();
+        match selected {
+            None => {
+                tracker.init(&img, truth).unwrap();
+                selected = Some((true_range, truth[2] - truth[0]));
+            }
+            Some((r0, w0)) => {
+                let uv = cam.project(&(pose.inverse() * nalgebra::Point3::from(centre))).unwrap();
+                let prior = Prior {
+                    centre: Some((uv.x, uv.y)),
+                    radius_px: None,
+                    width_px: Some(w0 * r0 / true_range),
+                };
+                let out = tracker.update(&img, &prior);
+                if out.status != TrackStatus::Lost {
+                    tracker.confirm(&img);
+                }
+                let (tu, tv) = (0.5 * (truth[0] + truth[2]), 0.5 * (truth[1] + truth[3]));
+                let (bu, bv) = (0.5 * (out.bbox[0] + out.bbox[2]), 0.5 * (out.bbox[1] + out.bbox[3]));
+                let h = truth[3] - truth[1];
+                let off = ((bu - tu) / h, (bv - tv) / h);
+                let o = iou(&out.bbox, &truth);
+                frames += 1;
+                if out.status != TrackStatus::Lost && o > 0.3 {
+                    good += 1;
+                }
+                println!(
+                    "{true_range:5.1} m: {:?} {:.2}, box {:.1}x{:.1} px, centre off by ({:+.2}, {:+.2}) heights, overlap {o:.2}",
+                    out.status,
+                    out.confidence,
+                    out.bbox[2] - out.bbox[0],
+                    out.bbox[3] - out.bbox[1],
+                    off.0,
+                    off.1
+                );
+            }
+        }
+        k += 1;
+        range -= 0.3;
+    }
+    let share = good as f64 / frames as f64;
+    println!("on the canister (overlap above 0.3) in {good} of {frames} frames");
+    assert!(share >= 0.9, "{:.0} % of frames", share * 100.0);
+}

@@ -5,7 +5,9 @@
 //!   object (from the head camera's target estimate, `tracking/target`: facing it at the working
 //!   distance); raises the arm to its look pose and has the wrist camera's TrackingMarker locate
 //!   the object by its markers; if the located object is outside the arm's grasp region, moves the
-//!   rover by what is missing and looks again; then has the manipulator grasp it under visual
+//!   rover by what is missing and looks again (when no look pose saw anything of it, the object may
+//!   lie nearer than the views reach: the rover backs up `search_back_m` once and looks again);
+//!   then has the manipulator grasp it under visual
 //!   servoing. A grasp that fails (the fingers closed beside the handle, the servo loop did not
 //!   converge) is tried again from the look, up to `max_attempts`. Completes once the manipulator
 //!   reports the object held (its fingers stopped on the handle), with the wrist camera off again.
@@ -53,7 +55,7 @@ pub struct CoordinatorManipulationParams {
     pub locate_timeout_s: f64,
     /// Grasps tried before the command fails.
     pub max_attempts: u32,
-    /// Rover moves after looking before the command fails.
+    /// Rover moves after looking before the command fails (the back-up search counts as one).
     pub max_repositions: u32,
     /// When no look pose saw anything of the object (it may lie nearer than the wrist camera's
     /// views reach, or beside them), the rover backs up this far once and looks again, m (0: never).
@@ -105,6 +107,8 @@ pub struct ManipulationPeers {
 const DRIVE_SPEED_MPS: f64 = 0.1;
 /// After a look, the rover turns to face an object farther off its heading than this, deg.
 const REPOSITION_BEARING_DEG: f64 = 4.0;
+/// Longest back-up to search for an object no look pose saw, m (it is driven blind, open loop).
+const MAX_SEARCH_BACK_M: f64 = 1.0;
 /// Most moves towards the head camera's estimate before the look (a turn, a drive, a turn).
 const MAX_PREPARE_MOVES: u32 = 3;
 
@@ -537,8 +541,11 @@ impl Module for CoordinatorManipulation {
             ("locate_timeout_s", p.locate_timeout_s),
             ("max_attempts", p.max_attempts as f64),
         ])?;
-        if !(p.search_back_m >= 0.0 && p.search_back_m.is_finite()) {
-            return Err(format!("search_back_m {} must be a finite distance >= 0", p.search_back_m));
+        if !(0.0..=MAX_SEARCH_BACK_M).contains(&p.search_back_m) {
+            return Err(format!(
+                "search_back_m {} must be between 0 and {MAX_SEARCH_BACK_M} m (the back-up is driven blind)",
+                p.search_back_m
+            ));
         }
         if p.look_poses.is_empty() {
             return Err("look_poses must name at least one pose".into());

@@ -38,7 +38,10 @@ struct Fused {
 #[derive(Clone, Debug, Default)]
 pub struct TargetEstimate {
     fused: Option<Fused>,
+    /// Locations the gate rejected in a row (these alone restart the estimate).
     rejected: u32,
+    /// Locations ruled out before the gate in a row (`count_rejection`).
+    ruled_out: u32,
     /// Locations fused since the estimate (re)started.
     count: u32,
     /// The target's velocity, by which the estimate moves between locations, m/s.
@@ -89,16 +92,17 @@ impl TargetEstimate {
         self.fused.as_ref().map(|f| f.stamp)
     }
 
-    /// Locations rejected in a row since the last accepted one.
+    /// Locations rejected in a row since the last accepted one, by the gate or ruled out before
+    /// it (`count_rejection`).
     pub fn rejected(&self) -> u32 {
-        self.rejected
+        self.rejected + self.ruled_out
     }
 
-    /// Counts a location rejected before it came to the estimate (ruled out by something else
-    /// than its distance from the estimate), as one of the rejections in a row; it never restarts
-    /// the estimate.
+    /// Counts a location ruled out before it came to the estimate (by something else than its
+    /// distance from the estimate) as one of the rejections in a row. Only the gate's rejections
+    /// restart the estimate ([`RESTART_AFTER`]): these do not count towards it.
     pub fn count_rejection(&mut self) {
-        self.rejected += 1;
+        self.ruled_out += 1;
     }
 
     /// The velocity the estimate moves by between locations, m/s.
@@ -182,6 +186,7 @@ impl TargetEstimate {
         let Some(e) = &self.fused else {
             self.fused = Some(fresh);
             self.count = 1;
+            (self.rejected, self.ruled_out) = (0, 0);
             return true;
         };
         let Some(d2) = self.mahalanobis2(e, &p, &cov, stamp, walk) else { return false };
@@ -189,7 +194,7 @@ impl TargetEstimate {
             self.rejected += 1;
             if restart && self.rejected >= RESTART_AFTER {
                 self.fused = Some(fresh);
-                self.rejected = 0;
+                (self.rejected, self.ruled_out) = (0, 0);
                 self.count = 1;
                 // The velocity was the abandoned estimate's.
                 self.velocity = Vector3::zeros();
@@ -219,7 +224,7 @@ impl TargetEstimate {
         let Some((x, c, n)) = split_ci((&a.0, &a.1, &a.2), (&b.0, &b.1, &b.2), 0.5 * (lo + hi)) else {
             return false;
         };
-        self.rejected = 0;
+        (self.rejected, self.ruled_out) = (0, 0);
         self.count += 1;
         e.position = x;
         e.noise = n;
@@ -316,6 +321,36 @@ mod tests {
         assert!((held.position().unwrap() - right).norm() < 1e-9);
         // Non-finite input is refused.
         assert!(!e.fuse(Point3::new(f64::NAN, 0.0, 0.0), cov, bias, t(21.0), 0.01, 5.0, true));
+    }
+
+    #[test]
+    fn locations_ruled_out_before_the_gate_count_as_rejections_but_never_restart_the_estimate() {
+        let (cov, bias) = (Matrix3::identity() * 0.04, Matrix3::identity() * 0.01);
+        let mut e = TargetEstimate::default();
+        // Ruled out before there is an estimate: forgotten once the first location is fused.
+        for _ in 0..RESTART_AFTER {
+            e.count_rejection();
+        }
+        assert_eq!(e.rejected(), RESTART_AFTER);
+        let right = Point3::new(6.0, 5.0, 0.0);
+        assert!(e.fuse(right, cov, bias, t(0.0), 0.01, 5.0, true));
+        assert_eq!(e.rejected(), 0);
+        // One disagreeing location after it does not restart the estimate.
+        assert!(!e.fuse(Point3::new(-3.0, 2.0, 0.0), cov, bias, t(1.0), 0.01, 5.0, true));
+        assert!((e.position().unwrap() - right).norm() < 1e-9);
+        // Many ruled out in a row count (the tracker is on something else), but only the gate's
+        // own rejections restart: RESTART_AFTER - 2 more of those still do not.
+        for _ in 0..3 * RESTART_AFTER {
+            e.count_rejection();
+        }
+        assert_eq!(e.rejected(), 1 + 3 * RESTART_AFTER);
+        for k in 0..RESTART_AFTER - 2 {
+            assert!(!e.fuse(Point3::new(-3.0, 2.0, 0.0), cov, bias, t(2.0 + k as f64), 0.01, 5.0, true));
+        }
+        assert!((e.position().unwrap() - right).norm() < 1e-9);
+        // An agreeing location clears both counts.
+        assert!(e.fuse(right, cov, bias, t(10.0), 0.01, 5.0, true));
+        assert_eq!(e.rejected(), 0);
     }
 
     #[test]

@@ -14,6 +14,7 @@
 //! location the box's size rules out; the range the box implies is also where to look for a target
 //! stereo has not located yet.
 
+use framework::data::LineOfSight;
 use nalgebra::Point3;
 
 /// Where the camera was when the target was selected, and the selected box.
@@ -25,6 +26,9 @@ pub struct SelectedView {
     pub width_px: f64,
     /// The box's longer side, pixels (rectified).
     pub extent_px: f64,
+    /// Whether the box was cut by the image's border (then smaller than the target: its size
+    /// bounds nothing).
+    pub clipped: bool,
 }
 
 /// The ranges (m) from the camera at which an object whose longer image side spans `extent_m`
@@ -60,6 +64,16 @@ impl SelectedView {
     }
 }
 
+/// How far along the line of sight `sight` the point lies that is `range` from `from` (where the
+/// target was selected; the line of sight may start elsewhere, after the camera moved): the
+/// farther crossing of the sphere, else the point of closest approach when the line misses it.
+pub fn along_sight(sight: &LineOfSight, from: &Point3<f64>, range: f64) -> f64 {
+    let d = sight.origin - from;
+    let b = sight.direction.dot(&d);
+    let disc = b * b - (d.norm_squared() - range * range);
+    (-b + disc.max(0.0).sqrt()).max(0.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -79,8 +93,31 @@ mod tests {
     }
 
     #[test]
+    fn the_range_from_where_it_was_selected_is_carried_onto_a_later_line_of_sight() {
+        use nalgebra::Vector3;
+        let from = Point3::new(0.0, 0.0, 1.5);
+        // The same camera: the range itself.
+        let sight = LineOfSight { origin: from, direction: Vector3::x() };
+        assert!((along_sight(&sight, &from, 25.0) - 25.0).abs() < 1e-9);
+        // The camera drove 5 m towards the target: 20 m are left.
+        let sight = LineOfSight { origin: Point3::new(5.0, 0.0, 1.5), direction: Vector3::x() };
+        assert!((along_sight(&sight, &from, 25.0) - 20.0).abs() < 1e-9);
+        // From the side: the point on the new line 25 m from where it was selected.
+        let origin = Point3::new(0.0, 3.0, 1.5);
+        let direction = Vector3::new(1.0, -0.1, 0.0).normalize();
+        let sight = LineOfSight { origin, direction };
+        let t = along_sight(&sight, &from, 25.0);
+        assert!(((sight.at(t) - from).norm() - 25.0).abs() < 1e-9);
+    }
+
+    #[test]
     fn a_location_nearer_or_farther_than_the_box_allows_is_ruled_out() {
-        let view = SelectedView { camera: Point3::new(1.0, 2.0, 1.5), width_px: 2.0, extent_px: 4.0 };
+        let view = SelectedView {
+            camera: Point3::new(1.0, 2.0, 1.5),
+            width_px: 2.0,
+            extent_px: 4.0,
+            clipped: false,
+        };
         let bounds = range_bounds([0.2, 0.25], 457.0, 4.0, [1.25, 1.5]);
         let at = |r: f64| Point3::new(1.0 + r, 2.0, 1.5);
         assert!(view.allows(&at(24.8), bounds));

@@ -10,7 +10,9 @@
 //! looked for only within that estimate's uncertainty for a while, not over the whole image) and, when
 //! the target is found, located by [`locate`] in the rectified pair; the location is placed in `map`
 //! through the believed mechanism, the pan-tilt joints and the rover's pose estimate at the image's
-//! capture time, and fused with the earlier ones ([`TargetEstimate`]: a slowly wandering point; a
+//! capture time. For a static target of known size (`known_sizes`), a location farther from where
+//! it was selected, or nearer, than the selected box's size allows is a wrong match and is rejected
+//! ([`crate::tracking::size`]). The others are fused with the earlier ones ([`TargetEstimate`]: a slowly wandering point; a
 //! static target's estimate sharpens as the rover approaches, a moving one is followed). Its
 //! covariance is relative to the rover's pose estimate: that estimate's own error moves the rover
 //! and the target alike in `map` and does not hinder an approach; only its drift since the target
@@ -33,7 +35,7 @@ use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
 use crate::tracking::locate::{Located, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::search::{LostSearch, search_radius_px};
-use crate::tracking::size::{SelectedView, range_bounds};
+use crate::tracking::size::{SelectedView, along_sight, range_bounds};
 use crate::tracking::template::{BBox, Prior, TemplateTracker, TrackStatus, Verdict};
 use framework::camera::{GreyImage, StereoCalibration};
 use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
@@ -97,6 +99,8 @@ pub struct TrackingTarget {
     /// box's expected size at any range follows from them, and for a target of known size, the
     /// ranges it may be at.
     selected_view: Option<SelectedView>,
+    /// The selected box touched the raw image's border (so may be smaller than the target).
+    selection_clipped: bool,
     /// The fused locations of the last `velocity_window_s` (capture time s, position in `map`).
     recent: Vec<(f64, Point3<f64>)>,
 }
@@ -171,19 +175,26 @@ fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>) -> Option<
     Some(out)
 }
 
-/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`.
-fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox) -> SelectedView {
+/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`
+/// (`clipped`: the selection touched the image's border).
+fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox, clipped: bool) -> SelectedView {
     let (w, h) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
-    SelectedView { camera: Point3::from(map_from_rect.translation.vector), width_px: w, extent_px: w.max(h) }
+    let camera = Point3::from(map_from_rect.translation.vector);
+    SelectedView { camera, width_px: w, extent_px: w.max(h), clipped }
 }
 
-/// [`TrackingTarget::size_bounds`], of the parts it reads.
+/// [`TrackingTarget::size_bounds`], of the parts it reads: none for a target that may move (its
+/// range from where it was selected changes) or whose selected box was cut by the image's border
+/// (smaller than the target).
 fn size_bounds(
     params: &TrackingTargetParams,
     target: &str,
     view: Option<SelectedView>,
     rect: &Rectification,
 ) -> Option<(f64, f64)> {
+    if params.max_target_speed_mps > 0.0 || view?.clipped {
+        return None;
+    }
     let extent = params.known_sizes.get(target)?;
     range_bounds(*extent, rect.model.left.pinhole.fx, view?.extent_px, params.size_tolerance)
 }
@@ -233,6 +244,7 @@ impl TrackingTarget {
             sight: None,
             fix_pose_term: None,
             selected_view: None,
+            selection_clipped: false,
             recent: Vec::new(),
         }
     }
@@ -276,6 +288,9 @@ impl TrackingTarget {
         tracker.init(&self.held[k].left, rect_box)?;
         self.start_over(Some(tracker));
         self.target = target.to_string();
+        let raw = &self.calibration.left.model.pinhole;
+        let (w, h) = (f64::from(raw.width), f64::from(raw.height));
+        self.selection_clipped = bbox[0] <= 1.0 || bbox[1] <= 1.0 || bbox[2] >= w - 1.0 || bbox[3] >= h - 1.0;
         ctx.note(format!(
             "tracking the {target} selected at {bbox:?} in the image of {}",
             self.held[k].stamp
@@ -300,7 +315,8 @@ impl TrackingTarget {
 
     /// What the tracker is told of the target in the image of `stamp`, taken from `placed` (the
     /// rectified left camera in `map`, and the rover's pose estimate): where the estimate
-    /// projects (else the last line of sight at the last range: the camera may have turned), the
+    /// projects (else the last line of sight at the last range, or the range the selected box's
+    /// size gives, or `sight_range_m`: the camera may have turned), the
     /// box's expected width, and, for an established estimate, how far from its projection a lost
     /// target can be.
     fn prior(&self, stamp: Time, placed: Option<&(Isometry3<f64>, PoseEstimate)>) -> Prior {
@@ -309,10 +325,18 @@ impl TrackingTarget {
         // A moving target is carried by its velocity since it was last located.
         let estimate = self.estimate.position_at(stamp);
         // Before stereo ranges it, the target is where its box's size says (if its size is
-        // known), else at the assumed range.
-        let size_range = self.size_bounds().map(|(lo, hi)| (lo * hi).sqrt());
-        let range = self.last_range.or(size_range).unwrap_or(self.params.sight_range_m);
-        let expected = estimate.or_else(|| self.sight.map(|s| s.at(range)));
+        // known: that range is from where it was selected, carried onto the newest line of
+        // sight), else at the assumed range.
+        let expected = estimate.or_else(|| {
+            let sight = self.sight?;
+            // The bounds' middle without the box's slack: the extents' geometric mean.
+            let [near, far] = self.params.size_tolerance;
+            let from_size = self
+                .size_bounds()
+                .zip(self.selected_view)
+                .map(|((lo, hi), view)| along_sight(&sight, &view.camera, (lo * near * hi / far).sqrt()));
+            Some(sight.at(self.last_range.or(from_size).unwrap_or(self.params.sight_range_m)))
+        });
         let Some(expected) = expected else { return Prior::default() };
         let in_camera = map_from_rect.inverse() * expected;
         let centre = self.rect.model.left.project(&in_camera).map(|uv| (uv.x, uv.y));
@@ -418,13 +442,13 @@ impl TrackingTarget {
                     && r.status != TrackStatus::Lost
                     && let Ok((map_from_rect, _)) = &placed
                 {
-                    self.selected_view = Some(selected_view(map_from_rect, &r.bbox));
+                    self.selected_view = Some(selected_view(map_from_rect, &r.bbox, self.selection_clipped));
                 }
                 r
             }
         } else {
             if let (Ok((map_from_rect, _)), Some(b)) = (&placed, tracker.bbox()) {
-                self.selected_view = Some(selected_view(map_from_rect, &b));
+                self.selected_view = Some(selected_view(map_from_rect, &b, self.selection_clipped));
             }
             crate::tracking::template::TrackResult {
                 bbox: tracker.bbox().unwrap_or([0.0; 4]),

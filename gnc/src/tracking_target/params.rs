@@ -37,8 +37,8 @@ pub struct TrackingTargetParams {
     pub history_s: f64,
     /// How far past the newest pose or joint sample an image may be placed, s.
     pub max_extrapolation_s: f64,
-    /// Range assumed along the line of sight of a target not located yet, m: where to look for it
-    /// after the camera moved.
+    /// Range assumed along the line of sight of a target not located yet (and not of a known
+    /// size, whose selected box gives the range), m: where to look for it after the camera moved.
     pub sight_range_m: f64,
     /// A lost target with an established estimate is looked for only within `gate_sigma` of the
     /// estimate's projection, plus this many pixels (the box's own size is added).
@@ -49,7 +49,9 @@ pub struct TrackingTargetParams {
     /// Targets of known size, by the name a selection gives them: the smallest and the largest
     /// extent (m) the longer side of a box drawn around one spans, over the sides it may be seen
     /// from. The selected box's size then bounds the target's range from where it was selected:
-    /// a location outside the bounds is a wrong match and is rejected (see [`crate::tracking::size::range_bounds`]).
+    /// a location outside the bounds is a wrong match and is rejected (see
+    /// [`crate::tracking::size::range_bounds`]). Not for a target that may move
+    /// (`max_target_speed_mps` above 0) or a selected box cut by the image's border.
     pub known_sizes: BTreeMap<String, [f64; 2]>,
     /// The selected box's slack in those bounds (factors >= 1), towards the near bound and the
     /// far one (a loosely drawn box makes the target look nearer, never farther).

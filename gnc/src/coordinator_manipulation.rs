@@ -249,10 +249,17 @@ impl CoordinatorManipulation {
         if go.abs() <= tolerance {
             return Ok(false);
         }
-        let v = DRIVE_SPEED_MPS.copysign(go);
-        let args = serde_json::json!({ "v": v, "omega": 0.0, "duration_s": go.abs() / DRIVE_SPEED_MPS });
-        job.id = send(ctx, &self.peers.locomotion, "drive", args)?;
+        self.drive_straight(ctx, job, go)?;
         Ok(true)
+    }
+
+    /// A straight drive of `distance` (m; negative: backwards), slowly and open loop.
+    fn drive_straight(&self, ctx: &mut Ctx<'_>, job: &mut Job, distance: f64) -> Result<(), String> {
+        let v = DRIVE_SPEED_MPS.copysign(distance);
+        let args =
+            serde_json::json!({ "v": v, "omega": 0.0, "duration_s": distance.abs() / DRIVE_SPEED_MPS });
+        job.id = send(ctx, &self.peers.locomotion, "drive", args)?;
+        Ok(())
     }
 
     /// The rover to the working distance from the head camera's estimate of the object (when
@@ -287,9 +294,7 @@ impl CoordinatorManipulation {
             "{}: not located and not seen from any look pose ({reason}): backing up {back} m to look again",
             job.kind.name()
         ));
-        let args =
-            serde_json::json!({ "v": -DRIVE_SPEED_MPS, "omega": 0.0, "duration_s": back / DRIVE_SPEED_MPS });
-        job.id = send(ctx, &self.peers.locomotion, "drive", args)?;
+        self.drive_straight(ctx, job, -back)?;
         job.look = 0;
         job.step = Step::Reposition;
         Ok(())

@@ -181,6 +181,17 @@ struct Rest {
     restore_refused: bool,
 }
 
+impl Rest {
+    /// A restore of the configured rate was refused, or could not be sent (`what` happened):
+    /// noted the first time, asked again next cycle.
+    fn note_restore_refused(&mut self, ctx: &mut Ctx<'_>, what: String) {
+        if !self.restore_refused {
+            ctx.note(format!("the localization camera's rate {what}: asking again"));
+        }
+        self.restore_refused = true;
+    }
+}
+
 impl LocalizationVisual {
     /// Visual odometry on the stereo frames of `images_slot` from a pair with the believed
     /// `calibration`, on a robot of `mechanism` whose joint states are in `joints_slots`.
@@ -243,12 +254,7 @@ impl LocalizationVisual {
                     return;
                 }
                 Some(AckStatus::Rejected(why) | AckStatus::Failed(why)) => {
-                    if !r.restore_refused {
-                        ctx.note(format!(
-                            "the localization camera's rate was not restored ({why}): asking again"
-                        ));
-                    }
-                    r.restore_refused = true;
+                    r.note_restore_refused(ctx, format!("was not restored ({why})"));
                     r.pending = None;
                     r.resting = true;
                 }
@@ -285,14 +291,7 @@ impl LocalizationVisual {
                 ctx.note(format!("the localization camera's rate cannot be set ({why}): resting stops"));
                 self.rest = None;
             }
-            Err(why) => {
-                if !r.restore_refused {
-                    ctx.note(format!(
-                        "the localization camera's rate cannot be restored ({why}): asking again"
-                    ));
-                }
-                r.restore_refused = true;
-            }
+            Err(why) => r.note_restore_refused(ctx, format!("cannot be restored ({why})")),
         }
     }
 

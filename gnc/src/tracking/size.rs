@@ -26,9 +26,6 @@ pub struct SelectedView {
     pub width_px: f64,
     /// The box's longer side, pixels (rectified).
     pub extent_px: f64,
-    /// Whether the box was cut by the image's border (then smaller than the target: its size
-    /// bounds nothing).
-    pub clipped: bool,
 }
 
 /// The ranges (m) from the camera at which an object whose longer image side spans `extent_m`
@@ -112,12 +109,7 @@ mod tests {
 
     #[test]
     fn a_location_nearer_or_farther_than_the_box_allows_is_ruled_out() {
-        let view = SelectedView {
-            camera: Point3::new(1.0, 2.0, 1.5),
-            width_px: 2.0,
-            extent_px: 4.0,
-            clipped: false,
-        };
+        let view = SelectedView { camera: Point3::new(1.0, 2.0, 1.5), width_px: 2.0, extent_px: 4.0 };
         let bounds = range_bounds([0.2, 0.25], 457.0, 4.0, [1.25, 1.5]);
         let at = |r: f64| Point3::new(1.0 + r, 2.0, 1.5);
         assert!(view.allows(&at(24.8), bounds));

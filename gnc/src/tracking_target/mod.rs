@@ -175,24 +175,23 @@ fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>) -> Option<
     Some(out)
 }
 
-/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`
-/// (`clipped`: the selection touched the image's border).
-fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox, clipped: bool) -> SelectedView {
+/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`.
+fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox) -> SelectedView {
     let (w, h) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
-    let camera = Point3::from(map_from_rect.translation.vector);
-    SelectedView { camera, width_px: w, extent_px: w.max(h), clipped }
+    SelectedView { camera: Point3::from(map_from_rect.translation.vector), width_px: w, extent_px: w.max(h) }
 }
 
 /// [`TrackingTarget::size_bounds`], of the parts it reads: none for a target that may move (its
 /// range from where it was selected changes) or whose selected box was cut by the image's border
-/// (smaller than the target).
+/// (`clipped`: smaller than the target).
 fn size_bounds(
     params: &TrackingTargetParams,
     target: &str,
     view: Option<SelectedView>,
+    clipped: bool,
     rect: &Rectification,
 ) -> Option<(f64, f64)> {
-    if params.max_target_speed_mps > 0.0 || view?.clipped {
+    if params.max_target_speed_mps > 0.0 || clipped {
         return None;
     }
     let extent = params.known_sizes.get(target)?;
@@ -203,7 +202,7 @@ impl TrackingTarget {
     /// The ranges from where it was selected that the selected box allows the target, if its
     /// size is known (`known_sizes`).
     fn size_bounds(&self) -> Option<(f64, f64)> {
-        size_bounds(&self.params, &self.target, self.selected_view, &self.rect)
+        size_bounds(&self.params, &self.target, self.selected_view, self.selection_clipped, &self.rect)
     }
 
     /// Target tracking on the stereo slot `cameras/<device>` from a pair with the believed
@@ -413,7 +412,8 @@ impl TrackingTarget {
                 let (estimate, params, rect, fix) =
                     (&self.estimate, &self.params, &self.rect, self.fix_pose_term);
                 let view = self.selected_view;
-                let bounds = size_bounds(&self.params, &self.target, view, &self.rect);
+                let bounds =
+                    size_bounds(&self.params, &self.target, view, self.selection_clipped, &self.rect);
                 let mut check = |b: &BBox| {
                     let Some((map_from_rect, pose)) = placed.as_ref().ok() else { return Verdict::Unknown };
                     let loc = locate(&h.left, &h.right, &rect.model, *b, &params.locate);
@@ -442,13 +442,13 @@ impl TrackingTarget {
                     && r.status != TrackStatus::Lost
                     && let Ok((map_from_rect, _)) = &placed
                 {
-                    self.selected_view = Some(selected_view(map_from_rect, &r.bbox, self.selection_clipped));
+                    self.selected_view = Some(selected_view(map_from_rect, &r.bbox));
                 }
                 r
             }
         } else {
             if let (Ok((map_from_rect, _)), Some(b)) = (&placed, tracker.bbox()) {
-                self.selected_view = Some(selected_view(map_from_rect, &b, self.selection_clipped));
+                self.selected_view = Some(selected_view(map_from_rect, &b));
             }
             crate::tracking::template::TrackResult {
                 bbox: tracker.bbox().unwrap_or([0.0; 4]),
@@ -485,7 +485,13 @@ impl TrackingTarget {
                 // disagreeing locations: they mean the tracker is on something else. Before, a
                 // wrong first location must not lock out the right ones.
                 let established = self.estimate.count() >= CONFIRM_AFTER;
-                let bounds = size_bounds(&self.params, &self.target, self.selected_view, &self.rect);
+                let bounds = size_bounds(
+                    &self.params,
+                    &self.target,
+                    self.selected_view,
+                    self.selection_clipped,
+                    &self.rect,
+                );
                 let sized = self.selected_view.is_none_or(|v| v.allows(&p, bounds));
                 if !sized {
                     // A location the box's size rules out counts as a disagreeing one (never as

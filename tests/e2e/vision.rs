@@ -624,15 +624,15 @@ fn a_marker_turned_in_the_image_keeps_its_corners_in_printed_order() {
     }
 }
 
-/// The tracker, as the moving visual approach configures it but for `model_rate`, following a
+/// The tracker of `params` following a
 /// canister carried to the left across the head camera's view at 4 cm/s while the camera closes
 /// from 15 m to 3 m, one image a second, each box confirmed (as stereo agreeing with the estimate
 /// does), each search centred where the canister was a frame before (an estimate a frame late).
 /// The Mars yard's sun puts the canister's shadow on its right, trailing it. The share of frames
 /// with an overlap above 0.5 with the true box, and the mean offset of the box's centre from the
 /// true one, in box widths (positive: to the right, behind the canister).
-fn carried_canister(model_rate: f64) -> (f64, f64) {
-    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
+fn carried_canister(params: gnc::tracking::template::TrackerParams) -> (f64, f64) {
+    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus};
     let text = "name = \"t\"\nseed = 3\n[terrain]\nsize_m = [40.0, 40.0]\nresolution_m = 0.5\n\
                 [sun]\nazimuth_deg = 120.0\nelevation_deg = 40.0\n\
                 [[objects]]\nname = \"o\"\nkind = \"canister\"\nposition_m = [0.0, 0.0]\nyaw_deg = 200.0\n";
@@ -642,7 +642,6 @@ fn carried_canister(model_rate: f64) -> (f64, f64) {
     let mut r = SensorRenderer::new(&t).unwrap();
     let (cam, _) = head();
     let start = t.canister_truth().unwrap();
-    let params = TrackerParams { context: 0.25, min_region_px: 12.0, model_rate, ..TrackerParams::default() };
     let mut tracker = TemplateTracker::new(params);
     let away = Vector3::new(-0.8, -0.6, 0.0).normalize();
     let velocity = Vector3::new(away.y, -away.x, 0.0) * 0.04;
@@ -670,7 +669,7 @@ fn carried_canister(model_rate: f64) -> (f64, f64) {
         }
         let last = cam.project(&(pose.inverse() * nalgebra::Point3::from(before))).unwrap();
         let prior =
-            Prior { centre: Some((last.x, last.y)), radius_px: None, width_px: Some(truth[2] - truth[0]) };
+            Prior { centre: Some((last.x, last.y)), width_px: Some(truth[2] - truth[0]), ..Prior::default() };
         let out = tracker.update(&img, &prior);
         if out.status != TrackStatus::Lost {
             tracker.confirm(&img);
@@ -685,8 +684,16 @@ fn carried_canister(model_rate: f64) -> (f64, f64) {
 
 #[test]
 fn the_tracker_stays_on_a_canister_carried_across_its_view() {
-    let (share, offset) = carried_canister(0.3);
-    let (newest_share, newest_offset) = carried_canister(1.0);
+    use gnc::tracking::template::TrackerParams;
+    let base = TrackerParams { context: 0.25, min_region_px: 12.0, ..TrackerParams::default() };
+    let (share, offset) = carried_canister(TrackerParams { model_rate: 0.3, ..base.clone() });
+    // The newest patch alone, unanchored, the context at full weight.
+    let (newest_share, newest_offset) = carried_canister(TrackerParams {
+        model_rate: 1.0,
+        context_weight: 1.0,
+        anchor_threshold: 2.0,
+        ..base
+    });
     println!(
         "running average: overlap above 0.5 in {:.0} % of frames, mean offset {offset:+.2} widths; \
          newest patch alone: {:.0} %, {newest_offset:+.2} widths",
@@ -695,7 +702,8 @@ fn the_tracker_stays_on_a_canister_carried_across_its_view() {
     );
     assert!(share >= 0.95, "{:.0} % of frames", share * 100.0);
     assert!(offset.abs() < 0.2, "the box sits {offset:+.2} widths off the canister");
-    // What the running average is for: the newest patch alone lags behind and slides off.
+    // What the running average (and the anchor) are for: the newest patch alone, learnt with the
+    // ground it crosses and never re-centred, lags behind and slides off.
     assert!(
         newest_offset > offset.abs() + 0.1,
         "the newest patch alone lags by {newest_offset:+.2} widths only"
@@ -744,46 +752,42 @@ fn the_canisters_box_bounds_its_range_from_arms_reach_to_30_m_and_rules_out_a_qu
     }
 }
 
-#[test]
-#[ignore = "known defect (issue 15): the box slides down off the canister onto the ground in front of it"]
-fn the_tracker_stays_on_the_canister_through_a_25_m_approach_on_the_mars_yard() {
-    // canister_sweep run 77's yard and placement (terrain seed 71586), where the box slid off the
-    // canister onto the ground in front of it and the approach ended 3.5 m short: the head camera
-    // approaches along the line from the rover's start, 24 m to 3 m, a frame every 0.3 m, the
-    // pointing wandering; the prior is what TrackingTarget gives from a perfect estimate (where it
-    // projects, the selected width scaled by the ranges), and each frame's box is learnt as
-    // TrackingTarget does when stereo agrees with the estimate (`confirm`).
-    //
-    // Measured (shipped parameters): on the canister in 14 of 69 frames; the box's centre is 0.3
-    // box heights below the canister's at 18 m, 1.0 at 12 m, 2.5 at 6 m. At 20-25 m the 24 px
-    // template region is mostly ground with the horizon 11 px above the canister; what is learnt
-    // each frame carries the looming ground's bias. Lower context weights and smaller regions
-    // halve the slide but do not stop it.
+/// A far approach to the canister as TrackingTarget sees it: on terrain `seed`'s Mars yard with
+/// the canister at (x, y) turned `yaw_deg`, the head camera approaches along the line from
+/// `from` (the rover's start), 24 m to 3 m, a frame every 0.3 m, the pointing wandering; the
+/// prior is what TrackingTarget gives from a perfect estimate (where it projects, the selected
+/// width scaled by the ranges), and each frame's box is learnt as TrackingTarget does when stereo
+/// agrees with the estimate (`confirm`). The frames whose box centre lies on the canister (within
+/// its true box), and how many there were.
+fn far_approach(seed: u64, (cx, cy, yaw_deg): (f64, f64, f64), from: (f64, f64)) -> (usize, usize) {
     use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
-    let mut world =
-        worlds::World::load_with_seed(worlds::worlds_dir().join("mars_yard.toml"), 71586).unwrap();
-    let (cx, cy) = (6.3158, 4.9284);
+    let mut world = worlds::World::load_with_seed(worlds::worlds_dir().join("mars_yard.toml"), seed).unwrap();
     world.keep_clear(cx, cy, 1.5);
-    world.keep_clear(-10.81, -11.78, 2.0);
+    world.keep_clear(from.0, from.1, 2.0);
     world.keep_clear(12.0, -12.0, 2.0);
     let z = world.ground_height(cx, cy);
     let obj = world.objects.iter_mut().find(|o| o.name == "canister").unwrap();
     obj.position = nalgebra::Point3::new(cx, cy, z);
-    obj.yaw = 51.5f64.to_radians();
+    obj.yaw = yaw_deg.to_radians();
+    // The twin's rover out of the way.
     let t =
         Twin::with_defaults(world.clone(), StartPose { x: 12.0, y: -12.0, yaw: 0.0 }, Fidelity::Kinematic)
             .unwrap();
     let mut r = SensorRenderer::new(&t).unwrap();
-    let (cam, _) = head();
+    let (cam, photometry) = head();
+    let rect = gnc::localization::rectify::Rectification::new(&head_pair());
     let can = t.canister_truth().unwrap();
     let centre = can.translation.vector + Vector3::z() * 0.1;
-    let params: TrackerParams = {
+    let (params, locate_params): (TrackerParams, gnc::tracking::locate::LocateParams) = {
         let path = root().join("scenarios/config/modules/tracking_target.toml");
         let doc: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
-        doc["params"]["tracker"].clone().try_into().unwrap()
+        (
+            doc["params"]["tracker"].clone().try_into().unwrap(),
+            doc["params"]["locate"].clone().try_into().unwrap(),
+        )
     };
     let mut tracker = TemplateTracker::new(params);
-    let away = Vector3::new(-10.81 - cx, -11.78 - cy, 0.0).normalize();
+    let away = Vector3::new(from.0 - cx, from.1 - cy, 0.0).normalize();
     let mut selected = None;
     let (mut good, mut frames) = (0, 0);
     let mut k = 0;
@@ -794,8 +798,13 @@ fn the_tracker_stays_on_the_canister_through_a_25_m_approach_on_the_mars_yard() 
         let aim = centre + Vector3::new((k as f64 * 0.7).sin(), (k as f64 * 0.5).cos(), 0.0) * 0.02 * range;
         let pose = look_at(eye, aim);
         let mut rng = Pcg64Mcg::seed_from_u64(500 + k as u64);
-        let img = r.grey(&t, &cam, &pose, &head().1, Exposure::NOMINAL, &mut rng).unwrap();
-        let truth = canister_box(&cam, &pose, &can);
+        let right = pose * Isometry3::translation(0.25, 0.0, 0.0);
+        let imgs = r
+            .grey_views(&t, &[(&cam, pose), (&cam, right)], &photometry, Exposure::NOMINAL, &mut rng)
+            .unwrap();
+        let (img, img_r) = (rect.left(&imgs[0]), rect.right(&imgs[1]));
+        let cam = &rect.model.left;
+        let truth = canister_box(cam, &pose, &can);
         let true_range = (eye - centre).norm();
         match selected {
             None => {
@@ -813,30 +822,90 @@ fn the_tracker_stays_on_the_canister_through_a_25_m_approach_on_the_mars_yard() 
                 if out.status != TrackStatus::Lost {
                     tracker.confirm(&img);
                 }
+                let located = match gnc::tracking::locate::locate(
+                    &img,
+                    &img_r,
+                    &rect.model,
+                    out.bbox,
+                    &locate_params,
+                ) {
+                    Ok(l) => {
+                        let truth_range = (pose.inverse() * nalgebra::Point3::from(centre)).coords.norm();
+                        let err = l.position.coords.norm() - truth_range;
+                        format!("located {err:+.2} m ({:.1} sigma)", err / l.covariance[(2, 2)].sqrt())
+                    }
+                    Err(_) => "not located".to_string(),
+                };
                 let (tu, tv) = (0.5 * (truth[0] + truth[2]), 0.5 * (truth[1] + truth[3]));
                 let (bu, bv) = (0.5 * (out.bbox[0] + out.bbox[2]), 0.5 * (out.bbox[1] + out.bbox[3]));
-                let h = truth[3] - truth[1];
-                let off = ((bu - tu) / h, (bv - tv) / h);
-                let o = iou(&out.bbox, &truth);
+                let (w, h) = (truth[2] - truth[0], truth[3] - truth[1]);
+                let off = ((bu - tu) / w, (bv - tv) / h);
                 frames += 1;
-                if out.status != TrackStatus::Lost && o > 0.3 {
+                if out.status != TrackStatus::Lost && off.0.abs() <= 0.5 && off.1.abs() <= 0.5 {
                     good += 1;
                 }
                 println!(
-                    "{true_range:5.1} m: {:?} {:.2}, box {:.1}x{:.1} px, centre off by ({:+.2}, {:+.2}) heights, overlap {o:.2}",
+                    "{true_range:5.1} m: {:?} {:.2}, box {:.1}x{:.1} px, centre off by ({:+.2} widths, {:+.2} heights), overlap {:.2}, {located}",
                     out.status,
                     out.confidence,
                     out.bbox[2] - out.bbox[0],
                     out.bbox[3] - out.bbox[1],
                     off.0,
-                    off.1
+                    off.1,
+                    iou(&out.bbox, &truth)
                 );
             }
         }
         k += 1;
         range -= 0.3;
     }
-    let share = good as f64 / frames as f64;
-    println!("on the canister (overlap above 0.3) in {good} of {frames} frames");
-    assert!(share >= 0.9, "{:.0} % of frames", share * 100.0);
+    (good, frames)
+}
+
+#[test]
+fn the_tracker_stays_on_the_canister_through_25_m_approaches_on_the_mars_yard() {
+    // canister_sweep's yards and placements (terrain seed, canister, rover start): runs 6, 56, 77
+    // and 81, where (session 18) the box slid off the canister onto the ground or a rock in front
+    // of it, and eight others. With the 24 px template region of then (mostly ground, the horizon
+    // 11 px above the canister at 24 m, a rock below it) the box was on the canister in 1 to 18
+    // of the 69 frames of most approaches: what was learnt each frame carried the looming
+    // ground's pull. With templates of the target and a little context, re-centred on the anchor
+    // (the look when selected, or when last 1.5 times smaller), it stays on it. The box's centre
+    // must lie within the canister's true box; a 2 px wide box half a pixel off does not count.
+    let cases = [
+        (2, 37338, (4.1092, 5.3021, 48.9), (-12.24, -11.83)),
+        (6, 33945, (7.0260, 4.0258, 54.9), (-12.47, -11.87)),
+        (27, 74466, (7.6435, 7.0538, 8.0), (-11.64, -11.61)),
+        (31, 43223, (4.8472, 5.2086, 252.2), (-11.88, -11.17)),
+        (52, 39020, (5.0191, 6.6197, 44.3), (-11.49, -11.86)),
+        (56, 66336, (5.8705, 4.6292, 214.5), (-12.55, -12.76)),
+        (77, 71586, (6.3158, 4.9284, 51.5), (-10.81, -11.78)),
+        (81, 87831, (7.2560, 5.6878, 18.0), (-11.82, -11.61)),
+        (0, 60590, (6.1583, 5.4545, 229.7), (-12.02, -12.10)),
+        (1, 62543, (7.2566, 3.9869, 54.7), (-12.56, -11.82)),
+        (10, 54816, (6.9356, 5.1144, 349.5), (-12.02, -11.68)),
+        (20, 2600, (6.8725, 4.5431, 111.0), (-12.19, -11.41)),
+        (26, 21821, (4.5800, 4.6967, 65.9), (-12.24, -11.82)),
+        (30, 9963, (5.9904, 5.6518, 338.5), (-11.67, -11.70)),
+        (51, 4139, (5.4559, 4.4294, 191.9), (-11.52, -11.15)),
+        (76, 65222, (5.1583, 6.2468, 283.5), (-12.76, -12.42)),
+    ];
+    let (mut all, mut on) = (0, 0);
+    let mut worst = (1.0f64, 0);
+    for (run, seed, canister, from) in cases {
+        let (good, frames) = far_approach(seed, canister, from);
+        println!("run {run}: on the canister in {good} of {frames} frames");
+        (all, on) = (all + frames, on + good);
+        let share = good as f64 / frames as f64;
+        if share < worst.0 {
+            worst = (share, run);
+        }
+    }
+    println!(
+        "on the canister in {on} of {all} frames; the worst approach, run {}: {:.0} %",
+        worst.1,
+        worst.0 * 100.0
+    );
+    assert!(on as f64 >= 0.9 * all as f64, "on the canister in {on} of {all} frames");
+    assert!(worst.0 >= 0.7, "run {}: on the canister in {:.0} % of its frames", worst.1, worst.0 * 100.0);
 }

@@ -702,8 +702,9 @@ fn the_tracker_stays_on_a_canister_carried_across_its_view() {
     );
     assert!(share >= 0.95, "{:.0} % of frames", share * 100.0);
     assert!(offset.abs() < 0.2, "the box sits {offset:+.2} widths off the canister");
-    // What the running average (and the anchor) are for: the newest patch alone, learnt with the
-    // ground it crosses and never re-centred, lags behind and slides off.
+    // What the running average is for: the newest patch alone, learnt with the ground it crosses,
+    // lags behind and slides off (both runs without an anchor and with the context at full
+    // weight, the defaults, pinned here for the second).
     assert!(
         newest_offset > offset.abs() + 0.1,
         "the newest patch alone lags by {newest_offset:+.2} widths only"
@@ -891,7 +892,8 @@ fn the_tracker_stays_on_the_canister_through_25_m_approaches_on_the_mars_yard() 
         (76, 65222, (5.1583, 6.2468, 283.5), (-12.76, -12.42)),
     ];
     let (mut all, mut on) = (0, 0);
-    let mut worst = (1.0f64, 0);
+    // (share, run); any run's share is below 2.
+    let mut worst = (2.0f64, 0);
     for (run, seed, canister, from) in cases {
         let (good, frames) = far_approach(seed, canister, from);
         println!("run {run}: on the canister in {good} of {frames} frames");

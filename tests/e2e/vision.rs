@@ -275,10 +275,10 @@ fn canister_box(cam: &CameraModel, pose: &Isometry3<f64>, can: &Isometry3<f64>) 
     b
 }
 
-/// The head pair at `eye` looking at the canister's `centre` (the design pair, rectified by
-/// `rect`), the box the operator would draw around the canister in the rectified left image (the
-/// design pair is rectified up to the principal point and the distortion), and the true range from
-/// the left camera to `centre`.
+/// The head pair at `eye` looking at `centre` (the canister's, or a point near it; the design
+/// pair, rectified by `rect`), the box the operator would draw around the canister in the
+/// rectified left image (the design pair is rectified up to the principal point and the
+/// distortion), and the true range from the left camera to `centre`.
 fn canister_pair(
     r: &mut SensorRenderer,
     t: &Twin,
@@ -775,7 +775,6 @@ fn far_approach(seed: u64, (cx, cy, yaw_deg): (f64, f64, f64), from: (f64, f64))
         Twin::with_defaults(world.clone(), StartPose { x: 12.0, y: -12.0, yaw: 0.0 }, Fidelity::Kinematic)
             .unwrap();
     let mut r = SensorRenderer::new(&t).unwrap();
-    let (cam, photometry) = head();
     let rect = gnc::localization::rectify::Rectification::new(&head_pair());
     let can = t.canister_truth().unwrap();
     let centre = can.translation.vector + Vector3::z() * 0.1;
@@ -798,14 +797,9 @@ fn far_approach(seed: u64, (cx, cy, yaw_deg): (f64, f64, f64), from: (f64, f64))
         eye.z = world.ground_height(eye.x, eye.y) + 1.45;
         let aim = centre + Vector3::new((k as f64 * 0.7).sin(), (k as f64 * 0.5).cos(), 0.0) * 0.02 * range;
         let pose = look_at(eye, aim);
-        let mut rng = Pcg64Mcg::seed_from_u64(500 + k as u64);
-        let right = pose * Isometry3::translation(0.25, 0.0, 0.0);
-        let imgs = r
-            .grey_views(&t, &[(&cam, pose), (&cam, right)], &photometry, Exposure::NOMINAL, &mut rng)
-            .unwrap();
-        let (img, img_r) = (rect.left(&imgs[0]), rect.right(&imgs[1]));
+        let (img, img_r, truth, _) =
+            canister_pair(&mut r, &t, &rect, eye, nalgebra::Point3::from(aim), 500 + k as u64);
         let cam = &rect.model.left;
-        let truth = canister_box(cam, &pose, &can);
         let true_range = (eye - centre).norm();
         match selected {
             None => {

@@ -428,6 +428,10 @@ impl TemplateTracker {
     /// The box `b` re-centred on the anchor's best match within half the box's longer side of
     /// its centre, at the box's size, if it correlates above `anchor_threshold`.
     fn anchored(&self, img: &GreyImage, b: &BBox) -> Option<BBox> {
+        // Above 1 no correlation reaches the threshold: no search.
+        if self.params.anchor_threshold > 1.0 {
+            return None;
+        }
         let (t, at, region) = self.anchor.as_ref()?;
         let s = (b[2] - b[0]) / (at[2] - at[0]);
         let step = region.0 * s / t.w as f64;

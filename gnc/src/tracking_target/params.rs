@@ -147,6 +147,12 @@ impl TrackingTargetParams {
                 p.tracker.context_weight
             ));
         }
+        if !(p.tracker.anchor_rescale.is_finite() && p.tracker.anchor_rescale > 1.0) {
+            return Err(format!(
+                "tracker.anchor_rescale must be a factor above 1, got {} (at 1 the anchor would be retaken every frame)",
+                p.tracker.anchor_rescale
+            ));
+        }
         if !(p.tracker.model_rate > 0.0 && p.tracker.model_rate <= 1.0) {
             return Err(format!("tracker.model_rate must be in (0, 1], got {}", p.tracker.model_rate));
         }
@@ -168,5 +174,24 @@ impl TrackingTargetParams {
             }
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_pass_and_a_tracker_out_of_range_is_named() {
+        assert_eq!(TrackingTargetParams::default().validate(), Ok(()));
+        let with = |f: fn(&mut TrackerParams)| {
+            let mut p = TrackingTargetParams::default();
+            f(&mut p.tracker);
+            p.validate().unwrap_err()
+        };
+        assert!(with(|t| t.anchor_rescale = 1.0).contains("tracker.anchor_rescale"));
+        assert!(with(|t| t.anchor_rescale = f64::NAN).contains("tracker.anchor_rescale"));
+        assert!(with(|t| t.context_weight = 0.0).contains("tracker.context_weight"));
+        assert!(with(|t| t.model_rate = 1.5).contains("tracker.model_rate"));
     }
 }

@@ -80,13 +80,16 @@ pub struct WheelConfig {
     pub friction: f64,
     /// Collision shape of the wheels against the ground.
     pub contact_shape: WheelShape,
+    /// Radius of the rounded tread edges of `round_cylinder` wheels, m: more than 0, at most half
+    /// the wheel's width (a fully round tyre profile).
+    pub tread_edge_radius_m: f64,
 }
 
 /// Collision shape of a wheel.
 #[derive(Copy, Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum WheelShape {
-    /// The wheel's cylinder with rounded edges (2 cm).
+    /// The wheel's cylinder with rounded tread edges (`tread_edge_radius_m`).
     RoundCylinder,
     /// A ball of the wheel's radius: a round tyre; contacts cost a fraction of the cylinder's.
     Ball,
@@ -272,6 +275,7 @@ impl TwinConfig {
         }
         pos("wheels.max_torque_nm", c.wheels.max_torque_nm)?;
         pos("wheels.velocity_gain", c.wheels.velocity_gain)?;
+        pos("wheels.tread_edge_radius_m", c.wheels.tread_edge_radius_m)?;
         pos("servos.full_effort_error", c.servos.full_effort_error)?;
         pos("servos.damping_time_s", c.servos.damping_time_s)?;
         pos("servos.position_tolerance", c.servos.position_tolerance)?;

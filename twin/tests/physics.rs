@@ -119,6 +119,36 @@ fn a_static_imu_reads_gravity_within_its_noise() {
     assert!((imu.period() - 0.01).abs() < 1e-12);
 }
 
+/// Yaw rate a point turn commanded at `omega` reaches on `w` at (x, y, yaw_deg), rad/s (over 3 s,
+/// after 1 s of spin-up).
+fn point_turn_rate(w: World, x: f64, y: f64, yaw_deg: f64, omega: f64) -> f64 {
+    let t = share(rover(w, x, y, yaw_deg.to_radians(), Fidelity::Dynamic));
+    let (map, res) = devices(&t);
+    let mut loco = map.locomotor().unwrap();
+    let token = res.acquire("locomotor", framework::message::ModuleId(1)).unwrap();
+    t.lock().run_for(S(1.0));
+    loco.drive(&token, BodyTwist { v: 0.0, omega }).unwrap();
+    t.lock().run_for(S(1.0));
+    let a = t.lock().base_pose().rotation;
+    t.lock().run_for(S(3.0));
+    let b = t.lock().base_pose().rotation;
+    (a.inverse() * b).euler_angles().2 / 3.0
+}
+
+/// Skid-steer point turns on slopes turn at over half the commanded rate. Wheels with a nearly flat
+/// tread (2 cm edge radius) bore on their edges: on this 6-7 degree spot of a sweep's yard
+/// (friction 0.8), where a stalled turn ended a mission, the rover turned at 0.01 rad/s of the
+/// 0.4 commanded, and on a 7 degree plane (turning right, facing down) at 0.01 rad/s.
+#[test]
+fn a_point_turn_on_the_mars_yards_rough_slope_turns_at_over_half_the_commanded_rate() {
+    let mut yard = World::load_with_seed(worlds::worlds_dir().join("mars_yard.toml"), 43223).unwrap();
+    yard.regolith.friction = 0.8;
+    let plane = point_turn_rate(slope(7.0, 0.8), 0.0, 0.0, 180.0, -0.4);
+    let rough = point_turn_rate(yard, 0.74, 1.6, -130.6, -0.4);
+    assert!(plane < -0.2, "on a plane: {plane} rad/s");
+    assert!(rough < -0.2, "on the yard: {rough} rad/s (on a plane {plane} rad/s)");
+}
+
 /// A parked rover stands still: on flat ground and on the Mars-like yard's start area, with the
 /// drives holding their wheels, it neither turns nor slides (the solver once let it creep about
 /// 2 degrees of yaw and 2 cm in 20 s, which a gyro-bias estimator could not tell from a bias).

@@ -80,8 +80,8 @@ pub struct WheelConfig {
     pub friction: f64,
     /// Collision shape of the wheels against the ground.
     pub contact_shape: WheelShape,
-    /// Radius of the rounded tread edges of `round_cylinder` wheels, m: more than 0, at most half
-    /// the wheel's width (a fully round tyre profile).
+    /// Radius of the rounded tread edges of `round_cylinder` wheels, m: more than 0; a radius of
+    /// half the wheel's width or more is a fully round tyre profile (just under half is used).
     pub tread_edge_radius_m: f64,
 }
 

@@ -239,7 +239,8 @@ impl Twin {
         // flat tread (2 cm edges on a 12 cm wheel) bears on its edges on slopes and rough ground and
         // resists skid turns far beyond Coulomb friction (point turns on 3-7 degree slopes of the
         // Mars yard, and one way on a 7 degree plane, at 0-40 % of the commanded rate; with 4 cm
-        // edges the stuck ones turn at 75 %); fully round edges let the rover rock on point contacts.
+        // edges at 30-78 %, with a ball 60-78 %); fully round edges let the rover rock on point
+        // contacts.
         for (name, lh) in link_names.iter().zip(&handles.links) {
             if !name.starts_with("wheel_") {
                 continue;

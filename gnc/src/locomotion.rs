@@ -8,8 +8,9 @@
 //! - `turn_to {yaw_deg}`: turns in place to a heading of the estimate's frame;
 //! - `follow_path {points, clearance_m?, speed?, tolerance_m?}`: follows a path of the estimate's
 //!   frame by pure pursuit (a lookahead point on the path, the arc through it), turning in place
-//!   when the path is far off the heading, slowing where the path's clearance to obstacles is small,
-//!   for heading error and near the end; completes at the last point with the cross-track errors;
+//!   when the path is far off the heading or the arc tighter than `max_curvature` (if set), slowing where
+//!   the path's clearance to obstacles is small, for heading error and near the end; completes at
+//!   the last point with the cross-track errors;
 //! - `stop`: stops at once (also fails the manoeuvre in progress);
 //! - `recover`: leaves the `fault` state after a stall.
 //!
@@ -38,7 +39,8 @@ pub struct LocomotionParams {
     pub accel: f64,
     /// Heading gain of `goto` and `turn_to`, 1/s.
     pub heading_gain: f64,
-    /// `goto` turns in place while the goal is more than this off the heading, degrees.
+    /// `goto` (and `follow_path`) turns in place while the goal (the lookahead point) is more
+    /// than this off the heading, degrees.
     pub turn_in_place_deg: f64,
     /// Arrival tolerance of `goto`, m.
     pub goal_tolerance_m: f64,
@@ -58,6 +60,12 @@ pub struct LocomotionParams {
     pub stall_min_rate: f64,
     /// How long a wheel may stall before the module stops the rover, s.
     pub stall_time_s: f64,
+    /// Tightest arc `follow_path` drives, 1/m (0: no limit): a skid-steer rover cannot skid round
+    /// arcs much tighter than its track on slopes (the inner wheels pivot, the outer ones stall).
+    /// Where pure pursuit's arc (judged at a lookahead of at least `lookahead_m`) is tighter, it
+    /// turns in place until the arc is within half of this; its yaw rate never exceeds this times
+    /// its speed otherwise.
+    pub max_curvature: f64,
 }
 
 impl Default for LocomotionParams {
@@ -77,6 +85,7 @@ impl Default for LocomotionParams {
             stall_rate_fraction: 0.2,
             stall_min_rate: 0.5,
             stall_time_s: 1.0,
+            max_curvature: 0.0,
         }
     }
 }
@@ -151,6 +160,9 @@ struct Following {
     worst_cross_track: f64,
     sum_sq: f64,
     samples: u64,
+    /// Turning in place (the path far off the heading, or its arc too tight): until the arc is
+    /// within half of `max_curvature`, if that is set.
+    pivoting: bool,
 }
 
 impl Following {
@@ -406,18 +418,47 @@ impl Locomotion {
                 let clearance = f.clearance_at(k, t);
                 let left = f.remaining(k, t);
                 let signed = f.signed_cross_track(k, here, cross);
-                f.cross_integral = (f.cross_integral + signed * dt).clamp(-0.5, 0.5);
-                let result = if alpha.abs() > p.turn_in_place_deg.to_radians() {
-                    BodyTwist { v: 0.0, omega: (p.heading_gain * alpha).clamp(-wmax, wmax) }
+                // Pure pursuit's arc through the lookahead point has curvature 2 sin(alpha) / L.
+                // Far off the heading, or on an arc too tight to skid round, the rover turns in
+                // place until the arc is within half the limit (hysteresis: no chatter between the
+                // two at the limit). Near the path's end the lookahead point comes close and any
+                // offset makes a tight arc: the limit is judged at the full lookahead there.
+                let lookahead = dx.hypot(dy).max(1e-3);
+                let curvature = 2.0 * alpha.sin() / lookahead;
+                let judged = 2.0 * alpha.sin() / lookahead.max(p.lookahead_m);
+                let limit = if f.pivoting { 0.5 } else { 1.0 } * p.max_curvature;
+                let too_tight = p.max_curvature > 0.0 && judged.abs() > limit;
+                f.pivoting = alpha.abs() > p.turn_in_place_deg.to_radians() || too_tight;
+                // The cross-track integral corrects the arcs; the long turns in place to within half
+                // the arc limit would wind it up. (Without the limit, the follower is as it was.)
+                let limited = p.max_curvature > 0.0;
+                if !(f.pivoting && limited) {
+                    f.cross_integral = (f.cross_integral + signed * dt).clamp(-0.5, 0.5);
+                }
+                let result = if f.pivoting {
+                    let mut omega = (p.heading_gain * alpha).clamp(-wmax, wmax);
+                    if limited {
+                        // A useful rate to the end of those turns (wheels stick at very low rates).
+                        omega = omega.signum() * omega.abs().max(0.05_f64.min(wmax));
+                    }
+                    BodyTwist { v: 0.0, omega }
                 } else {
                     let slow = (clearance / p.slow_clearance_m).min(1.0);
                     let cruise = (f.speed.min(vmax) * slow).max(p.min_speed.min(f.speed));
                     let v =
                         cruise.min(0.6 * left.min(to_end.max(left.min(p.lookahead_m))) + 0.05) * alpha.cos();
-                    // Pure pursuit: the arc through the lookahead point (curvature 2 sin(alpha) / L),
-                    // with an integral on the cross-track error.
-                    let lookahead = dx.hypot(dy).max(1e-3);
-                    let omega = v * 2.0 * alpha.sin() / lookahead - p.cross_track_gain_i * f.cross_integral;
+                    // Pure pursuit: the arc through the lookahead point, with an integral on the
+                    // cross-track error.
+                    let omega = v * curvature - p.cross_track_gain_i * f.cross_integral;
+                    // The arc the rover drives is its yaw rate over the speed it will have this
+                    // cycle (speeding up from a turn in place, less than `v`): within the limit.
+                    let omega = if limited {
+                        let v_now = v.min(self.command.v.max(0.0) + p.accel * dt);
+                        let most = (v_now * p.max_curvature).max(0.0);
+                        omega.clamp(-most, most)
+                    } else {
+                        omega
+                    };
                     BodyTwist { v, omega: omega.clamp(-wmax, wmax) }
                 };
                 self.manoeuvre = Some(Manoeuvre::Follow(f));
@@ -576,6 +617,7 @@ impl Module for Locomotion {
                     worst_cross_track: 0.0,
                     sum_sq: 0.0,
                     samples: 0,
+                    pivoting: false,
                 })),
             )
         });
@@ -626,6 +668,9 @@ impl Module for Locomotion {
         ])?;
         if !(0.0..1.0).contains(&p.stall_rate_fraction) {
             return Err(format!("stall_rate_fraction must be in [0, 1), got {}", p.stall_rate_fraction));
+        }
+        if !(p.max_curvature >= 0.0 && p.max_curvature.is_finite()) {
+            return Err(format!("max_curvature must be 0 (no limit) or positive, got {}", p.max_curvature));
         }
         self.params = p.clone();
         Ok(())

@@ -307,6 +307,29 @@ fn point_locate_approach_track_reaches_a_canister_17_m_away_on_rough_ground() {
 }
 
 #[test]
+fn fused_at_the_estimates_depth_the_approach_is_not_drawn_onto_a_rock_in_front_of_the_canister() {
+    // With 4 cm treads the rover takes another path, on which the default fusion (each location
+    // at its own depth) ends its estimate short, on a rock 2.5 m in front of the canister: the
+    // approach stops 4.5 m from it. Fused at the estimate's depth, it reaches the canister.
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(
+        &root().join("scenarios/visual_approach.toml"),
+        dir.path(),
+        &[
+            "--set",
+            "twin.wheels.tread_edge_radius_m=0.04",
+            "--set",
+            "modules.tracking_target.params.fuse_at_estimate_depth=true",
+        ],
+    );
+    let s = score(dir.path());
+    assert_eq!(o.status.code(), Some(0), "{}\n{s:#}", show(&o));
+    let m = &s["metrics"];
+    assert!(m["canister_distance_m"].as_f64().unwrap() <= 2.0, "{m}");
+    assert!(m["canister_bearing_deg"].as_f64().unwrap().abs() <= 15.0, "{m}");
+}
+
+#[test]
 fn bad_scenario_files_give_exact_locations() {
     let dir = tempfile::tempdir().unwrap();
     let base = std::fs::read_to_string(data("short.toml"))

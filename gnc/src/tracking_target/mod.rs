@@ -32,12 +32,12 @@ pub use params::{LocateArgs, SelectArgs, TrackingTargetParams};
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
 use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
-use crate::tracking::locate::{Located, locate};
+use crate::tracking::locate::{LocateParams, Located, locate};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::search::{LostSearch, search_radius_px};
 use crate::tracking::size::{SelectedView, along_sight, range_bounds};
 use crate::tracking::template::{BBox, Prior, TemplateTracker, TrackStatus, Verdict};
-use framework::camera::{GreyImage, StereoCalibration};
+use framework::camera::{GreyImage, StereoCalibration, StereoModel};
 use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
@@ -140,6 +140,25 @@ fn in_map(
     let cov = r * loc.covariance * r.transpose() + pose_drift(fix, pose, &p);
     let bias = r * loc.bias_covariance * r.transpose();
     (p, cov, bias)
+}
+
+/// `loc` (by the camera `map_from_rect`) with the covariances it has at the depth where the
+/// estimate `expected` (`map`) lies, not at its own ([`Located::at_depth`]): else the locations
+/// that noise put nearer count for more, and an estimate far away is pulled metres short, onto
+/// whatever lies in front of the target. Until the estimate is `established` (it may be a wrong
+/// first location's), at the farther of the two depths: never more certain than it says itself.
+fn at_expected_depth(
+    loc: &Located,
+    map_from_rect: &Isometry3<f64>,
+    expected: Option<Point3<f64>>,
+    established: bool,
+    model: &StereoModel,
+    params: &LocateParams,
+) -> Located {
+    let Some(expected) = expected else { return loc.clone() };
+    let z = (map_from_rect.inverse() * expected).z;
+    let z = if established { z } else { z.max(loc.position.z) };
+    loc.at_depth(model, params, z)
 }
 
 /// The transform and its inverse between raw left pixels and rectified left pixels.
@@ -474,17 +493,37 @@ impl TrackingTarget {
         };
         match (located, &placed) {
             (Some(Ok(loc)), Ok((map_from_rect, pose))) => {
-                let (p, cov, bias) = in_map(&loc, map_from_rect, pose, self.fix_pose_term);
+                // Once established (confirmed locations), the estimate is not restarted by
+                // disagreeing locations: they mean the tracker is on something else. Before, a
+                // wrong first location must not lock out the right ones.
+                let established = self.estimate.count() >= CONFIRM_AFTER;
+                let expected = self.estimate.position_at(stamp);
+                // Fused at the estimate's depth if so configured, but gated at its own: what lies in
+                // front of the target (the likeliest look-alike) is held to its own smaller
+                // uncertainty. One behind passes its own wider gate: far away it is more often the
+                // target behind a short estimate than a look-alike (gated at both, the visual
+                // approach on 4 cm treads ends 2.1 m from the canister, beside it).
+                let (p, cov_own, bias_own) = in_map(&loc, map_from_rect, pose, self.fix_pose_term);
+                let (cov, bias) = if self.params.fuse_at_estimate_depth {
+                    let there = at_expected_depth(
+                        &loc,
+                        map_from_rect,
+                        expected,
+                        established,
+                        &self.rect.model,
+                        &self.params.locate,
+                    );
+                    let (_, cov, bias) = in_map(&there, map_from_rect, pose, self.fix_pose_term);
+                    (cov, bias)
+                } else {
+                    (cov_own, bias_own)
+                };
                 let gate = if result.status == TrackStatus::Redetected {
                     self.params.redetect_gate_sigma
                 } else {
                     self.params.gate_sigma
                 };
                 let walk = self.params.target_walk;
-                // Once established (confirmed locations), the estimate is not restarted by
-                // disagreeing locations: they mean the tracker is on something else. Before, a
-                // wrong first location must not lock out the right ones.
-                let established = self.estimate.count() >= CONFIRM_AFTER;
                 let bounds = size_bounds(
                     &self.params,
                     &self.target,
@@ -506,7 +545,15 @@ impl TrackingTarget {
                         ));
                     }
                 }
-                if sized && self.estimate.fuse(p, cov, bias, stamp, walk, gate, !established) {
+                let fused = sized
+                    && if self.params.fuse_at_estimate_depth
+                        && self.estimate.agrees(&p, &cov_own, stamp, walk, gate)
+                    {
+                        self.estimate.fuse(p, cov, bias, stamp, walk, f64::INFINITY, false)
+                    } else {
+                        self.estimate.fuse(p, cov_own, bias_own, stamp, walk, gate, !established)
+                    };
+                if fused {
                     // Where an established estimate holds it, the box is the target: its look is
                     // learnt.
                     if established {
@@ -713,5 +760,51 @@ impl Module for TrackingTarget {
         self.placement.configure(p.history_s, p.max_extrapolation_s);
         self.params = p.clone();
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tracking::locate::LocateNoise;
+    use framework::camera::CameraModel;
+
+    #[test]
+    fn a_location_is_weighed_at_the_estimates_depth_and_before_it_is_established_at_the_farther() {
+        let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
+        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
+        let p = LocateParams::default();
+        // The camera somewhere in map, turned about two axes.
+        let map_from_rect = Isometry3::new(Vector3::new(3.0, -2.0, 1.3), Vector3::new(1.2, -0.3, 0.8));
+        let noise = LocateNoise { var_u: 0.3, var_v: 0.3, var_d: 0.05, var_bias_d: 0.16 };
+        let measured = Located {
+            position: Point3::new(0.4, -0.1, 14.0),
+            covariance: Matrix3::zeros(),
+            bias_covariance: Matrix3::zeros(),
+            noise,
+            disparity: model.disparity(14.0),
+            matched: 40,
+            foreground: 20,
+        };
+        let own = measured.at_depth(&model, &p, 14.0);
+        let at = |z: f64| measured.at_depth(&model, &p, z);
+        let close = |a: &Located, b: &Located| {
+            a.position == b.position && (a.covariance - b.covariance).norm() < 1e-9 * b.covariance.norm()
+        };
+        let expected_at = |z: f64| Some(map_from_rect * Point3::new(-0.3, 0.2, z));
+        let weighed = |z: f64, established: bool| {
+            at_expected_depth(&own, &map_from_rect, expected_at(z), established, &model, &p)
+        };
+        // Established: at the estimate's depth, nearer or farther.
+        assert!(close(&weighed(18.0, true), &at(18.0)));
+        assert!(close(&weighed(10.0, true), &at(10.0)));
+        // Not yet: never more certain than at its own depth.
+        assert!(close(&weighed(18.0, false), &at(18.0)));
+        assert!(close(&weighed(10.0, false), &own));
+        // No estimate: as measured.
+        assert!(close(&at_expected_depth(&own, &map_from_rect, None, true, &model, &p), &own));
+        // Farther means less certain along the line of sight (its sigma as the depth squared).
+        let ratio = at(18.0).covariance[(2, 2)] / own.covariance[(2, 2)];
+        assert!(ratio > (18.0f64 / 14.0).powi(3), "{ratio}");
     }
 }

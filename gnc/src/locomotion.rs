@@ -426,12 +426,12 @@ impl Locomotion {
                 let lookahead = dx.hypot(dy).max(1e-3);
                 let curvature = 2.0 * alpha.sin() / lookahead;
                 let judged = 2.0 * alpha.sin() / lookahead.max(p.lookahead_m);
+                let limited = p.max_curvature > 0.0;
                 let limit = if f.pivoting { 0.5 } else { 1.0 } * p.max_curvature;
-                let too_tight = p.max_curvature > 0.0 && judged.abs() > limit;
+                let too_tight = limited && judged.abs() > limit;
                 f.pivoting = alpha.abs() > p.turn_in_place_deg.to_radians() || too_tight;
                 // The cross-track integral corrects the arcs; the long turns in place to within half
                 // the arc limit would wind it up. (Without the limit, the follower is as it was.)
-                let limited = p.max_curvature > 0.0;
                 if !(f.pivoting && limited) {
                     f.cross_integral = (f.cross_integral + signed * dt).clamp(-0.5, 0.5);
                 }

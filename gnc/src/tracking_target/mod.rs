@@ -497,7 +497,6 @@ impl TrackingTarget {
                 // disagreeing locations: they mean the tracker is on something else. Before, a
                 // wrong first location must not lock out the right ones.
                 let established = self.estimate.count() >= CONFIRM_AFTER;
-                let expected = self.estimate.position_at(stamp);
                 // Fused at the estimate's depth if so configured, but gated at its own: what lies in
                 // front of the target (the likeliest look-alike) is held to its own smaller
                 // uncertainty. One behind passes its own wider gate: far away it is more often the
@@ -508,7 +507,7 @@ impl TrackingTarget {
                     let there = at_expected_depth(
                         &loc,
                         map_from_rect,
-                        expected,
+                        self.estimate.position_at(stamp),
                         established,
                         &self.rect.model,
                         &self.params.locate,

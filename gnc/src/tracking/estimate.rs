@@ -105,6 +105,18 @@ impl TargetEstimate {
         self.ruled_out += 1;
     }
 
+    /// Doubts the estimate: its bias covariance grows by `sigma_m`^2 each way, so the next
+    /// locations are gated and weighed as if it knew the target that much less well (a location
+    /// where the target really is, metres from a wrong estimate, is then let in and takes over).
+    /// Nothing without an estimate.
+    pub fn widen(&mut self, sigma_m: f64) {
+        if let Some(f) = &mut self.fused
+            && sigma_m.is_finite()
+        {
+            f.bias += Matrix3::identity() * sigma_m.powi(2);
+        }
+    }
+
     /// The velocity the estimate moves by between locations, m/s.
     pub fn velocity(&self) -> Vector3<f64> {
         self.velocity
@@ -435,6 +447,23 @@ mod tests {
         }
         let x = e.position().unwrap().x;
         assert!(x.abs() < 0.25, "estimate still {x} m off");
+    }
+
+    #[test]
+    fn a_widened_estimate_lets_a_far_location_in_and_follows_it() {
+        let mut e = TargetEstimate::default();
+        let cov = Matrix3::identity() * 0.01;
+        let bias = Matrix3::identity() * 0.0025;
+        for i in 0..5 {
+            assert!(e.fuse(Point3::new(10.0, 0.0, 0.3), cov, bias, t(f64::from(i)), 0.0, 3.0, false));
+        }
+        // The target is 2 m nearer than the estimate says: its locations are rejected...
+        let there = Point3::new(8.0, 0.0, 0.3);
+        assert!(!e.fuse(there, cov, bias, t(5.0), 0.0, 3.0, false));
+        // ... until the estimate is doubted.
+        e.widen(1.0);
+        assert!(e.fuse(there, cov, bias, t(6.0), 0.0, 3.0, false));
+        assert!((e.position().unwrap() - there).norm() < 0.2, "{:?}", e.position());
     }
 
     #[test]

@@ -98,6 +98,74 @@ pub struct Located {
     pub matched: usize,
     /// See `matched`.
     pub foreground: usize,
+    /// How the disparity in the middle of the box changes down it (none with too few rows to
+    /// tell).
+    pub profile: Option<RowProfile>,
+}
+
+/// How the disparity in the middle of a box changes down it, row by row: what tells a patch of the
+/// ground (its disparity grows down the image, as the ground comes nearer) from something standing
+/// on it (its disparity about the same from its top to its foot).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RowProfile {
+    /// Disparity change per row down the box (Theil-Sen over the rows' medians), px per px.
+    pub slope: f64,
+    /// Its standard deviation (from the rows' robust spread about it).
+    pub sigma: f64,
+}
+
+/// Rows a profile needs, and the rows they must span, pixels.
+const PROFILE_ROWS: usize = 5;
+const PROFILE_SPAN_PX: f64 = 4.0;
+
+/// The row profile of the matched `samples` (u, v, disparity, _) in the middle half of a box
+/// (centre `(cu, cv)`, half sizes `(hu, hv)`), matched with windows `window` rows tall and a match
+/// noise `sigma_px`. Each row is its median disparity (the target fills the middle of its box:
+/// what lies beside it is outvoted), the slope the median of the slopes between rows; the middle
+/// half of the rows only: a loose box shows the farther ground above the target and the nearer
+/// below it, whose disparities rise down the box as the ground's do. Never truncated to
+/// disparities near the target's, which would flatten a patch of the ground. Neighbouring rows
+/// share their windows' rows: their errors are correlated, counted as one row a window. None with
+/// too few rows.
+fn row_profile(
+    samples: &[(f64, f64, f64, f64)],
+    (cu, cv): (f64, f64),
+    (hu, hv): (f64, f64),
+    window: usize,
+    sigma_px: f64,
+) -> Option<RowProfile> {
+    let mut rows: Vec<(f64, Vec<f64>)> = Vec::new();
+    let middle = |s: &&(f64, f64, f64, f64)| (s.0 - cu).abs() <= 0.5 * hu && (s.1 - cv).abs() <= 0.5 * hv;
+    for s in samples.iter().filter(middle) {
+        match rows.iter_mut().find(|r| r.0 == s.1) {
+            Some(r) => r.1.push(s.2),
+            None => rows.push((s.1, vec![s.2])),
+        }
+    }
+    let rows: Vec<(f64, f64)> =
+        rows.into_iter().filter_map(|(v, mut d)| median(&mut d).map(|m| (v, m))).collect();
+    let (lo, hi) = rows.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |a, r| (a.0.min(r.0), a.1.max(r.0)));
+    if rows.len() < PROFILE_ROWS || hi - lo < PROFILE_SPAN_PX {
+        return None;
+    }
+    let mut slopes = Vec::new();
+    for (i, a) in rows.iter().enumerate() {
+        for b in &rows[i + 1..] {
+            if b.0 != a.0 {
+                slopes.push((b.1 - a.1) / (b.0 - a.0));
+            }
+        }
+    }
+    let slope = median(&mut slopes)?;
+    let mut offsets: Vec<f64> = rows.iter().map(|r| r.1 - slope * r.0).collect();
+    let offset = median(&mut offsets)?;
+    let mut residuals: Vec<f64> = rows.iter().map(|r| (r.1 - offset - slope * r.0).abs()).collect();
+    // A row's median: at least a third of one match's noise.
+    let spread = (1.4826 * median(&mut residuals)?).max(sigma_px / 3.0);
+    let n = rows.len() as f64;
+    let mv = rows.iter().map(|r| r.0).sum::<f64>() / n;
+    let sxx: f64 = rows.iter().map(|r| (r.0 - mv).powi(2)).sum();
+    Some(RowProfile { slope, sigma: spread * (window as f64).sqrt() / sxx.sqrt() })
 }
 
 /// A location's errors in the image, pixels^2: its mean pixel's and mean disparity's variances
@@ -116,6 +184,34 @@ pub struct LocateNoise {
 }
 
 impl Located {
+    /// The tilt from level of the surface through the location that its row profile shows,
+    /// degrees, taken `sigmas` of the profile's standard deviations towards upright: 0 for level
+    /// ground, positive for ground rising away from the camera, 90 for a wall facing it (a
+    /// target standing on the ground), more for an overhang. The tilt is about the horizontal
+    /// across the line of sight; `up` is the map's up direction in the rectified left optical
+    /// frame. None without a profile, or for a location less than 0.1 m below the camera.
+    ///
+    /// A plane through the location P of normal n has, at the pixel of ray r = (x, y, 1), the
+    /// disparity d = fx B (n . r) / (n . P), which changes by (fx / fy) B n_y / (n . P) a row.
+    /// With n = cos(t) up - sin(t) l (l the horizontal direction to P) the measured change s
+    /// gives tan(t) = (s up.P - A up_y) / (s l.P - A l_y), A = (fx / fy) B.
+    pub fn surface_tilt(&self, model: &StereoModel, up: &Vector3<f64>, sigmas: f64) -> Option<f64> {
+        let profile = self.profile?;
+        let p = self.position.coords;
+        let up_p = up.dot(&p);
+        let level = p - up * up_p;
+        if up_p.is_nan() || up_p >= -0.1 || level.norm() < 1e-6 {
+            return None;
+        }
+        let l = level.normalize();
+        let k = &model.left.pinhole;
+        let a = model.baseline * k.fx / k.fy;
+        let s = profile.slope - sigmas * profile.sigma;
+        // atan2 picks the normal facing the camera (n . P < 0 for a camera not rolled over):
+        // t lies within 90 degrees of the line of sight's own tilt.
+        Some((s * up_p - a * up.y).atan2(s * l.dot(&p) - a * l.y).to_degrees())
+    }
+
     /// This location with the covariances it would have at depth `z` along its line of sight
     /// (rectified left optical frame, m); its position and `disparity` stay as measured, and so
     /// do the image errors (a far window's depth mixing and a small box's centring among them). A
@@ -416,6 +512,7 @@ pub fn locate(
         disparity: md,
         matched: samples.len(),
         foreground: if fallback { 0 } else { fore.len() },
+        profile: row_profile(&samples, (cu, cv), (hu, hv), 2 * h + 1, p.disparity_sigma_px),
     })
 }
 
@@ -539,6 +636,72 @@ mod tests {
     }
 
     #[test]
+    fn a_standing_target_reads_upright_and_a_patch_of_the_ground_flat() {
+        // The camera level, 1 m above the ground: up is -y in its optical frame.
+        let up = Vector3::new(0.0, -1.0, 0.0);
+        for z in [3.0, 6.0] {
+            let (model, l, r, t) = standing(z, 1.0, (0.3, 0.4));
+            let target = locate(&l, &r, &model, t, &LocateParams::default()).unwrap();
+            let tilt = |loc: &Located, sigmas: f64| loc.surface_tilt(&model, &up, sigmas).unwrap();
+            assert!(tilt(&target, 0.0) > 75.0, "the target at {z} m: {target:?}");
+            // A loose box (twice the target each way) shows the farther ground above the target
+            // and the nearer below it: still upright.
+            let (mw, mh) = (0.5 * (t[2] - t[0]), 0.5 * (t[3] - t[1]));
+            let loose = [t[0] - mw, t[1] - mh, t[2] + mw, t[3] + mh];
+            let loose = locate(&l, &r, &model, loose, &LocateParams::default()).unwrap();
+            assert!(tilt(&loose, 2.0) > 45.0, "the target in a loose box at {z} m: {loose:?}");
+            // The same box on the ground a fifth nearer than the target.
+            let f = model.left.pinhole.fx;
+            let foot = 120.0 + f / (0.8 * z);
+            let h = t[3] - t[1];
+            let ground = locate(
+                &l,
+                &r,
+                &model,
+                [t[0], foot - h / 2.0, t[2], foot + h / 2.0],
+                &LocateParams::default(),
+            )
+            .unwrap();
+            // (TrackingTarget rejects what reads under 30 degrees, two sigmas towards upright.)
+            assert!(tilt(&ground, 0.0).abs() < 10.0, "the ground at {z} m: {ground:?}");
+            assert!(tilt(&ground, 2.0) < 30.0, "the ground at {z} m: {ground:?}");
+        }
+    }
+
+    #[test]
+    fn the_surface_tilt_of_a_pitched_camera_is_recovered_from_the_row_slope() {
+        let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
+        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
+        // The camera pitched 20 degrees down: the map's up (y down, z forward) in its frame.
+        let pitch = 20f64.to_radians();
+        let up = Vector3::new(0.0, -pitch.cos(), -pitch.sin());
+        // A point 1.2 m below the camera, 5 m ahead, 0.5 m to the side.
+        let p = Point3::new(0.5, 0.0, 0.0) + Vector3::new(0.0, -pitch.sin(), pitch.cos()) * 5.0 - up * 1.2;
+        let level = (p.coords - up * up.dot(&p.coords)).normalize();
+        let k = model.left.pinhole;
+        for tilt in [0.0f64, 20.0, 60.0, 90.0] {
+            // The plane through p tilted `tilt` towards the camera: its disparity's change a row.
+            let t = tilt.to_radians();
+            let n = up * t.cos() - level * t.sin();
+            let slope = model.baseline * k.fx / k.fy * n.y / n.dot(&p.coords);
+            let loc = Located {
+                position: p,
+                covariance: Matrix3::zeros(),
+                bias_covariance: Matrix3::zeros(),
+                noise: LocateNoise { var_u: 0.0, var_v: 0.0, var_d: 0.0, var_bias_d: 0.0 },
+                disparity: model.disparity(p.z),
+                matched: 100,
+                foreground: 50,
+                profile: Some(RowProfile { slope, sigma: 0.01 }),
+            };
+            let got = loc.surface_tilt(&model, &up, 0.0).unwrap();
+            assert!((got - tilt).abs() < 1e-6, "{tilt} deg read as {got}");
+            // Taken towards upright, more.
+            assert!(loc.surface_tilt(&model, &up, 2.0).unwrap() > got);
+        }
+    }
+
+    #[test]
     fn a_box_with_nothing_to_match_is_an_error() {
         let (model, l, _) = pair(3.0, 0.5);
         let flat = GreyImage { data: vec![100; 320 * 240], ..l.clone() };
@@ -582,6 +745,7 @@ mod tests {
                 disparity: d,
                 matched: 50,
                 foreground: 20,
+                profile: None,
             };
             let stamp = Time::from_secs_f64(f64::from(i) * 0.2);
             own.fuse(loc.position, loc.covariance, loc.bias_covariance, stamp, 0.0, 1e3, false);

@@ -26,23 +26,28 @@
 //! is lost for `lost_timeout_s` or nothing is selected.
 
 mod params;
+mod placing;
 
 pub use params::{LocateArgs, SelectArgs, TrackingTargetParams};
+
+use placing::{
+    at_expected_depth, in_map, inside, map_box, on_the_ground, pose_drift, pose_term, raw_to_rect,
+    rect_to_raw, selected_view, size_bounds,
+};
 
 use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
 use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
-use crate::tracking::locate::{LocateParams, Located, locate};
-use crate::tracking::markers::compose_covariance;
+use crate::tracking::locate::{Located, locate};
 use crate::tracking::search::{LostSearch, search_radius_px};
-use crate::tracking::size::{SelectedView, along_sight, range_bounds};
+use crate::tracking::size::{SelectedView, along_sight};
 use crate::tracking::template::{BBox, Prior, TemplateTracker, TrackStatus, Verdict};
-use framework::camera::{GreyImage, StereoCalibration, StereoModel};
+use framework::camera::{GreyImage, StereoCalibration};
 use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
 use framework::prelude::*;
-use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector3};
 use std::collections::VecDeque;
 
 /// Locations fused since the estimate (re)started after which it is established: one that agrees
@@ -54,6 +59,13 @@ const MIN_VELOCITY_SPAN_S: f64 = 5.0;
 
 /// Disagreeing locations in a row after which the tracker is taken to be on something else.
 const REJECTS_TO_LOSE: u32 = 2;
+
+/// Of the last [`GROUND_WINDOW`] images with a located box or re-detection candidate, those that
+/// found the ground where an established estimate projects, after which the estimate is doubted
+/// (`doubt_range_fraction`): most of them (a box slid onto the ground is not always told from the
+/// target: a box of a few rows far away cannot be).
+const GROUND_TO_DOUBT: u32 = 3;
+const GROUND_WINDOW: u32 = 5;
 
 /// The slot of the target track.
 pub const SLOT: &str = "tracking/target";
@@ -87,6 +99,9 @@ pub struct TrackingTarget {
     lost_since: Option<Time>,
     /// How long the lost target has been searched for where the estimate projects.
     searched_lost: LostSearch,
+    /// The last images looked at, newest in bit 0: 1 where one found the ground where the
+    /// estimate projects (`doubt_on_ground`).
+    ground_at_estimate: u32,
     /// A pending `locate` and its accuracy.
     pending: Option<(Request, f64)>,
     /// A failed stereo location was noted since the selection.
@@ -103,118 +118,6 @@ pub struct TrackingTarget {
     selection_clipped: bool,
     /// The fused locations of the last `velocity_window_s` (capture time s, position in `map`).
     recent: Vec<(f64, Point3<f64>)>,
-}
-
-/// The covariance a point `p` in `map` takes from the rover's pose estimate `pose` (its position,
-/// and its rotation's lever arm to the point).
-fn pose_term(pose: &PoseEstimate, p: &Point3<f64>) -> Matrix3<f64> {
-    let in_base = Isometry3::from((pose.pose.inverse() * p).coords);
-    let (_, through_pose) = compose_covariance(&pose.pose, &pose.covariance, &in_base, &Matrix6::zeros());
-    through_pose.fixed_view::<3, 3>(0, 0).into_owned()
-}
-
-/// How far the rover's pose estimate `now` (its position, and its heading through the lever arm to
-/// the point `p`) may have drifted since the pose term `then` of the newest fused location.
-fn pose_drift(then: Option<Matrix3<f64>>, now: &PoseEstimate, p: &Point3<f64>) -> Matrix3<f64> {
-    let Some(then) = then else { return Matrix3::zeros() };
-    // The error between the two is e_then - e_now: its covariance is about the difference of
-    // theirs, grown or (after a correction) shrunk; either way its size.
-    let change = SymmetricEigen::new(pose_term(now, p) - then);
-    let d = Matrix3::from_diagonal(&change.eigenvalues.map(f64::abs));
-    change.eigenvectors * d * change.eigenvectors.transpose()
-}
-
-/// A location `loc` (rectified left camera) placed in `map` through `map_from_rect`: the
-/// position, its covariance and the bias part of it. Relative to the rover's pose estimate
-/// (`pose`): that estimate's own error moves the rover and the target alike in `map`; what it
-/// adds is how far it drifts between the images (counted as this location's noise: `fix` is the
-/// pose term of the last location fused) and until the position is used (`settle`).
-fn in_map(
-    loc: &Located,
-    map_from_rect: &Isometry3<f64>,
-    pose: &PoseEstimate,
-    fix: Option<Matrix3<f64>>,
-) -> (Point3<f64>, Matrix3<f64>, Matrix3<f64>) {
-    let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
-    let p = *map_from_rect * loc.position;
-    let cov = r * loc.covariance * r.transpose() + pose_drift(fix, pose, &p);
-    let bias = r * loc.bias_covariance * r.transpose();
-    (p, cov, bias)
-}
-
-/// `loc` (by the camera `map_from_rect`) with the covariances it has at the depth where the
-/// estimate `expected` (`map`) lies, not at its own ([`Located::at_depth`]): else the locations
-/// that noise put nearer count for more, and an estimate far away is pulled metres short, onto
-/// whatever lies in front of the target. Until the estimate is `established` (it may be a wrong
-/// first location's), at the farther of the two depths: never more certain than it says itself.
-fn at_expected_depth(
-    loc: &Located,
-    map_from_rect: &Isometry3<f64>,
-    expected: Option<Point3<f64>>,
-    established: bool,
-    model: &StereoModel,
-    params: &LocateParams,
-) -> Located {
-    let Some(expected) = expected else { return loc.clone() };
-    let z = (map_from_rect.inverse() * expected).z;
-    let z = if established { z } else { z.max(loc.position.z) };
-    loc.at_depth(model, params, z)
-}
-
-/// The transform and its inverse between raw left pixels and rectified left pixels.
-fn raw_to_rect(rect: &Rectification, cal: &StereoCalibration, uv: &Point2<f64>) -> Option<Point2<f64>> {
-    let r = cal.left.model.ray(uv);
-    let p = rect.left_from_rect.inverse() * Point3::new(r.x, r.y, 1.0);
-    rect.model.left.project(&p)
-}
-
-fn rect_to_raw(rect: &Rectification, cal: &StereoCalibration, uv: &Point2<f64>) -> Option<Point2<f64>> {
-    let r = rect.model.left.ray(uv);
-    cal.left.model.project(&(rect.left_from_rect * Point3::new(r.x, r.y, 1.0)))
-}
-
-/// The box spanning the images of a box's corners and edge midpoints under `f`.
-fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>) -> Option<BBox> {
-    let (cx, cy) = (0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3]));
-    let pts = [
-        (b[0], b[1]),
-        (b[2], b[1]),
-        (b[0], b[3]),
-        (b[2], b[3]),
-        (cx, b[1]),
-        (cx, b[3]),
-        (b[0], cy),
-        (b[2], cy),
-    ];
-    let mut out = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
-    for (u, v) in pts {
-        let p = f(&Point2::new(u, v))?;
-        out = [out[0].min(p.x), out[1].min(p.y), out[2].max(p.x), out[3].max(p.y)];
-    }
-    Some(out)
-}
-
-/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`.
-fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox) -> SelectedView {
-    let (w, h) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
-    SelectedView { camera: Point3::from(map_from_rect.translation.vector), width_px: w, extent_px: w.max(h) }
-}
-
-/// [`TrackingTarget::size_bounds`], of the parts it reads: none for a target that may move (its
-/// range from where it was selected changes) or whose selected box was cut by the image's border
-/// (`clipped`: smaller than the target).
-fn size_bounds(
-    params: &TrackingTargetParams,
-    target: &str,
-    view: Option<SelectedView>,
-    clipped: bool,
-    rect: &Rectification,
-) -> Option<(f64, f64)> {
-    if params.max_target_speed_mps > 0.0 || clipped {
-        return None;
-    }
-    let extent = params.known_sizes.get(target)?;
-    range_bounds(*extent, rect.model.left.pinhole.fx, view?.extent_px, params.size_tolerance)
 }
 
 impl TrackingTarget {
@@ -257,6 +160,7 @@ impl TrackingTarget {
             last_range: None,
             lost_since: None,
             searched_lost: LostSearch::default(),
+            ground_at_estimate: 0,
             pending: None,
             locate_noted: false,
             sight: None,
@@ -275,6 +179,7 @@ impl TrackingTarget {
         self.located = 0;
         self.lost_since = None;
         self.searched_lost = LostSearch::default();
+        self.ground_at_estimate = 0;
         self.locate_noted = false;
         self.last_range = None;
         self.sight = None;
@@ -393,6 +298,28 @@ impl TrackingTarget {
         Prior { centre, radius_px, width_px }
     }
 
+    /// Counts an image whose box (or a re-detection candidate) found the ground where the
+    /// estimate projects (`at_estimate`), or found something else: where the ground shows in most
+    /// of the last images, the target is elsewhere (the estimate followed a box that had slid off
+    /// it, or stereo put it short from afar), and only locations agreeing with the estimate would
+    /// ever be let in. Doubted (`doubt_range_fraction` of its range from the `camera`), it lets
+    /// the target's own locations take it over.
+    fn doubt_on_ground(&mut self, ctx: &mut Ctx<'_>, stamp: Time, camera: &Point3<f64>, at_estimate: bool) {
+        self.ground_at_estimate =
+            ((self.ground_at_estimate << 1) | u32::from(at_estimate)) & ((1 << GROUND_WINDOW) - 1);
+        if self.ground_at_estimate.count_ones() < GROUND_TO_DOUBT || self.params.doubt_range_fraction <= 0.0 {
+            return;
+        }
+        self.ground_at_estimate = 0;
+        let range = self.estimate.position_at(stamp).map_or(0.0, |e| (e - camera).norm());
+        let sigma = self.params.doubt_range_fraction * range;
+        self.estimate.widen(sigma);
+        ctx.note(format!(
+            "the {} estimate's place showed the ground in {GROUND_TO_DOUBT} of the last {GROUND_WINDOW} images it was looked at in: doubted by {sigma:.1} m",
+            self.target
+        ));
+    }
+
     /// Tracks and locates in the held image of `stamp` (`track`: false for the selection's own
     /// image, which is only located) and publishes the track.
     fn process(&mut self, ctx: &mut Ctx<'_>, stamp: Time, track: bool) {
@@ -406,6 +333,10 @@ impl TrackingTarget {
         let Some(tracker) = &mut self.tracker else { return };
         // The re-detection candidates located (and their locations), not to locate one twice.
         let mut checked: Vec<(BBox, Result<Located, String>)> = Vec::new();
+        // A re-detection candidate found the ground where the estimate projects.
+        let mut ground_candidate_at_estimate = false;
+        // This image's box found the ground where the estimate projects (None: no box located).
+        let mut ground_at_estimate = None;
         let mut searched = false;
         let result = if track {
             // Where the estimate says the target is out of the image (the head looks elsewhere:
@@ -442,7 +373,10 @@ impl TrackingTarget {
                             let (p, cov, _) = in_map(loc, map_from_rect, pose, fix);
                             let gate = params.redetect_gate_sigma;
                             let sized = view.is_none_or(|v| v.allows(&p, bounds));
-                            if sized && estimate.agrees(&p, &cov, stamp, params.target_walk, gate) {
+                            let ground = on_the_ground(loc, map_from_rect, &rect.model, params).is_some();
+                            ground_candidate_at_estimate |= ground && inside(b, prior.centre);
+                            if sized && !ground && estimate.agrees(&p, &cov, stamp, params.target_walk, gate)
+                            {
                                 Verdict::Agrees
                             } else {
                                 Verdict::Disagrees
@@ -530,8 +464,19 @@ impl TrackingTarget {
                     self.selection_clipped,
                     &self.rect,
                 );
+                let ground = on_the_ground(&loc, map_from_rect, &self.rect.model, &self.params);
+                ground_at_estimate =
+                    Some(ground.is_some() && established && inside(&result.bbox, prior.centre));
                 let sized = self.selected_view.is_none_or(|v| v.allows(&p, bounds));
-                if !sized {
+                if let Some(tilt) = ground {
+                    // A patch of the ground counts as a disagreeing location (never as one that
+                    // restarts the estimate): the box slid off the target.
+                    self.estimate.count_rejection();
+                    ctx.note(format!(
+                        "a {} location at {p:?} is the ground (its box shows a surface tilted {tilt:.0} deg at most): rejected",
+                        self.target
+                    ));
+                } else if !sized {
                     // A location the box's size rules out counts as a disagreeing one (never as
                     // one that restarts the estimate): the box is on something else, or stereo
                     // matched the wrong thing.
@@ -545,6 +490,7 @@ impl TrackingTarget {
                     }
                 }
                 let fused = sized
+                    && ground.is_none()
                     && if self.params.fuse_at_estimate_depth
                         && self.estimate.agrees(&p, &cov_own, stamp, walk, gate)
                     {
@@ -564,6 +510,7 @@ impl TrackingTarget {
                     if self.estimate.count() == 1 {
                         // (Re)started: the locations before were of something else.
                         self.recent.clear();
+                        self.ground_at_estimate = 0;
                     }
                     self.recent.retain(|r| r.0 >= t - window);
                     self.recent.push((t, p));
@@ -574,7 +521,7 @@ impl TrackingTarget {
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
                 } else {
-                    if sized {
+                    if sized && ground.is_none() {
                         ctx.note(format!(
                             "a {} location at {p:?} disagrees with the estimate: rejected",
                             self.target
@@ -597,6 +544,11 @@ impl TrackingTarget {
                 self.locate_noted = true;
             }
             _ => {}
+        }
+        if let (Some(at_estimate), Ok((map_from_rect, _))) =
+            (ground_at_estimate.or(ground_candidate_at_estimate.then_some(true)), &placed)
+        {
+            self.doubt_on_ground(ctx, stamp, &Point3::from(map_from_rect.translation.vector), at_estimate);
         }
         if result.status != TrackStatus::Lost
             && let Ok((map_from_rect, _)) = &placed
@@ -759,51 +711,5 @@ impl Module for TrackingTarget {
         self.placement.configure(p.history_s, p.max_extrapolation_s);
         self.params = p.clone();
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::tracking::locate::LocateNoise;
-    use framework::camera::CameraModel;
-
-    #[test]
-    fn a_location_is_weighed_at_the_estimates_depth_and_before_it_is_established_at_the_farther() {
-        let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
-        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
-        let p = LocateParams::default();
-        // The camera somewhere in map, turned about two axes.
-        let map_from_rect = Isometry3::new(Vector3::new(3.0, -2.0, 1.3), Vector3::new(1.2, -0.3, 0.8));
-        let noise = LocateNoise { var_u: 0.3, var_v: 0.3, var_d: 0.05, var_bias_d: 0.16 };
-        let measured = Located {
-            position: Point3::new(0.4, -0.1, 14.0),
-            covariance: Matrix3::zeros(),
-            bias_covariance: Matrix3::zeros(),
-            noise,
-            disparity: model.disparity(14.0),
-            matched: 40,
-            foreground: 20,
-        };
-        let own = measured.at_depth(&model, &p, 14.0);
-        let at = |z: f64| measured.at_depth(&model, &p, z);
-        let close = |a: &Located, b: &Located| {
-            a.position == b.position && (a.covariance - b.covariance).norm() < 1e-9 * b.covariance.norm()
-        };
-        let expected_at = |z: f64| Some(map_from_rect * Point3::new(-0.3, 0.2, z));
-        let weighed = |z: f64, established: bool| {
-            at_expected_depth(&own, &map_from_rect, expected_at(z), established, &model, &p)
-        };
-        // Established: at the estimate's depth, nearer or farther.
-        assert!(close(&weighed(18.0, true), &at(18.0)));
-        assert!(close(&weighed(10.0, true), &at(10.0)));
-        // Not yet: never more certain than at its own depth.
-        assert!(close(&weighed(18.0, false), &at(18.0)));
-        assert!(close(&weighed(10.0, false), &own));
-        // No estimate: as measured.
-        assert!(close(&at_expected_depth(&own, &map_from_rect, None, true, &model, &p), &own));
-        // Farther means less certain along the line of sight (its sigma as the depth squared).
-        let ratio = at(18.0).covariance[(2, 2)] / own.covariance[(2, 2)];
-        assert!(ratio > (18.0f64 / 14.0).powi(3), "{ratio}");
     }
 }

@@ -38,6 +38,21 @@ pub struct TrackingTargetParams {
     /// acquisition succeed, but its return, on another route, fails (see the mission's
     /// configuration).
     pub fuse_at_estimate_depth: bool,
+    /// A location whose box shows a surface tilted less than this from level is a patch of the
+    /// ground, not a target standing on it, and is rejected (a tracker's box slid off the target
+    /// onto the ground in front of it finds the ground there, and the estimate follows it),
+    /// degrees; -90: never (the default for now: see the mission's configuration). The tilt is
+    /// the row profile's (`Located::surface_tilt`), taken `ground_tilt_sigmas` of its uncertainty
+    /// towards upright: a profile that cannot tell (a box of a few rows) rejects nothing.
+    pub ground_tilt_deg: f64,
+    /// See `ground_tilt_deg`.
+    pub ground_tilt_sigmas: f64,
+    /// Where the estimate's place shows the ground (`ground_tilt_deg`) in most of the last
+    /// images, the target may be elsewhere: the estimate's uncertainty grows by this fraction of
+    /// its range (1 sigma, each way), and a location where the target is can take it over. Each
+    /// time again if the ground keeps showing; a location of the target near the estimate shrinks
+    /// it back. 0: never (the default for now: see the mission's configuration).
+    pub doubt_range_fraction: f64,
     /// `locate` fails when the target has been lost this long, s.
     pub lost_timeout_s: f64,
     /// How long the pose and joint histories reach back, s (more than the camera's latency).
@@ -78,6 +93,9 @@ impl Default for TrackingTargetParams {
             gate_sigma: 3.5,
             redetect_gate_sigma: 2.5,
             fuse_at_estimate_depth: false,
+            ground_tilt_deg: -90.0,
+            ground_tilt_sigmas: 2.0,
+            doubt_range_fraction: 0.0,
             lost_timeout_s: 20.0,
             history_s: 4.0,
             max_extrapolation_s: 0.15,
@@ -163,6 +181,15 @@ impl TrackingTargetParams {
         }
         if !(p.tracker.model_rate > 0.0 && p.tracker.model_rate <= 1.0) {
             return Err(format!("tracker.model_rate must be in (0, 1], got {}", p.tracker.model_rate));
+        }
+        if !(p.ground_tilt_deg.is_finite() && (-90.0..90.0).contains(&p.ground_tilt_deg)) {
+            return Err(format!("ground_tilt_deg must be in [-90, 90) degrees, got {}", p.ground_tilt_deg));
+        }
+        if !(p.ground_tilt_sigmas.is_finite() && p.ground_tilt_sigmas >= 0.0) {
+            return Err(format!("ground_tilt_sigmas must be >= 0, got {}", p.ground_tilt_sigmas));
+        }
+        if !(p.doubt_range_fraction.is_finite() && p.doubt_range_fraction >= 0.0) {
+            return Err(format!("doubt_range_fraction must be >= 0, got {}", p.doubt_range_fraction));
         }
         if !(p.max_target_speed_mps.is_finite() && p.max_target_speed_mps >= 0.0) {
             return Err(format!("max_target_speed_mps must be >= 0, got {}", p.max_target_speed_mps));

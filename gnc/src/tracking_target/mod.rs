@@ -101,7 +101,7 @@ pub struct TrackingTarget {
     searched_lost: LostSearch,
     /// The last images looked at, newest in bit 0: 1 where one found the ground where the
     /// estimate projects (`doubt_on_ground`).
-    ground_at_estimate: u32,
+    ground_history: u32,
     /// A pending `locate` and its accuracy.
     pending: Option<(Request, f64)>,
     /// A failed stereo location was noted since the selection.
@@ -160,7 +160,7 @@ impl TrackingTarget {
             last_range: None,
             lost_since: None,
             searched_lost: LostSearch::default(),
-            ground_at_estimate: 0,
+            ground_history: 0,
             pending: None,
             locate_noted: false,
             sight: None,
@@ -179,7 +179,7 @@ impl TrackingTarget {
         self.located = 0;
         self.lost_since = None;
         self.searched_lost = LostSearch::default();
-        self.ground_at_estimate = 0;
+        self.ground_history = 0;
         self.locate_noted = false;
         self.last_range = None;
         self.sight = None;
@@ -305,12 +305,12 @@ impl TrackingTarget {
     /// ever be let in. Doubted (`doubt_range_fraction` of its range from the `camera`), it lets
     /// the target's own locations take it over.
     fn doubt_on_ground(&mut self, ctx: &mut Ctx<'_>, stamp: Time, camera: &Point3<f64>, at_estimate: bool) {
-        self.ground_at_estimate =
-            ((self.ground_at_estimate << 1) | u32::from(at_estimate)) & ((1 << GROUND_WINDOW) - 1);
-        if self.ground_at_estimate.count_ones() < GROUND_TO_DOUBT || self.params.doubt_range_fraction <= 0.0 {
+        self.ground_history =
+            ((self.ground_history << 1) | u32::from(at_estimate)) & ((1 << GROUND_WINDOW) - 1);
+        if self.ground_history.count_ones() < GROUND_TO_DOUBT || self.params.doubt_range_fraction <= 0.0 {
             return;
         }
-        self.ground_at_estimate = 0;
+        self.ground_history = 0;
         let range = self.estimate.position_at(stamp).map_or(0.0, |e| (e - camera).norm());
         let sigma = self.params.doubt_range_fraction * range;
         self.estimate.widen(sigma);
@@ -510,7 +510,7 @@ impl TrackingTarget {
                     if self.estimate.count() == 1 {
                         // (Re)started: the locations before were of something else.
                         self.recent.clear();
-                        self.ground_at_estimate = 0;
+                        self.ground_history = 0;
                     }
                     self.recent.retain(|r| r.0 >= t - window);
                     self.recent.push((t, p));

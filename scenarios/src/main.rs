@@ -102,6 +102,9 @@ struct RunArgs {
     /// No progress line.
     #[arg(long)]
     quiet: bool,
+    /// Write score.json (and the track) only, no Rerun or MCAP logs.
+    #[arg(long)]
+    no_logs: bool,
 }
 
 #[derive(clap::Args)]
@@ -120,6 +123,26 @@ struct SweepArgs {
     /// Run only the K-th of N disjoint slices (1-based), e.g. --shard 2/8.
     #[arg(long, value_parser = sweep::parse_shard)]
     shard: Option<(u64, u64)>,
+    /// Run only these run indices, e.g. --indices 3,7,10-12 (each keeps its seed and values).
+    #[arg(long, value_name = "LIST", conflicts_with = "rerun_failed")]
+    indices: Option<String>,
+    /// Run again only the runs that failed in sweep folder DIR (a campaign of the same sweep
+    /// file), into --out.
+    #[arg(long, value_name = "DIR")]
+    rerun_failed: Option<PathBuf>,
+    /// Go on with the campaign in --out (interrupted, or cut short): its rows are kept and only
+    /// the missing runs are run.
+    #[arg(long)]
+    resume: bool,
+    /// Wall-clock limit of each run in seconds (default: the sweep file's run_timeout_s, else
+    /// five times the scenario's time limit plus a minute). A run past it is stopped and fails
+    /// with outcome "timeout".
+    #[arg(long, value_name = "SECONDS")]
+    run_timeout: Option<f64>,
+    /// Exit 1 when the success rate is below this fraction (e.g. 0.95), naming the rate and its
+    /// 95% interval: a campaign as a CI gate.
+    #[arg(long, value_name = "FRACTION", value_parser = parse_fraction)]
+    min_success_rate: Option<f64>,
     /// Output folder (default: out/sweep-<sweep file name>).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -145,7 +168,29 @@ enum SweepCmd {
         /// Output folder.
         #[arg(long)]
         out: PathBuf,
+        /// Exit 1 when the merged success rate is below this fraction.
+        #[arg(long, value_name = "FRACTION", value_parser = parse_fraction)]
+        min_success_rate: Option<f64>,
     },
+    /// Compare campaign B with campaign A (before and after a change): paired per-run outcome
+    /// changes, the success-rate difference with an exact test, metric shifts, plots.
+    Compare {
+        /// The campaign before (a sweep output folder).
+        a: PathBuf,
+        /// The campaign after.
+        b: PathBuf,
+        /// Where compare.json and compare.html go (default: B/compare).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+fn parse_fraction(s: &str) -> Result<f64, String> {
+    let v: f64 = s.parse().map_err(|_| format!("'{s}' is not a number"))?;
+    if !(0.0..=1.0).contains(&v) {
+        return Err(format!("{v} is not a fraction between 0 and 1 (for 95% give 0.95)"));
+    }
+    Ok(v)
 }
 
 #[derive(clap::Args)]
@@ -241,7 +286,7 @@ fn run_main(a: RunArgs) -> Result<i32> {
         out: out.clone(),
         fidelity: a.fidelity,
         quiet: a.quiet,
-        write_logs: true,
+        write_logs: !a.no_logs,
         interrupt: interrupt_flag(),
     };
     let score = runner::run(&loaded, &opts)?;
@@ -277,19 +322,50 @@ fn run_main(a: RunArgs) -> Result<i32> {
     })
 }
 
-fn sweep_main(a: SweepArgs) -> Result<i32> {
-    if let Some(SweepCmd::Merge { dirs, out }) = a.merge {
-        let rows = sweep::merge(&dirs, &out)?;
-        let ok = rows.iter().filter(|r| r.success).count();
-        println!(
-            "merged {} runs from {} folders into {}: {ok} succeeded",
-            rows.len(),
-            dirs.len(),
-            out.display()
-        );
-        return Ok(0);
+/// Exit status 1 with the reason when a gate is set and the rate is below it.
+fn gate(summary: &sweep::Summary, min: Option<f64>) -> i32 {
+    match min {
+        Some(m) if summary.success_rate < m => {
+            eprintln!("error: {}: below the minimum success rate of {:.1}%", summary.rate_text(), 100.0 * m);
+            1
+        }
+        Some(m) => {
+            println!("{}: at or above the minimum of {:.1}%", summary.rate_text(), 100.0 * m);
+            0
+        }
+        None => 0,
     }
-    let Some(path) = a.sweep else { bail!("give a sweep file (or `sweep merge DIR... --out DIR`)") };
+}
+
+fn sweep_main(a: SweepArgs) -> Result<i32> {
+    match a.merge {
+        Some(SweepCmd::Merge { dirs, out, min_success_rate }) => {
+            let (rows, summary) = sweep::merge(&dirs, &out)?;
+            println!(
+                "merged {} runs from {} folders into {}: {}",
+                rows.len(),
+                dirs.len(),
+                out.display(),
+                summary.rate_text()
+            );
+            return Ok(gate(&summary, min_success_rate));
+        }
+        Some(SweepCmd::Compare { a, b, out }) => {
+            let out = out.unwrap_or_else(|| b.join("compare"));
+            let cmp = sweep::compare::compare(&a, &b, &out)?;
+            print!("{}", sweep::compare::text(&cmp));
+            println!(
+                "written: {}, {}",
+                out.join("compare.json").display(),
+                out.join("compare.html").display()
+            );
+            return Ok(0);
+        }
+        None => {}
+    }
+    let Some(path) = a.sweep else {
+        bail!("give a sweep file (or `sweep merge DIR... --out DIR`, `sweep compare A B`)")
+    };
     let sw = sweep::load(&path)?;
     if !a.quiet {
         for note in sw.ineffective_dispersions() {
@@ -298,11 +374,39 @@ fn sweep_main(a: SweepArgs) -> Result<i32> {
     }
     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("sweep").to_string();
     let out = a.out.unwrap_or_else(|| PathBuf::from("out").join(format!("sweep-{stem}")));
+    let mut indices = a
+        .indices
+        .as_deref()
+        .map(sweep::parse_indices)
+        .transpose()
+        .map_err(|e| anyhow::anyhow!("--indices: {e}"))?;
+    if let Some(dir) = &a.rerun_failed {
+        if dir.canonicalize().ok() == out.canonicalize().ok() {
+            bail!(
+                "--rerun-failed {}: give another --out (the campaign there is kept as it is)",
+                dir.display()
+            );
+        }
+        let failed = sweep::failed_indices(dir, &sw)?;
+        if failed.is_empty() {
+            println!("no failed runs in {}: nothing to run again", dir.display());
+            return Ok(0);
+        }
+        indices = Some(failed);
+    }
+    if let Some(t) = a.run_timeout
+        && !(t.is_finite() && t > 0.0)
+    {
+        bail!("--run-timeout {t}: give a positive number of seconds");
+    }
     let interrupt = interrupt_flag();
     let opts = sweep::SweepOptions {
         runs: a.runs,
         jobs: a.jobs,
         shard: a.shard,
+        indices,
+        resume: a.resume,
+        run_timeout_s: a.run_timeout,
         out: out.clone(),
         keep_logs: a.keep_logs,
         quiet: a.quiet,
@@ -313,21 +417,26 @@ fn sweep_main(a: SweepArgs) -> Result<i32> {
         return Ok(0);
     }
     let r = sweep::run(&sw, &opts)?;
-    let ok = r.rows.iter().filter(|r| r.success).count();
-    let per_min = r.rows.len() as f64 / r.wall_s * 60.0;
     println!(
-        "{} runs ({} jobs) in {:.1} s: {:.1} runs per minute; {ok} succeeded; results in {}",
-        r.rows.len(),
+        "{} runs ({} jobs) in {:.1} s: {:.1} runs per minute; {}; results in {}",
+        r.ran,
         r.jobs,
         r.wall_s,
-        per_min,
+        r.ran as f64 / r.wall_s * 60.0,
+        r.summary.rate_text(),
         out.display()
     );
+    for (cause, runs) in &r.summary.failures_by_cause {
+        println!("  failed: {cause}: runs {runs:?}");
+    }
     if r.interrupted {
-        println!("interrupted: the rows of the finished runs are in {}", out.join("runs.csv").display());
+        println!(
+            "interrupted: the rows of the finished runs are in {}; `--resume` goes on",
+            out.join("runs.csv").display()
+        );
         return Ok(2);
     }
-    Ok(0)
+    Ok(gate(&r.summary, a.min_success_rate))
 }
 
 fn bench_main(a: &BenchArgs) -> Result<i32> {

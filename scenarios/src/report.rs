@@ -233,9 +233,32 @@ pub fn write(
         writeln!(h, "<h2>Tracks</h2>")?;
         h.push_str(&t);
     }
+    if !summary.failures_by_cause.is_empty() {
+        writeln!(h, "<h2>Failures by cause</h2><table><tr><th>cause</th><th>runs</th><th>indices</th></tr>")?;
+        let mut causes: Vec<_> = summary.failures_by_cause.iter().collect();
+        causes.sort_by_key(|(c, runs)| (std::cmp::Reverse(runs.len()), c.as_str()));
+        for (cause, runs) in causes {
+            let list: Vec<String> = runs.iter().map(u64::to_string).collect();
+            writeln!(
+                h,
+                "<tr><td style=\"text-align:left\">{}</td><td>{}</td><td style=\"text-align:left\">{}</td></tr>",
+                esc(cause),
+                runs.len(),
+                list.join(", ")
+            )?;
+        }
+        writeln!(h, "</table>")?;
+    }
     writeln!(h, "<h2>Failed runs</h2><ul>")?;
     for r in rows.iter().filter(|r| !r.success) {
-        writeln!(h, "<li>run {} ({}): <code>{}</code></li>", r.index, esc(&r.outcome), esc(&r.reproduce))?;
+        writeln!(
+            h,
+            "<li>run {} ({}): {}<br><code>{}</code></li>",
+            r.index,
+            esc(&r.outcome),
+            esc(&r.reason),
+            esc(&r.reproduce)
+        )?;
     }
     writeln!(h, "</ul></body></html>")?;
     std::fs::write(out.join("report.html"), h)?;

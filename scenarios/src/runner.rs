@@ -386,14 +386,13 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     } else {
         None
     }));
-    // Under lockstep a hung module blocks the simulation: finalize the logs and leave, naming it.
-    {
+    // Under lockstep a hung module blocks the simulation: finalize the logs and leave, naming why.
+    let abort_now: Arc<dyn Fn(String) + Send + Sync> = {
         let logger = logger.clone();
         let out = opts.out.clone();
         let core = ex.core().clone();
         let (name, file) = (s.name.clone(), loaded.path.display().to_string());
-        ex.on_hang(Arc::new(move |module, busy| {
-            let reason = format!("module '{module}' hung (busy for {busy}); run aborted");
+        Arc::new(move |reason: String| {
             eprintln!("error: {reason}");
             let logs = logger.lock().take().map(|l| l.finish(None));
             // What is known of the run: it did not succeed, and why.
@@ -407,8 +406,16 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
                 serde_json::to_string_pretty(&score).unwrap_or_default() + "\n",
             );
             std::process::exit(2);
+        })
+    };
+    {
+        let abort_now = abort_now.clone();
+        ex.on_hang(Arc::new(move |module, busy| {
+            abort_now(format!("module '{module}' hung (busy for {busy}); run aborted"))
         }));
     }
+    let steps = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let watch = StuckWatch::start(opts.interrupt.clone(), steps.clone(), abort_now)?;
     ex.walk_to(Lifecycle::Run).context("bringing the system to Run")?;
     let ground = ex.endpoint("ground")?;
     let events_ep = ex.endpoint("events")?;
@@ -429,6 +436,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             break;
         }
         let now = step(&mut ex, &twin);
+        steps.fetch_add(1, Ordering::Relaxed);
         if now >= settle {
             mission.start(s, &ground);
         }
@@ -487,12 +495,15 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         let until = ex.now() + Duration::from_secs_f64(s.run.observe_s);
         while ex.now() < until && !opts.interrupt.load(Ordering::SeqCst) {
             let now = step(&mut ex, &twin);
+            steps.fetch_add(1, Ordering::Relaxed);
             if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
                 abort = Some(e);
                 break;
             }
         }
     }
+    // The loops are over: finalizing below is not a stuck simulation.
+    drop(watch);
     let now = ex.now();
     let final_state = ex.system_state();
     let phases = mission.results();
@@ -580,6 +591,56 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     std::fs::write(opts.out.join("track.csv"), track)?;
     write_score(&opts.out, &score)?;
     Ok(score)
+}
+
+/// Ends a run whose simulation is stuck when SIGINT/SIGTERM comes (a module's cycle that never
+/// returns and a hang timeout too long to matter, as when a sweep's wall-clock limit stops it):
+/// if no step finishes within [`StuckWatch::PATIENCE`] of the signal, the logs are finalized and
+/// the process leaves through `abort_now`. Stops watching when dropped (when the run's loops end).
+struct StuckWatch {
+    done: Arc<AtomicBool>,
+}
+
+impl StuckWatch {
+    /// How long a signalled run's loop may take to see the signal.
+    const PATIENCE: std::time::Duration = std::time::Duration::from_secs(5);
+
+    fn start(
+        interrupt: Arc<AtomicBool>,
+        steps: Arc<std::sync::atomic::AtomicU64>,
+        abort_now: Arc<dyn Fn(String) + Send + Sync>,
+    ) -> Result<Self> {
+        let done = Arc::new(AtomicBool::new(false));
+        let d = done.clone();
+        let tick = std::time::Duration::from_millis(100);
+        std::thread::Builder::new()
+            .name("stuck-watch".into())
+            .spawn(move || {
+                while !d.load(Ordering::SeqCst) && !interrupt.load(Ordering::SeqCst) {
+                    std::thread::sleep(tick);
+                }
+                let at = steps.load(Ordering::SeqCst);
+                let mut waited = std::time::Duration::ZERO;
+                while !d.load(Ordering::SeqCst) && steps.load(Ordering::SeqCst) == at {
+                    if waited >= Self::PATIENCE {
+                        abort_now(format!(
+                            "interrupted (SIGINT/SIGTERM) while the simulation was stuck: no step finished within {} s",
+                            Self::PATIENCE.as_secs()
+                        ));
+                    }
+                    std::thread::sleep(tick);
+                    waited += tick;
+                }
+            })
+            .context("starting the stuck-run watch")?;
+        Ok(Self { done })
+    }
+}
+
+impl Drop for StuckWatch {
+    fn drop(&mut self) {
+        self.done.store(true, Ordering::SeqCst);
+    }
 }
 
 /// Writes `score.json` (atomically: a reader never sees half a file).

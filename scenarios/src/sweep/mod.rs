@@ -1,14 +1,27 @@
-//! Monte Carlo sweeps: dispersions drawn from a master seed, runs in parallel, shards, merging,
-//! `runs.csv`, `summary.json` and an HTML report.
+//! Monte Carlo sweeps: dispersions drawn from a master seed, each run in a process of its own
+//! under a wall-clock limit, shards, merging, resuming, re-running chosen runs, `runs.csv` (with
+//! each failure's triage), `summary.json`, `junit.xml`, an HTML report, and comparing campaigns.
 //!
 //! Run `i` of a campaign gets its seed and dispersed values from `(master_seed, i)` alone, so it is
 //! reproducible on its own (`rover-twin run SCENARIO --seed S --set k=v ...`, the `reproduce` column)
-//! and a campaign's results do not depend on `--jobs` or on how it is sharded.
+//! and a campaign's results do not depend on `--jobs`, on how it is sharded, or on being resumed.
 
-use crate::runner::{self, RunOptions};
+mod bench;
+mod child;
+pub mod compare;
+mod junit;
+pub mod provenance;
+pub mod results;
+
+pub use bench::bench;
+pub use child::default_timeout;
+pub use provenance::Provenance;
+pub use results::{
+    Campaign, METRICS, Metric, MetricSummary, Row, Summary, merge, metric_values, percentile, read, wilson,
+};
+
 use crate::scenario::{self, FidelityName};
-use crate::score::Score;
-use anyhow::{Context, Result, anyhow, bail};
+use anyhow::{Context, Result, bail};
 use framework::config::ConfigError;
 use framework::seed::splitmix64 as mix;
 use rand::{Rng, SeedableRng};
@@ -67,6 +80,10 @@ pub struct SweepSettings {
     /// Fixed overrides applied to every run (`key = value`).
     #[serde(default)]
     pub set: BTreeMap<String, toml::Value>,
+    /// Wall-clock limit of each run, s (default: five times the scenario's `run.time_limit_s`
+    /// plus a minute); a run past it is stopped and counts as failed with outcome `timeout`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub run_timeout_s: Option<f64>,
 }
 
 fn default_runs() -> u64 {
@@ -324,95 +341,6 @@ impl Sweep {
     }
 }
 
-/// One row of `runs.csv`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Row {
-    /// Run index.
-    pub index: u64,
-    /// Run seed.
-    pub seed: u64,
-    /// Dispersed values, in dispersion order.
-    pub values: Vec<String>,
-    /// Mission success.
-    pub success: bool,
-    /// Outcome.
-    pub outcome: String,
-    /// Metrics, by name (numbers as text, empty when absent).
-    pub metrics: Vec<String>,
-    /// The command that reproduces the run.
-    pub reproduce: String,
-    /// Wall time, s (wall-clock: varies between runs).
-    pub wall_time_s: f64,
-}
-
-/// A metric column: its name and how a run's score fills it.
-pub type Metric = (&'static str, fn(&Score) -> String);
-
-/// Metric columns of `runs.csv`, in order, each with the formatting of its value (empty when the
-/// run has none).
-pub const METRICS: &[Metric] = &[
-    ("sim_time_s", |s| format!("{:.3}", s.sim_time_s)),
-    ("distance_m", |s| format!("{:.6}", s.metrics.distance_m)),
-    ("final_position_error_m", |s| optional(s.metrics.final_position_error_m)),
-    ("position_error_rms_m", |s| optional(s.metrics.position_error_rms_m)),
-    ("canister_stowed", |s| s.metrics.canister_stowed.to_string()),
-    ("canister_distance_m", |s| optional(s.metrics.canister_distance_m)),
-    ("canister_bearing_deg", |s| optional(s.metrics.canister_bearing_deg)),
-    ("collisions", |s| s.metrics.collisions.to_string()),
-    ("self_collisions", |s| s.metrics.self_collisions.to_string()),
-    ("grasp_position_error_m", |s| optional(s.metrics.grasp_position_error_m)),
-    ("max_tilt_deg", |s| format!("{:.6}", s.metrics.max_tilt_deg)),
-    ("final_state", |s| s.metrics.final_state.clone()),
-];
-
-fn optional(v: Option<f64>) -> String {
-    v.map(|v| format!("{v:.6}")).unwrap_or_default()
-}
-
-fn header(sweep: &SweepFile) -> Vec<String> {
-    let mut h = vec!["index".to_string(), "seed".into()];
-    h.extend(sweep.dispersions.iter().map(|d| d.key.clone()));
-    h.extend(["success".to_string(), "outcome".into()]);
-    h.extend(METRICS.iter().map(|(name, _)| name.to_string()));
-    h.extend(["reproduce".to_string(), "wall_time_s".into()]);
-    h
-}
-
-fn row_record(r: &Row) -> Vec<String> {
-    let mut v = vec![r.index.to_string(), r.seed.to_string()];
-    v.extend(r.values.iter().cloned());
-    v.extend([r.success.to_string(), r.outcome.clone()]);
-    v.extend(r.metrics.iter().cloned());
-    v.extend([r.reproduce.clone(), format!("{:.3}", r.wall_time_s)]);
-    v
-}
-
-fn parse_row(rec: &csv::StringRecord, n_disp: usize) -> Result<Row> {
-    let get = |i: usize| rec.get(i).map(str::to_string).ok_or_else(|| anyhow!("short row"));
-    let mut i = 0;
-    let index = get(i)?.parse()?;
-    i += 1;
-    let seed = get(i)?.parse()?;
-    i += 1;
-    let values = (0..n_disp).map(|k| get(i + k)).collect::<Result<Vec<_>>>()?;
-    i += n_disp;
-    let success = get(i)?.parse()?;
-    let outcome = get(i + 1)?;
-    i += 2;
-    let metrics = (0..METRICS.len()).map(|k| get(i + k)).collect::<Result<Vec<_>>>()?;
-    i += METRICS.len();
-    Ok(Row {
-        index,
-        seed,
-        values,
-        success,
-        outcome,
-        metrics,
-        reproduce: get(i)?,
-        wall_time_s: get(i + 1)?.parse()?,
-    })
-}
-
 /// Options of a sweep.
 #[derive(Clone, Debug)]
 pub struct SweepOptions {
@@ -422,6 +350,12 @@ pub struct SweepOptions {
     pub jobs: Option<usize>,
     /// Shard `(k, n)`, 1-based.
     pub shard: Option<(u64, u64)>,
+    /// Only these run indices (of the shard, if one is given).
+    pub indices: Option<Vec<u64>>,
+    /// Keep the rows already in `out` (a campaign interrupted there) and run only the others.
+    pub resume: bool,
+    /// Wall-clock limit of each run, s (default: the file's, else from the scenario's time limit).
+    pub run_timeout_s: Option<f64>,
     /// Output folder.
     pub out: PathBuf,
     /// Keep logs (default: the file's).
@@ -435,8 +369,12 @@ pub struct SweepOptions {
 impl SweepOptions {
     /// Parallel jobs: the option, or all cores.
     fn jobs(&self) -> usize {
-        self.jobs.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)).max(1)
+        self.jobs.unwrap_or_else(cores).max(1)
     }
+}
+
+fn cores() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
 }
 
 /// The folder of run `index` of a sweep writing to `out` (score, track, logs).
@@ -447,8 +385,12 @@ pub(crate) fn run_dir(out: &Path, index: u64) -> PathBuf {
 /// What a sweep did.
 #[derive(Clone, Debug)]
 pub struct SweepResult {
-    /// Rows written, by index.
+    /// Rows written, by index (those of a resumed campaign included).
     pub rows: Vec<Row>,
+    /// Runs done by this invocation (not kept from an earlier one).
+    pub ran: usize,
+    /// The summary written.
+    pub summary: Summary,
     /// The sweep was interrupted before every run finished.
     pub interrupted: bool,
     /// Wall time, s.
@@ -457,85 +399,70 @@ pub struct SweepResult {
     pub jobs: usize,
 }
 
-fn run_one(
-    sweep: &Sweep,
-    plan: &RunPlan,
-    out: &Path,
-    keep: KeepLogs,
-    interrupt: Arc<AtomicBool>,
-) -> Result<Option<Row>> {
-    let dir = run_dir(out, plan.index);
-    let loaded = scenario::load(&sweep.scenario_path, &plan.overrides)?;
-    let opts = RunOptions {
-        seed: Some(plan.seed),
-        out: dir.clone(),
-        fidelity: sweep.file.sweep.fidelity,
-        quiet: true,
-        write_logs: keep != KeepLogs::None,
-        interrupt: interrupt.clone(),
-    };
-    let score = runner::run(&loaded, &opts)?;
-    if score.outcome == "aborted" && interrupt.load(Ordering::SeqCst) {
-        // Not a result: an interrupted run leaves no row (and no half logs).
-        let _ = std::fs::remove_dir_all(&dir);
-        return Ok(None);
-    }
-    if keep == KeepLogs::Failed && score.success {
-        for f in ["run.rrd", "run.mcap", "blueprint.rbl"] {
-            let _ = std::fs::remove_file(dir.join(f));
-        }
-    }
-    let metrics = METRICS.iter().map(|(_, value)| value(&score)).collect();
-    let mut reproduce = format!("rover-twin run {} --seed {}", sweep.scenario_path.display(), plan.seed);
-    if let Some(f) = sweep.file.sweep.fidelity {
-        reproduce += &format!(" --fidelity {}", f.name());
-    }
-    for (k, v) in &plan.overrides {
-        reproduce += &format!(" --set '{k}={v}'");
-    }
-    Ok(Some(Row {
-        index: plan.index,
-        seed: plan.seed,
-        values: plan.dispersed.iter().map(|(_, v)| v.clone()).collect(),
-        success: score.success,
-        outcome: score.outcome.clone(),
-        metrics,
-        reproduce,
-        wall_time_s: score.wall_time_s,
-    }))
-}
-
-/// Campaign identity, written beside the results so that `merge` joins only shards of one campaign.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Campaign {
-    /// The sweep file.
-    pub sweep_file: String,
-    /// Its content (as loaded).
-    pub sweep: SweepFile,
-    /// Shard `[k, n]`.
-    pub shard: Option<[u64; 2]>,
-    /// Runs of the whole campaign.
-    pub runs: u64,
-}
-
-/// Runs a sweep (or one shard of it).
-pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
-    #[allow(clippy::disallowed_methods)] // the sweep driver times itself (not a module)
-    let t0 = std::time::Instant::now();
-    let runs = o.runs.unwrap_or(sweep.file.sweep.runs);
-    let mut sweep = sweep.clone();
-    sweep.file.sweep.runs = runs;
-    let indices = match o.shard {
+/// The campaign a sweep writes to `o.out` and the run indices it holds.
+fn campaign(sweep: &Sweep, o: &SweepOptions) -> Result<(Campaign, Vec<u64>)> {
+    let runs = sweep.file.sweep.runs;
+    let mut indices = match o.shard {
         Some((k, n)) => sweep.shard(k, n),
         None => (0..runs).collect(),
     };
-    std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;
-    let campaign = Campaign {
+    if let Some(pick) = &o.indices {
+        if let Some(i) = pick.iter().find(|&&i| i >= runs) {
+            bail!("run index {i} is out of range: the campaign has {runs} runs (0 to {})", runs - 1);
+        }
+        indices.retain(|i| pick.contains(i));
+    }
+    let c = Campaign {
         sweep_file: sweep.path.display().to_string(),
         sweep: sweep.file.clone(),
         shard: o.shard.map(|(k, n)| [k, n]),
+        indices: o.indices.clone(),
         runs,
+        provenance: Some(Provenance::of(sweep)?),
     };
+    Ok((c, indices))
+}
+
+/// The rows of an earlier invocation of the same campaign in `o.out`, to keep (`--resume`).
+fn resumed(c: &Campaign, indices: &[u64], o: &SweepOptions) -> Result<BTreeMap<u64, Row>> {
+    let (old, rows) =
+        read(&o.out).with_context(|| format!("--resume: nothing to resume in {}", o.out.display()))?;
+    if old.sweep != c.sweep || old.runs != c.runs || old.shard != c.shard || old.indices != c.indices {
+        bail!(
+            "--resume: {} holds another campaign (its sweep file, run count, shard or indices differ)",
+            o.out.display()
+        );
+    }
+    let diff = Provenance::differences(old.provenance.as_ref(), c.provenance.as_ref());
+    if !diff.is_empty() {
+        bail!(
+            "--resume: {} was made from other inputs or another build: {}",
+            o.out.display(),
+            diff.join("; ")
+        );
+    }
+    Ok(rows.into_iter().filter(|r| indices.contains(&r.index)).map(|r| (r.index, r)).collect())
+}
+
+/// The indices of the failed runs in sweep folder `dir`, which must hold a campaign of `sweep`
+/// (`--rerun-failed`).
+pub fn failed_indices(dir: &Path, sweep: &Sweep) -> Result<Vec<u64>> {
+    let (c, rows) = read(dir)?;
+    if c.sweep != sweep.file {
+        bail!("--rerun-failed: {} holds a campaign of another sweep file (or an edited one)", dir.display());
+    }
+    Ok(rows.iter().filter(|r| !r.success).map(|r| r.index).collect())
+}
+
+/// Runs a sweep (or one shard of it, or chosen runs of it).
+pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
+    #[allow(clippy::disallowed_methods)] // the sweep driver times itself (not a module)
+    let t0 = std::time::Instant::now();
+    let mut sweep = sweep.clone();
+    sweep.file.sweep.runs = o.runs.unwrap_or(sweep.file.sweep.runs);
+    let (campaign, indices) = campaign(&sweep, o)?;
+    let done = if o.resume { resumed(&campaign, &indices, o)? } else { BTreeMap::new() };
+    std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;
     std::fs::write(o.out.join("campaign.json"), serde_json::to_string_pretty(&campaign)?)?;
     let jobs = o.jobs();
     let keep = o.keep_logs.unwrap_or(sweep.file.sweep.keep_logs);
@@ -543,9 +470,13 @@ pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
     let csv_path = o.out.join("runs.csv");
     let mut w =
         csv::Writer::from_path(&csv_path).with_context(|| format!("creating {}", csv_path.display()))?;
-    w.write_record(header(&sweep.file))?;
+    w.write_record(results::header(&sweep.file))?;
+    for r in done.values() {
+        w.write_record(results::row_record(r))?;
+    }
     w.flush()?;
     let writer = parking_lot::Mutex::new(w);
+    let todo: Vec<u64> = indices.iter().copied().filter(|i| !done.contains_key(i)).collect();
     let bar = if o.quiet {
         indicatif::ProgressBar::hidden()
     } else {
@@ -556,23 +487,33 @@ pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
             )
             .expect("valid template"),
         );
+        b.set_position(done.len() as u64);
         b
     };
-    let failures = std::sync::atomic::AtomicU64::new(0);
+    let failures = std::sync::atomic::AtomicU64::new(done.values().filter(|r| !r.success).count() as u64);
+    let exe = std::env::current_exe().context("finding the rover-twin executable")?;
+    let child = child::ChildRun {
+        exe: &exe,
+        sweep: &sweep,
+        out: &o.out,
+        keep,
+        timeout: o.run_timeout_s.or(sweep.file.sweep.run_timeout_s).map(std::time::Duration::from_secs_f64),
+        // Runs side by side share the cores: each gets its share for its parallel image work.
+        threads: (jobs > 1).then(|| (cores() / jobs).max(1)),
+        interrupt: &o.interrupt,
+    };
     let pool = rayon::ThreadPoolBuilder::new().num_threads(jobs).build()?;
     let results: Vec<Result<Option<Row>>> = pool.install(|| {
-        indices
-            .par_iter()
+        todo.par_iter()
             .map(|&i| {
                 if o.interrupt.load(Ordering::SeqCst) {
                     return Ok(None);
                 }
                 let plan = sweep.plan(i);
-                let row = run_one(&sweep, &plan, &o.out, keep, o.interrupt.clone())
-                    .with_context(|| format!("run {i} (seed {})", plan.seed))?;
+                let row = child.run(&plan).with_context(|| format!("run {i} (seed {})", plan.seed))?;
                 if let Some(r) = &row {
                     let mut w = writer.lock();
-                    w.write_record(row_record(r))?;
+                    w.write_record(results::row_record(r))?;
                     w.flush()?;
                     if !r.success {
                         failures.fetch_add(1, Ordering::Relaxed);
@@ -586,215 +527,44 @@ pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
     });
     bar.finish_and_clear();
     drop(writer);
-    let mut rows = Vec::new();
+    let mut rows: Vec<Row> = done.into_values().collect();
+    let mut ran = 0;
     for r in results {
         if let Some(row) = r? {
             rows.push(row);
+            ran += 1;
         }
     }
     rows.sort_by_key(|r| r.index);
     let interrupted = rows.len() < indices.len();
+    let partial = rows.len() as u64 != sweep.file.sweep.runs;
     // Final file: sorted by index (same content whatever the completion order).
-    write_results(&o.out, &sweep.file, &rows, interrupted, Some(&campaign))?;
-    Ok(SweepResult { rows, interrupted, wall_s: t0.elapsed().as_secs_f64(), jobs })
+    let summary = results::write_results(&o.out, &sweep.file, &rows, partial, Some(&campaign))?;
+    Ok(SweepResult { rows, ran, summary, interrupted, wall_s: t0.elapsed().as_secs_f64(), jobs })
 }
 
-fn write_csv(path: &Path, sweep: &SweepFile, rows: &[Row]) -> Result<()> {
-    let tmp = path.with_extension("csv.tmp");
-    let mut w = csv::Writer::from_path(&tmp)?;
-    w.write_record(header(sweep))?;
-    for r in rows {
-        w.write_record(row_record(r))?;
-    }
-    w.flush()?;
-    drop(w);
-    std::fs::rename(&tmp, path)?;
-    Ok(())
-}
-
-/// Writes `runs.csv`, `summary.json` and `report.html` for `rows`.
-pub fn write_results(
-    out: &Path,
-    sweep: &SweepFile,
-    rows: &[Row],
-    partial: bool,
-    campaign: Option<&Campaign>,
-) -> Result<()> {
-    write_csv(&out.join("runs.csv"), sweep, rows)?;
-    let summary = summarize(rows, partial);
-    std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
-    crate::report::write(out, sweep, rows, &summary, campaign)?;
-    Ok(())
-}
-
-/// Percentiles and moments of one metric.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MetricSummary {
-    /// Runs with a value.
-    pub n: usize,
-    /// Mean.
-    pub mean: f64,
-    /// Minimum.
-    pub min: f64,
-    /// 5th percentile.
-    pub p5: f64,
-    /// Median.
-    pub p50: f64,
-    /// 95th percentile.
-    pub p95: f64,
-    /// Maximum.
-    pub max: f64,
-}
-
-/// `summary.json`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Summary {
-    /// Runs summarized.
-    pub runs: usize,
-    /// Successful runs.
-    pub successes: usize,
-    /// Success rate.
-    pub success_rate: f64,
-    /// 95% Wilson score interval of the success rate.
-    pub success_rate_ci95: [f64; 2],
-    /// Not every planned run finished (interrupted, or a shard).
-    pub partial: bool,
-    /// Per numeric metric.
-    pub metrics: BTreeMap<String, MetricSummary>,
-    /// Outcomes counted.
-    pub outcomes: BTreeMap<String, usize>,
-}
-
-/// Wilson score interval for `k` successes out of `n`, at z = 1.96.
-pub fn wilson(k: usize, n: usize) -> [f64; 2] {
-    if n == 0 {
-        return [0.0, 1.0];
-    }
-    let (n, p, z) = (n as f64, k as f64 / n as f64, 1.959_963_984_540_054);
-    let d = 1.0 + z * z / n;
-    let c = (p + z * z / (2.0 * n)) / d;
-    let h = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / d;
-    // At 0 and n successes the interval touches 0 and 1 exactly (rounding would miss them).
-    let lo = if k == 0 { 0.0 } else { (c - h).max(0.0) };
-    let hi = if k as f64 == n { 1.0 } else { (c + h).min(1.0) };
-    [lo, hi]
-}
-
-/// Linear-interpolated percentile of sorted values.
-pub fn percentile(sorted: &[f64], q: f64) -> f64 {
-    if sorted.is_empty() {
-        return f64::NAN;
-    }
-    let pos = q * (sorted.len() - 1) as f64;
-    let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
-    sorted[lo] + (sorted[hi] - sorted[lo]) * (pos - lo as f64)
-}
-
-/// Numeric values of metric column `k`.
-pub fn metric_values(rows: &[Row], k: usize) -> Vec<f64> {
-    rows.iter()
-        .filter_map(|r| {
-            let t = r.metrics.get(k)?;
-            match t.as_str() {
-                "true" => Some(1.0),
-                "false" => Some(0.0),
-                _ => t.parse::<f64>().ok(),
+/// Parses a list of run indices: `3`, `0,4,9`, `10-19`, `0-4,8`.
+pub fn parse_indices(s: &str) -> Result<Vec<u64>, String> {
+    let mut v = Vec::new();
+    for part in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let num = |t: &str| t.trim().parse::<u64>().map_err(|_| format!("'{t}' in '{s}' is not a run index"));
+        match part.split_once('-') {
+            Some((a, b)) => {
+                let (a, b) = (num(a)?, num(b)?);
+                if a > b {
+                    return Err(format!("range '{part}' runs backwards"));
+                }
+                v.extend(a..=b);
             }
-        })
-        .collect()
-}
-
-fn summarize(rows: &[Row], partial: bool) -> Summary {
-    let successes = rows.iter().filter(|r| r.success).count();
-    let mut metrics = BTreeMap::new();
-    for (k, (name, _)) in METRICS.iter().enumerate() {
-        let mut v = metric_values(rows, k);
-        if v.is_empty() {
-            continue;
-        }
-        v.sort_by(f64::total_cmp);
-        metrics.insert(
-            name.to_string(),
-            MetricSummary {
-                n: v.len(),
-                mean: v.iter().sum::<f64>() / v.len() as f64,
-                min: v[0],
-                p5: percentile(&v, 0.05),
-                p50: percentile(&v, 0.5),
-                p95: percentile(&v, 0.95),
-                max: v[v.len() - 1],
-            },
-        );
-    }
-    let mut outcomes = BTreeMap::new();
-    for r in rows {
-        *outcomes.entry(r.outcome.clone()).or_insert(0) += 1;
-    }
-    Summary {
-        runs: rows.len(),
-        successes,
-        success_rate: if rows.is_empty() { 0.0 } else { successes as f64 / rows.len() as f64 },
-        success_rate_ci95: wilson(successes, rows.len()),
-        partial,
-        metrics,
-        outcomes,
-    }
-}
-
-/// Joins shard folders into `out`: the same `runs.csv`, `summary.json` and report an unsharded
-/// sweep gives (wall-clock columns aside). Each run's score and track are copied into
-/// `out/runs/<index>/` (the report draws the tracks from there); logs stay in their shard.
-pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<Vec<Row>> {
-    let mut campaign: Option<Campaign> = None;
-    let mut rows: BTreeMap<u64, Row> = BTreeMap::new();
-    let mut shard_of: BTreeMap<u64, &Path> = BTreeMap::new();
-    for d in dirs {
-        let c: Campaign = serde_json::from_str(
-            &std::fs::read_to_string(d.join("campaign.json"))
-                .with_context(|| format!("{}: not a sweep folder (no campaign.json)", d.display()))?,
-        )
-        .with_context(|| format!("{}/campaign.json", d.display()))?;
-        if let Some(first) = &campaign
-            && (first.sweep != c.sweep || first.runs != c.runs)
-        {
-            bail!("{}: a shard of another campaign (sweep file or run count differ)", d.display());
-        }
-        let n_disp = c.sweep.dispersions.len();
-        let path = d.join("runs.csv");
-        let mut r = csv::Reader::from_path(&path).with_context(|| format!("reading {}", path.display()))?;
-        for (line, rec) in r.records().enumerate() {
-            let rec = rec.with_context(|| format!("{}:{}", path.display(), line + 2))?;
-            let row = parse_row(&rec, n_disp).with_context(|| format!("{}:{}", path.display(), line + 2))?;
-            shard_of.insert(row.index, d);
-            if rows.insert(row.index, row).is_some() {
-                bail!(
-                    "{}:{}: run {} appears in two shards",
-                    path.display(),
-                    line + 2,
-                    rec.get(0).unwrap_or("?")
-                );
-            }
-        }
-        campaign.get_or_insert(c);
-    }
-    let c = campaign.ok_or_else(|| anyhow!("no shard folders given"))?;
-    std::fs::create_dir_all(out)?;
-    for (&index, shard) in &shard_of {
-        let (from, to) = (run_dir(shard, index), run_dir(out, index));
-        for f in ["score.json", "track.csv"] {
-            if from.join(f).exists() {
-                std::fs::create_dir_all(&to)?;
-                std::fs::copy(from.join(f), to.join(f))
-                    .with_context(|| format!("copying {}", from.join(f).display()))?;
-            }
+            None => v.push(num(part)?),
         }
     }
-    let rows: Vec<Row> = rows.into_values().collect();
-    let partial = rows.len() as u64 != c.runs;
-    let merged = Campaign { shard: None, ..c };
-    std::fs::write(out.join("campaign.json"), serde_json::to_string_pretty(&merged)?)?;
-    write_results(out, &merged.sweep, &rows, partial, Some(&merged))?;
-    Ok(rows)
+    if v.is_empty() {
+        return Err(format!("no run index in '{s}'"));
+    }
+    v.sort_unstable();
+    v.dedup();
+    Ok(v)
 }
 
 /// Parses `K/N`.
@@ -815,77 +585,6 @@ pub fn say(s: &str) {
     let mut o = std::io::stdout().lock();
     let _ = writeln!(o, "{s}");
     let _ = o.flush();
-}
-
-/// `sweep --bench`: the campaign's throughput with one job, with all jobs in this process, and as
-/// independent single-job processes (one shard each) started side by side — the reference a
-/// parallel sweep is measured against on a machine whose cores do not scale perfectly. No logs.
-pub fn bench(sw: &Sweep, o: &SweepOptions, path: &Path) -> Result<()> {
-    let jobs = o.jobs();
-    let runs = o.runs.unwrap_or((2 * jobs as u64).max(4));
-    let base = o.out.join("bench");
-    let opts = |j: usize, dir: &str| SweepOptions {
-        runs: Some(runs),
-        jobs: Some(j),
-        shard: None,
-        out: base.join(dir),
-        keep_logs: Some(KeepLogs::None),
-        quiet: true,
-        interrupt: o.interrupt.clone(),
-    };
-    say(&format!("bench: {runs} runs of {} each way, {jobs} jobs, logs off", sw.scenario_path.display()));
-    let one = run(sw, &opts(1, "1job"))?;
-    say(&format!(
-        "  1 job, in process:            {:7.1} s  {:6.2} runs/min",
-        one.wall_s,
-        runs as f64 / one.wall_s * 60.0
-    ));
-    let all = run(sw, &opts(jobs, "alljobs"))?;
-    say(&format!(
-        "  {jobs} jobs, in process:           {:7.1} s  {:6.2} runs/min",
-        all.wall_s,
-        runs as f64 / all.wall_s * 60.0
-    ));
-    let exe = std::env::current_exe().context("finding the rover-twin executable")?;
-    #[allow(clippy::disallowed_methods)] // wall-clock timing of child processes
-    let t0 = std::time::Instant::now();
-    let children: Vec<_> = (1..=jobs)
-        .map(|k| {
-            std::process::Command::new(&exe)
-                .arg("sweep")
-                .arg(path)
-                .args(["--runs", &runs.to_string(), "--jobs", "1", "--keep-logs", "none", "--quiet"])
-                .args(["--shard", &format!("{k}/{jobs}")])
-                .arg("--out")
-                .arg(base.join(format!("proc{k}")))
-                .stdout(std::process::Stdio::null())
-                .spawn()
-        })
-        .collect::<Result<_, _>>()
-        .context("starting the independent processes")?;
-    for mut c in children {
-        let st = c.wait()?;
-        if !st.success() {
-            bail!("an independent sweep process failed ({st})");
-        }
-    }
-    let procs = t0.elapsed().as_secs_f64();
-    say(&format!(
-        "  {jobs} independent processes:     {:7.1} s  {:6.2} runs/min",
-        procs,
-        runs as f64 / procs * 60.0
-    ));
-    let (s_in, s_proc) = (one.wall_s / all.wall_s, one.wall_s / procs);
-    say(&format!(
-        "speed-up from 1 to {jobs} jobs: {s_in:.2}x in process vs {s_proc:.2}x for independent processes: {:.0}% of the attainable",
-        100.0 * s_in / s_proc
-    ));
-    // Equal results whatever the job count (wall-clock columns aside).
-    let strip = |rows: &[Row]| rows.iter().map(|r| Row { wall_time_s: 0.0, ..r.clone() }).collect::<Vec<_>>();
-    if strip(&one.rows) != strip(&all.rows) {
-        bail!("results differ between 1 and {jobs} jobs: the runs are not deterministic");
-    }
-    Ok(())
 }
 
 #[cfg(test)]
@@ -909,6 +608,14 @@ mod tests {
         assert_eq!(percentile(&v, 0.0), 1.0);
         assert_eq!(percentile(&v, 1.0), 5.0);
         assert!((percentile(&v, 0.05) - 1.2).abs() < 1e-12);
+    }
+
+    #[test]
+    fn index_lists_take_single_indices_and_ranges() {
+        assert_eq!(parse_indices("7, 0-2,1").unwrap(), vec![0, 1, 2, 7]);
+        assert!(parse_indices("3-1").unwrap_err().contains("backwards"));
+        assert!(parse_indices("a").unwrap_err().contains("not a run index"));
+        assert!(parse_indices(",").is_err());
     }
 
     #[test]

@@ -54,6 +54,39 @@ impl fmt::Display for ConfigError {
     }
 }
 
+/// A number as a message shows it: plainly when it is of everyday size, in scientific notation
+/// when it is huge or tiny (a 1e300 s timeout is not printed as 301 digits).
+pub fn num(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e9).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// The first number in `doc` that is not finite (NaN or infinite), with its key path.
+pub fn non_finite(doc: &toml::Table, path: &mut Vec<String>) -> Option<(Vec<String>, f64)> {
+    fn walk(v: &toml::Value, path: &mut Vec<String>) -> Option<(Vec<String>, f64)> {
+        match v {
+            toml::Value::Float(f) if !f.is_finite() => Some((path.clone(), *f)),
+            toml::Value::Table(t) => non_finite(t, path),
+            toml::Value::Array(a) => a.iter().enumerate().find_map(|(i, x)| {
+                path.push(i.to_string());
+                let r = walk(x, path);
+                path.pop();
+                r
+            }),
+            _ => None,
+        }
+    }
+    doc.iter().find_map(|(k, v)| {
+        path.push(k.clone());
+        let r = walk(v, path);
+        path.pop();
+        r
+    })
+}
+
 /// A text being parsed, with its origin, for locating errors.
 #[derive(Clone, Copy, Debug)]
 pub struct Source<'a> {
@@ -219,10 +252,12 @@ impl FrameworkKeys {
     }
     /// Checks the values (the types were checked by deserialization).
     pub fn validate(&self, src: &Source<'_>) -> Result<(), ConfigError> {
+        /// Longest period, deadline or hang timeout, s (a day: beyond it a value is a typo).
+        const MAX_S: f64 = 86_400.0;
         let positive = |key: &str, v: Option<f64>| match v {
-            Some(v) if !(v.is_finite() && v > 0.0) => {
-                Err(src.error_at_key(key, format!("must be a positive number of seconds, got {v}")))
-            }
+            Some(v) if !(v.is_finite() && v > 0.0 && v <= MAX_S) => Err(
+                src.error_at_key(key, format!("must be a positive number of seconds up to {MAX_S}, got {v}"))
+            ),
             _ => Ok(()),
         };
         positive("framework.period_s", self.period_s)?;
@@ -260,7 +295,21 @@ pub enum ConfigSource {
         origin: String,
         /// The TOML text.
         text: String,
+        /// Where an error in the text really comes from, when the text was made from the files a
+        /// user wrote (defaults with a scenario's table merged over them): an error found in the
+        /// made text is moved to the user's file, line and key.
+        relocate: Option<Relocate>,
     },
+}
+
+/// Moves an error found in generated configuration text to where the user wrote the key.
+#[derive(Clone)]
+pub struct Relocate(pub std::sync::Arc<dyn Fn(ConfigError) -> ConfigError + Send + Sync>);
+
+impl std::fmt::Debug for Relocate {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Relocate(..)")
+    }
 }
 
 impl ConfigSource {
@@ -270,7 +319,26 @@ impl ConfigSource {
     }
     /// An inline source.
     pub fn inline(origin: impl Into<String>, text: impl Into<String>) -> Self {
-        ConfigSource::Inline { origin: origin.into(), text: text.into() }
+        ConfigSource::Inline { origin: origin.into(), text: text.into(), relocate: None }
+    }
+    /// An inline source made from other files, whose errors `relocate` moves back to them.
+    pub fn inline_from(
+        origin: impl Into<String>,
+        text: impl Into<String>,
+        relocate: impl Fn(ConfigError) -> ConfigError + Send + Sync + 'static,
+    ) -> Self {
+        ConfigSource::Inline {
+            origin: origin.into(),
+            text: text.into(),
+            relocate: Some(Relocate(std::sync::Arc::new(relocate))),
+        }
+    }
+    /// `e`, moved to where the user wrote the key when this source was made from other files.
+    pub fn relocate(&self, e: ConfigError) -> ConfigError {
+        match self {
+            ConfigSource::Inline { relocate: Some(r), .. } => (r.0)(e),
+            _ => e,
+        }
     }
     /// Name for error messages.
     pub fn origin(&self) -> String {

@@ -216,6 +216,7 @@ impl SystemBuilder {
     /// Registers a module with its configuration. Problems are reported by the build.
     pub fn add<M: Module>(&mut self, name: &str, module: M, config: ConfigSource) -> &mut Self {
         let Some(id) = self.next_id(name) else { return self };
+        let source = config.clone();
         match Cell::new(id, name, module, config, &self.board) {
             Ok(cell) => {
                 for p in &cell_problems(&cell) {
@@ -224,7 +225,7 @@ impl SystemBuilder {
                 self.entries.push(Entry::Module(Box::new(cell)));
             }
             Err(e) => {
-                self.problems.push(e.to_string());
+                self.problems.push(source.relocate(e).to_string());
                 // Keep ids aligned with names: the slot stays, as an endpoint nobody uses.
                 self.entries.push(Entry::Endpoint);
             }

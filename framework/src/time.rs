@@ -4,6 +4,8 @@
 //! clock's epoch (the start of a run). [`Duration`] is a signed span in nanoseconds. Integer time keeps
 //! the lockstep executor exact: a 50 Hz module on a 1 ms base period is due on exactly every 20th tick,
 //! with no floating-point drift. Floating-point seconds exist only at the edges (files, plots).
+//! Arithmetic saturates at the ends of the range (about ±292 years): a huge configured span is a
+//! far future, never an overflow.
 
 use serde::{Deserialize, Serialize};
 use std::fmt;
@@ -104,52 +106,52 @@ impl Duration {
 impl Add<Duration> for Time {
     type Output = Time;
     fn add(self, d: Duration) -> Time {
-        Time(self.0 + d.0)
+        Time(self.0.saturating_add(d.0))
     }
 }
 impl AddAssign<Duration> for Time {
     fn add_assign(&mut self, d: Duration) {
-        self.0 += d.0;
+        self.0 = self.0.saturating_add(d.0);
     }
 }
 impl Sub<Duration> for Time {
     type Output = Time;
     fn sub(self, d: Duration) -> Time {
-        Time(self.0 - d.0)
+        Time(self.0.saturating_sub(d.0))
     }
 }
 impl Sub for Time {
     type Output = Duration;
     fn sub(self, other: Time) -> Duration {
-        Duration(self.0 - other.0)
+        Duration(self.0.saturating_sub(other.0))
     }
 }
 impl Add for Duration {
     type Output = Duration;
     fn add(self, o: Duration) -> Duration {
-        Duration(self.0 + o.0)
+        Duration(self.0.saturating_add(o.0))
     }
 }
 impl AddAssign for Duration {
     fn add_assign(&mut self, o: Duration) {
-        self.0 += o.0;
+        self.0 = self.0.saturating_add(o.0);
     }
 }
 impl Sub for Duration {
     type Output = Duration;
     fn sub(self, o: Duration) -> Duration {
-        Duration(self.0 - o.0)
+        Duration(self.0.saturating_sub(o.0))
     }
 }
 impl SubAssign for Duration {
     fn sub_assign(&mut self, o: Duration) {
-        self.0 -= o.0;
+        self.0 = self.0.saturating_sub(o.0);
     }
 }
 impl Mul<i64> for Duration {
     type Output = Duration;
     fn mul(self, k: i64) -> Duration {
-        Duration(self.0 * k)
+        Duration(self.0.saturating_mul(k))
     }
 }
 impl Div<i64> for Duration {
@@ -200,5 +202,18 @@ mod tests {
         assert_eq!(Duration::from_micros(1500).to_string(), "1.500 ms");
         assert_eq!(Duration::from_nanos(-20).to_string(), "-20 ns");
         assert_eq!(Duration::from_nanos(-5).to_std(), std::time::Duration::ZERO);
+    }
+
+    #[test]
+    fn huge_spans_saturate_instead_of_overflowing() {
+        let far = Duration::from_secs_f64(1e300);
+        assert_eq!(far, Duration::MAX);
+        assert_eq!(Time::from_secs_f64(10.0) + far, Time::MAX);
+        let mut t = Time::from_secs_f64(1.0);
+        t += far;
+        assert_eq!(t, Time::MAX);
+        assert_eq!((Time::ZERO - Time::MAX) - Duration::MAX, Duration::from_nanos(i64::MIN));
+        assert_eq!(far * 3, Duration::MAX);
+        assert_eq!(far + far, Duration::MAX);
     }
 }

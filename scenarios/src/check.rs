@@ -35,15 +35,30 @@ pub fn kind_of(text: &str) -> FileKind {
     }
 }
 
-/// Checks one file; every problem found, located.
+/// Checks one file; every problem found, located. A panic while checking (a bug, or an input not
+/// yet validated) is reported as a problem of the file, never a crash.
 pub fn check_file(path: &Path) -> Vec<String> {
+    match std::panic::catch_unwind(|| check_file_unguarded(path)) {
+        Ok(problems) => problems,
+        Err(p) => vec![format!(
+            "{}: internal error while checking it (please report): {}",
+            path.display(),
+            framework::module::panic_text(&*p)
+        )],
+    }
+}
+
+fn check_file_unguarded(path: &Path) -> Vec<String> {
     let text = match read_file(path) {
         Ok(t) => t,
         Err(e) => return vec![e.to_string()],
     };
     let origin = path.display().to_string();
     let located = match kind_of(&text) {
-        FileKind::Sweep => crate::sweep::load(path).err().into_iter().collect(),
+        FileKind::Sweep => match crate::sweep::load(path) {
+            Err(e) => vec![e],
+            Ok(sweep) => crate::sweep::check_ranges(&sweep).err().into_iter().collect(),
+        },
         FileKind::World => match worlds::World::load(path) {
             Err(e) => vec![e],
             // Its objects' marker ids against the object database's tables.
@@ -60,15 +75,11 @@ pub fn check_file(path: &Path) -> Vec<String> {
         },
         FileKind::Scenario => match crate::scenario::load(path, &[]) {
             Err(e) => vec![e],
-            // The world it names must load (its module tables were checked with the scenario).
-            Ok(loaded) => worlds::World::load(loaded.world_path())
-                .err()
-                .map(|e| {
-                    Source::new(&origin, &text)
-                        .error_at_key("world.file", format!("world does not load: {e}"))
-                })
-                .into_iter()
-                .collect(),
+            // Everything a run builds before its first step: the world, the twin, every module
+            // with its configuration, the executor.
+            Ok(loaded) => {
+                return crate::runner::check(&loaded).err().map(|e| format!("{e:#}")).into_iter().collect();
+            }
         },
         FileKind::Module => {
             // A module of the runner's system (the file's name) is checked whole, by registering

@@ -289,7 +289,16 @@ fn run_main(a: RunArgs) -> Result<i32> {
         write_logs: !a.no_logs,
         interrupt: interrupt_flag(),
     };
-    let score = runner::run(&loaded, &opts)?;
+    // A panic of the runner itself (a bug, or an input not yet validated) ends the run with a
+    // clear error and exit status 2, never a crash dump alone.
+    let score = match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| runner::run(&loaded, &opts))) {
+        Ok(r) => r?,
+        Err(p) => bail!(
+            "internal error in the run of {} (please report): {}",
+            a.scenario.display(),
+            framework::module::panic_text(&*p)
+        ),
+    };
     for p in &score.phases {
         println!(
             "phase {:<14} {:<10} {}",

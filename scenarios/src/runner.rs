@@ -58,6 +58,10 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     if let Some(f) = s.world.friction {
         world.regolith.friction = f;
     }
+    on_terrain(loaded, &world, "rover", s.rover.x, s.rover.y)?;
+    if let Some(c) = &s.canister {
+        on_terrain(loaded, &world, "canister", c.x, c.y)?;
+    }
     // Marker ids that do not fit the object database's tables are bad input, found now.
     if let Err((_, why)) =
         twin::render::scene::check_marker_ids(&world, &twin::render::scene::object_database()?)
@@ -116,12 +120,24 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     let text = std::fs::read_to_string(&cpath).with_context(|| format!("reading {}", cpath.display()))?;
     let mut doc: toml::Table = toml::from_str(&text)?;
     crate::scenario::merge(&mut doc, s.twin.clone());
-    let origin = if s.twin.is_empty() {
-        cpath.display().to_string()
-    } else {
-        format!("{} with [twin] of {}", cpath.display(), loaded.path.display())
-    };
-    let config = TwinConfig::from_str(&toml::to_string(&doc)?, &origin)?;
+    let relocate = loaded.relocator(&["twin"], &cpath.display().to_string(), &text);
+    let config =
+        TwinConfig::from_str(&toml::to_string(&doc)?, &cpath.display().to_string()).map_err(&relocate)?;
+    let [sx, sy] = world.terrain.size();
+    if config.physics.terrain_cell_m > sx.min(sy) / 2.0 {
+        let msg = format!(
+            "{} m is more than half the terrain's side ({sx} x {sy} m)",
+            config.physics.terrain_cell_m
+        );
+        let e = framework::config::ConfigError {
+            file: String::new(),
+            line: 0,
+            col: 0,
+            key: Some("physics.terrain_cell_m".into()),
+            message: msg,
+        };
+        return Err(relocate(e).into());
+    }
     let fid = match fidelity {
         FidelityName::Dynamic => Fidelity::Dynamic,
         FidelityName::Kinematic => Fidelity::Kinematic,
@@ -130,6 +146,34 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
     let mut twin = Twin::new(world, config, &twin::rover_urdf(), start, fid)?;
     twin.set_canister_motion(motion);
     Ok(twin)
+}
+
+/// Builds what a run of `loaded` builds (world, twin, module system, executor) without stepping
+/// it: every problem a run would meet at start-up, found and located now (`rover-twin check`).
+pub fn check(loaded: &Loaded) -> Result<()> {
+    let s = &loaded.scenario;
+    let twin = twin::devices::share(build_twin(loaded, s.run.fidelity)?);
+    let builder = crate::system::build_system(loaded, &twin, s.run.seed, false)?;
+    LockstepExecutor::new(builder, Duration::from_secs_f64(s.run.base_period_s))?;
+    Ok(())
+}
+
+/// An error at a scenario key that holds a position: it must lie on the world's terrain.
+fn on_terrain(loaded: &Loaded, world: &worlds::World, key: &str, x: f64, y: f64) -> Result<()> {
+    let [sx, sy] = world.terrain.size();
+    let o = world.terrain.origin;
+    if (o.x..=o.x + sx).contains(&x) && (o.y..=o.y + sy).contains(&y) {
+        return Ok(());
+    }
+    let parts: Vec<String> = key.split('.').map(String::from).collect();
+    let (x, y) = (framework::config::num(x), framework::config::num(y));
+    let msg = format!(
+        "({x}, {y}) is off the terrain of {} ({sx} x {sy} m around ({:.1}, {:.1}))",
+        loaded.world_path().display(),
+        o.x + sx / 2.0,
+        o.y + sy / 2.0
+    );
+    Err(crate::scenario::locate(&parts, &loaded.files, &loaded.overrides, msg).into())
 }
 
 /// Ground-truth metrics accumulated during the run.

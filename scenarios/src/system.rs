@@ -66,7 +66,8 @@ const POSE_SLOT: &str = gnc::localization_fusion::SLOT;
 
 /// Builds a module's configuration: its default file with the scenario's `[modules.<name>]` merged
 /// over it and the run's purpose (Debug/Mission) applied.
-fn module_config(name: &str, s: &Scenario, scenario_path: &Path, extra: toml::Table) -> Result<ConfigSource> {
+fn module_config(name: &str, loaded: &Loaded, extra: toml::Table) -> Result<ConfigSource> {
+    let s = &loaded.scenario;
     let path = module_config_dir().join(format!("{name}.toml"));
     let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     let mut doc: toml::Table =
@@ -87,12 +88,12 @@ fn module_config(name: &str, s: &Scenario, scenario_path: &Path, extra: toml::Ta
     over.insert("framework".into(), toml::Value::Table(fw));
     crate::scenario::merge(&mut doc, over);
     crate::scenario::merge(&mut doc, extra);
-    let mut origin = path.display().to_string();
     if let Some(t) = s.modules.get(name) {
         crate::scenario::merge(&mut doc, t.clone());
-        origin = format!("{origin} with [modules.{name}] of {}", scenario_path.display());
     }
-    Ok(ConfigSource::inline(origin, toml::to_string(&doc)?))
+    let origin = format!("{} as the scenario sets it", path.display());
+    let relocate = loaded.relocator(&["modules", name], &path.display().to_string(), &text);
+    Ok(ConfigSource::inline_from(origin, toml::to_string(&doc)?, relocate))
 }
 
 /// Builds the module system of a scenario over `twin`.
@@ -133,7 +134,6 @@ pub(crate) fn build_system(
         extra.insert("params".into(), toml::Value::Table(params));
         extra
     };
-    let p = &loaded.path;
     let cameras = cameras_enabled(s);
     for name in MODULES {
         if (*name == "cameras" && !cameras)
@@ -144,7 +144,7 @@ pub(crate) fn build_system(
         {
             continue;
         }
-        let config = module_config(name, s, p, start_params(name))?;
+        let config = module_config(name, loaded, start_params(name))?;
         let wiring = Wiring {
             visual: visual_enabled(s),
             operator: s.operator.select_target && cameras,

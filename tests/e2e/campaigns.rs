@@ -204,7 +204,7 @@ fn a_hung_run_is_one_failed_row_and_the_campaign_completes_and_gates() {
         &data("hang.toml"),
         "runs = 4\nkeep_logs = \"failed\"\nrun_timeout_s = 25.0\n\
          [[dispersion]]\nkey = \"event.0.at_s\"\ngrid = [4.0, 1000.0]\n\
-         [[dispersion]]\nkey = \"modules.localization_fusion.framework.hang_timeout_s\"\ngrid = [2.0, 100000.0]\n",
+         [[dispersion]]\nkey = \"modules.localization_fusion.framework.hang_timeout_s\"\ngrid = [2.0, 50000.0]\n",
     );
     let out = tmp.path().join("out");
     let o = sweep(&file, &out, &["--jobs", "2"]);

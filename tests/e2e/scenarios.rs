@@ -600,3 +600,48 @@ fn the_path_follower_tracks_a_circle() {
     assert!(rms < 0.055, "rms cross-track {rms} m ({detail})");
     assert!(score(dir.path())["metrics"]["distance_m"].as_f64().unwrap() > 15.0);
 }
+
+#[test]
+fn every_hostile_file_is_refused_with_its_file_line_and_key_never_a_panic() {
+    // tests/e2e/data/hostile: each file once crashed, hung or exhausted memory in `check` or
+    // `run`, or was accepted and then failed every run. Now each is exit 2 and a located message.
+    let expected: &[(&str, &str)] = &[
+        ("world_reversed_range.toml", "terrain.slopes.0.x_range_m"),
+        ("world_nan_range.toml", "must be a finite"),
+        ("world_infinite_crater.toml", "terrain.craters.0.radius_m"),
+        ("world_rock_larger_than_terrain.toml", "rocks.max_diameter_m"),
+        ("world_ten_billion_craters.toml", "grid-cell updates"),
+        ("world_dust_rocks.toml", "rocks.min_diameter_m"),
+        ("world_not_toml.toml", "world_not_toml.toml:3:"),
+        ("scenario_twin_typo.toml", "twin.physics.dt_ss"),
+        ("scenario_module_typo.toml", "modules.locomotion.params.speeed"),
+        ("scenario_huge_timeout.toml", "phase.0.steps.0.timeout_s"),
+        ("scenario_nan_start.toml", "rover.x"),
+        ("scenario_off_terrain.toml", "off the terrain"),
+        ("scenario_imu_too_fast.toml", "twin.imu.rate_hz"),
+        ("scenario_collision_cell.toml", "twin.physics.terrain_cell_m"),
+        ("scenario_module_period.toml", "modules.locomotion.framework.period_s"),
+        ("sweep_range_end.toml", "dispersion.0.grid"),
+        ("sweep_twin_typo.toml", "dispersion.0.uniform"),
+    ];
+    let dir = data("hostile");
+    let mut files: Vec<String> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    files.sort();
+    let mut listed: Vec<String> = expected.iter().map(|e| e.0.to_string()).collect();
+    listed.sort();
+    assert_eq!(files, listed, "every hostile file has its expected message here");
+    for (file, want) in expected {
+        let o = rover_twin().arg("check").arg(dir.join(file)).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{file}: {}", show(&o));
+        assert!(!err.contains("panicked"), "{file} panicked: {err}");
+        // Located: the file the user wrote, a line number, and the key.
+        let located = err.lines().any(|l| {
+            l.split_once(".toml:").is_some_and(|(_, rest)| rest.starts_with(|c: char| c.is_ascii_digit()))
+        });
+        assert!(located && err.contains(want), "{file}: wanted a located message with '{want}', got: {err}");
+    }
+}

@@ -253,6 +253,12 @@ impl TwinConfig {
 
     /// Parses and validates TOML text.
     pub fn from_str(text: &str, origin: &str) -> Result<Self, ConfigError> {
+        /// Shortest physics step, s.
+        const MIN_DT_S: f64 = 1e-5;
+        /// Most solver iterations per step.
+        const MAX_ITERATIONS: usize = 1000;
+        /// Fastest sensor rate, Hz.
+        const MAX_RATE_HZ: f64 = 10_000.0;
         let src = Source::new(origin, text);
         let c: TwinConfig = src.parse()?;
         let pos = |k: &str, v: f64| {
@@ -263,15 +269,33 @@ impl TwinConfig {
             }
         };
         pos("physics.dt_s", c.physics.dt_s)?;
-        if c.physics.dt_s > 0.05 {
-            return Err(src.error_at_key("physics.dt_s", "must be at most 0.05 s for stable contacts"));
+        if !(MIN_DT_S..=0.05).contains(&c.physics.dt_s) {
+            return Err(src.error_at_key(
+                "physics.dt_s",
+                format!("must be in [{MIN_DT_S}, 0.05] s (stable contacts), got {}", c.physics.dt_s),
+            ));
         }
-        if c.physics.solver_iterations == 0 {
-            return Err(src.error_at_key("physics.solver_iterations", "must be at least 1"));
+        for (k, n) in [
+            ("physics.solver_iterations", c.physics.solver_iterations),
+            ("physics.pgs_iterations", c.physics.pgs_iterations),
+        ] {
+            if !(1..=MAX_ITERATIONS).contains(&n) {
+                return Err(src.error_at_key(k, format!("must be 1..={MAX_ITERATIONS}, got {n}")));
+            }
         }
         pos("physics.gravity_m_s2", c.physics.gravity_m_s2)?;
-        if c.physics.pgs_iterations == 0 {
-            return Err(src.error_at_key("physics.pgs_iterations", "must be at least 1"));
+        pos("physics.terrain_cell_m", c.physics.terrain_cell_m)?;
+        // A sensor faster than the physics step would report the same state many times, and a
+        // period that rounds to 0 ns would never advance.
+        for (k, hz) in [
+            ("servos.state_rate_hz", c.servos.state_rate_hz),
+            ("imu.rate_hz", c.imu.rate_hz),
+            ("encoders.rate_hz", c.encoders.rate_hz),
+        ] {
+            if hz.is_finite() && hz > MAX_RATE_HZ {
+                let got = framework::config::num(hz);
+                return Err(src.error_at_key(k, format!("must be at most {MAX_RATE_HZ} Hz, got {got}")));
+            }
         }
         pos("wheels.max_torque_nm", c.wheels.max_torque_nm)?;
         pos("wheels.velocity_gain", c.wheels.velocity_gain)?;

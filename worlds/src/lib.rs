@@ -93,6 +93,11 @@ impl World {
     /// Parses, validates and generates a world from TOML text; `base` resolves relative file names.
     pub fn from_str(text: &str, origin: &str, base: &Path, seed: Option<u64>) -> Result<World, ConfigError> {
         let src = Source::new(origin, text);
+        // Every number finite (NaN and infinities are valid TOML, never a valid world).
+        let table: toml::Table = src.parse()?;
+        if let Some((key, v)) = framework::config::non_finite(&table, &mut Vec::new()) {
+            return Err(src.error_at_key(&key.join("."), format!("must be a finite number, got {v}")));
+        }
         let mut spec: WorldSpec = src.parse()?;
         if let Some(s) = seed {
             spec.seed = s;
@@ -121,12 +126,40 @@ impl World {
     }
 }
 
+/// Most entries of one list in a world file (noise layers, slopes, craters, flattened discs, placed
+/// rocks, keep-out circles, objects).
+pub const MAX_ENTRIES: usize = 1000;
+/// Most grid-cell updates the terrain's generation may take (cells x layers, each crater one layer,
+/// each noise octave one): a few seconds of generation.
+pub const MAX_TERRAIN_WORK: f64 = 2e9;
+/// Most rocks a rock field may be expected to scatter.
+pub const MAX_ROCKS: f64 = 100_000.0;
+/// Largest heightmap image, pixels per side.
+pub const MAX_HEIGHTMAP_PX: u32 = 8192;
+
 fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), ConfigError> {
     let t = &spec.terrain;
     let err = |key: &str, msg: String| Err(src.error_at_key(key, msg));
     let positive = |key: &str, v: f64| {
         if v.is_finite() && v > 0.0 { Ok(()) } else { err(key, format!("must be positive, got {v}")) }
     };
+    let finite = |key: &str, v: &[f64]| {
+        if v.iter().all(|x| x.is_finite()) { Ok(()) } else { err(key, format!("must be finite, got {v:?}")) }
+    };
+    let lists = [
+        ("terrain.noise", t.noise.len()),
+        ("terrain.slopes", t.slopes.len()),
+        ("terrain.craters", t.craters.len()),
+        ("terrain.flatten", t.flatten.len()),
+        ("objects", spec.objects.len()),
+        ("rocks.placed", spec.rocks.as_ref().map_or(0, |r| r.placed.len())),
+        ("rocks.keep_out", spec.rocks.as_ref().map_or(0, |r| r.keep_out.len())),
+    ];
+    for (key, n) in lists {
+        if n > MAX_ENTRIES {
+            return err(key, format!("has {n} entries; at most {MAX_ENTRIES} are allowed"));
+        }
+    }
     for v in t.size_m {
         positive("terrain.size_m", v)?;
     }
@@ -145,6 +178,22 @@ fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), Confi
         let p = base.join(&h.image);
         if !p.is_file() {
             return err("terrain.heightmap.image", format!("file not found: {}", p.display()));
+        }
+        match image::image_dimensions(&p) {
+            Ok((w, h)) if w.max(h) > MAX_HEIGHTMAP_PX => {
+                return err(
+                    "terrain.heightmap.image",
+                    format!("{} is {w} x {h} pixels; at most {MAX_HEIGHTMAP_PX} per side", p.display()),
+                );
+            }
+            Ok((w, h)) if w < 2 || h < 2 => {
+                return err(
+                    "terrain.heightmap.image",
+                    format!("{} is {w} x {h} pixels; at least 2 per side", p.display()),
+                );
+            }
+            Ok(_) => {}
+            Err(e) => return err("terrain.heightmap.image", format!("cannot read {}: {e}", p.display())),
         }
     }
     for (i, n) in t.noise.iter().enumerate() {
@@ -172,14 +221,26 @@ fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), Confi
                 format!("must be in [0, 80), got {}", s.gradient_deg),
             );
         }
+        finite(&format!("terrain.slopes.{i}.direction_deg"), &[s.direction_deg])?;
+        if let Some([a, b]) = s.x_range_m
+            && !(a.is_finite() && b.is_finite() && a <= b)
+        {
+            return err(
+                &format!("terrain.slopes.{i}.x_range_m"),
+                format!("must be [from, to] with from <= to, got [{a}, {b}]"),
+            );
+        }
     }
     for (i, c) in t.craters.iter().enumerate() {
         let k = format!("terrain.craters.{i}");
         if c.center_m.is_some() == c.count.is_some() {
             return err(&k, "give either center_m (one crater) or count (scattered craters)".into());
         }
-        if !(c.radius_m[0] > 0.0 && c.radius_m[1] >= c.radius_m[0]) {
-            return err(&format!("{k}.radius_m"), "must be [min, max] with 0 < min <= max".into());
+        if !(c.radius_m[0] > 0.0 && c.radius_m[1] >= c.radius_m[0] && c.radius_m[1].is_finite()) {
+            return err(&format!("{k}.radius_m"), "must be [min, max] with 0 < min <= max, finite".into());
+        }
+        if let Some(p) = c.center_m {
+            finite(&format!("{k}.center_m"), &p)?;
         }
         if !(0.0..=0.5).contains(&c.depth_ratio) || !(0.0..=0.2).contains(&c.rim_ratio) {
             return err(&k, "depth_ratio must be in [0, 0.5] and rim_ratio in [0, 0.2]".into());
@@ -187,22 +248,73 @@ fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), Confi
     }
     for (i, f) in t.flatten.iter().enumerate() {
         positive(&format!("terrain.flatten.{i}.radius_m"), f.radius_m)?;
-        if f.blend_m < 0.0 {
-            return err(&format!("terrain.flatten.{i}.blend_m"), "must be >= 0".into());
+        finite(&format!("terrain.flatten.{i}.center_m"), &f.center_m)?;
+        if !(f.blend_m >= 0.0 && f.blend_m.is_finite()) {
+            return err(&format!("terrain.flatten.{i}.blend_m"), format!("must be >= 0, got {}", f.blend_m));
         }
+    }
+    // What generating the terrain costs: every layer, crater and octave is a pass over the grid.
+    let grid = cells.map(|c| c.floor() + 1.0);
+    let passes: f64 = t.noise.iter().map(|n| n.octaves as f64).sum::<f64>()
+        + t.slopes.len() as f64
+        + 2.0 * t.flatten.len() as f64
+        + t.craters.iter().map(|c| c.count.map_or(1.0, |n| n as f64)).sum::<f64>();
+    let work = grid[0] * grid[1] * passes;
+    if work > MAX_TERRAIN_WORK {
+        return err(
+            "terrain",
+            format!(
+                "generating it would take {work:.2e} grid-cell updates ({:.0} x {:.0} cells x {passes} passes: each crater, slope and noise octave, two per flattened disc); at most {MAX_TERRAIN_WORK:.0e}: fewer craters or layers, or a coarser resolution_m",
+                grid[0], grid[1]
+            ),
+        );
     }
     if let Some(r) = &spec.rocks {
         if !(r.coverage_k > 0.0 && r.coverage_k <= 0.5) {
             return err("rocks.coverage_k", format!("must be in (0, 0.5], got {}", r.coverage_k));
         }
-        positive("rocks.min_diameter_m", r.min_diameter_m)?;
+        if !(r.min_diameter_m >= 0.01 && r.min_diameter_m.is_finite()) {
+            return err("rocks.min_diameter_m", format!("must be at least 0.01 m, got {}", r.min_diameter_m));
+        }
         if !r.max_diameter_m.is_finite() || r.max_diameter_m <= r.min_diameter_m {
             return err("rocks.max_diameter_m", "must be larger than min_diameter_m".into());
         }
-        positive("rocks.height_ratio", r.height_ratio)?;
         let half = [spec.terrain.size_m[0] / 2.0, spec.terrain.size_m[1] / 2.0];
+        if r.max_diameter_m >= half[0].min(half[1]) {
+            return err(
+                "rocks.max_diameter_m",
+                format!(
+                    "{} m leaves no room to scatter rocks on a {} x {} m terrain (at most half its side)",
+                    r.max_diameter_m, spec.terrain.size_m[0], spec.terrain.size_m[1]
+                ),
+            );
+        }
+        if !(r.height_ratio > 0.0 && r.height_ratio <= 5.0) {
+            return err("rocks.height_ratio", format!("must be in (0, 5], got {}", r.height_ratio));
+        }
+        let expected = rocks::expected_density(r)
+            * (spec.terrain.size_m[0] - 2.0 * r.max_diameter_m)
+            * (spec.terrain.size_m[1] - 2.0 * r.max_diameter_m);
+        if expected.is_nan() || expected > MAX_ROCKS {
+            return err(
+                "rocks",
+                format!(
+                    "would scatter about {expected:.0} rocks; at most {MAX_ROCKS:.0}: a larger min_diameter_m or a smaller coverage_k"
+                ),
+            );
+        }
+        for (i, k) in r.keep_out.iter().enumerate() {
+            finite(&format!("rocks.keep_out.{i}.center_m"), &k.center_m)?;
+            positive(&format!("rocks.keep_out.{i}.radius_m"), k.radius_m)?;
+        }
         for (i, p) in r.placed.iter().enumerate() {
             positive(&format!("rocks.placed.{i}.diameter_m"), p.diameter_m)?;
+            if p.diameter_m >= half[0].min(half[1]) {
+                return err(
+                    &format!("rocks.placed.{i}.diameter_m"),
+                    format!("{} m is larger than half the terrain", p.diameter_m),
+                );
+            }
             if !(p.center_m[0].abs() < half[0] && p.center_m[1].abs() < half[1]) {
                 return err(
                     &format!("rocks.placed.{i}.center_m"),
@@ -220,12 +332,14 @@ fn validate(spec: &WorldSpec, src: &Source<'_>, base: &Path) -> Result<(), Confi
     if !(0.0..=90.0).contains(&spec.sun.elevation_deg) {
         return err("sun.elevation_deg", "must be in [0, 90]".into());
     }
+    finite("sun.azimuth_deg", &[spec.sun.azimuth_deg])?;
     let half = [t.size_m[0] / 2.0, t.size_m[1] / 2.0];
     for (i, o) in spec.objects.iter().enumerate() {
         if spec.objects[..i].iter().any(|p| p.name == o.name) {
             return err(&format!("objects.{i}.name"), format!("object name '{}' is used twice", o.name));
         }
-        if o.position_m[0].abs() > half[0] || o.position_m[1].abs() > half[1] {
+        finite(&format!("objects.{i}.yaw_deg"), &[o.yaw_deg])?;
+        if !(o.position_m[0].abs() <= half[0] && o.position_m[1].abs() <= half[1]) {
             return err(
                 &format!("objects.{i}.position_m"),
                 format!("({}, {}) is outside the terrain", o.position_m[0], o.position_m[1]),

@@ -126,6 +126,25 @@ pub struct Dispersion {
 }
 
 impl Dispersion {
+    /// The values at the edges of what it draws, each with the field that gives it: both ends of
+    /// a range (4 sigma either side of a normal's mean), every choice and grid value.
+    fn extremes(&self) -> Vec<(&'static str, toml::Value)> {
+        let f = toml::Value::Float;
+        if let Some([lo, hi]) = self.uniform {
+            vec![("uniform", f(lo)), ("uniform", f(hi))]
+        } else if let Some([lo, hi]) = self.uniform_int {
+            vec![("uniform_int", toml::Value::Integer(lo)), ("uniform_int", toml::Value::Integer(hi))]
+        } else if let Some(n) = &self.normal {
+            vec![("normal", f(n.mean - 4.0 * n.sigma)), ("normal", f(n.mean + 4.0 * n.sigma))]
+        } else if let Some(c) = &self.choice {
+            c.iter().map(|v| ("choice", v.clone())).collect()
+        } else if let Some(g) = &self.grid {
+            g.iter().map(|v| ("grid", v.clone())).collect()
+        } else {
+            Vec::new()
+        }
+    }
+
     fn draw(&self, rng: &mut Pcg64Mcg) -> toml::Value {
         if let Some([lo, hi]) = self.uniform {
             toml::Value::Float(rng.random_range(lo..hi))
@@ -285,6 +304,41 @@ pub fn load(path: &Path) -> Result<Sweep, ConfigError> {
     }
     Ok(sweep)
 }
+
+/// Checks that every value the sweep's dispersions can draw gives a valid run (`rover-twin
+/// check`): each end of a range (4 sigma either side of a normal's mean), each choice and grid
+/// value, with the fixed overrides and run 0's other values. Keys the twin, the modules or the
+/// world read are checked by building what a run builds. (A sweep itself checks run 0 alone when
+/// it starts: a value a run refuses is that run's error row, and the campaign goes on.)
+pub fn check_ranges(sweep: &Sweep) -> Result<(), ConfigError> {
+    let (_, files) = scenario::load_merged(&sweep.path)?;
+    let plan = sweep.plan(0);
+    for (i, d) in sweep.file.dispersions.iter().enumerate() {
+        for (field, v) in d.extremes() {
+            let text = value_text(&v);
+            let overrides: Vec<(String, String)> = plan
+                .overrides
+                .iter()
+                .map(|(k, x)| if *k == d.key { (k.clone(), text.clone()) } else { (k.clone(), x.clone()) })
+                .collect();
+            let built = match scenario::load(&sweep.scenario_path, &overrides) {
+                Err(e) => Err(e.to_string()),
+                Ok(l) if BUILT.iter().any(|k| d.key.starts_with(k)) => {
+                    crate::runner::check(&l).map_err(|e| format!("{e:#}"))
+                }
+                Ok(_) => Ok(()),
+            };
+            if let Err(why) = built {
+                let parts = ["dispersion".to_string(), i.to_string(), field.to_string()];
+                return Err(scenario::locate(&parts, &files, &[], format!("its value {text} gives: {why}")));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Scenario keys whose values only building the run's world, twin and modules checks.
+const BUILT: &[&str] = &["twin.", "modules.", "sensors.", "world.", "rover.", "canister."];
 
 /// What run `index` of a campaign is: its seed and overrides.
 #[derive(Clone, Debug, PartialEq)]

@@ -26,7 +26,8 @@ impl Twin {
         let hf = &self.world.terrain;
         let [sx, sy] = hf.size();
         let cell = self.config.physics.terrain_cell_m.max(hf.cell);
-        let (nx, ny) = ((sx / cell).round() as usize + 1, (sy / cell).round() as usize + 1);
+        // At least one cell each way, however coarse a cell the configuration asks for.
+        let (nx, ny) = (((sx / cell).round() as usize + 1).max(2), ((sy / cell).round() as usize + 1).max(2));
         let (cx, cy) = (sx / (nx - 1) as f64, sy / (ny - 1) as f64);
         let mut heights = Vec::with_capacity(nx * ny);
         for j in 0..ny {

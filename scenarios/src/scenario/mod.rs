@@ -6,6 +6,8 @@
 //! before it is checked. Every problem is reported as `file:line:col: key ...: message`, found in the
 //! file that provided the key.
 
+mod validate;
+
 use framework::config::{ConfigError, Source, locate_key, read_file};
 use framework::{Lifecycle, Queue};
 use serde::{Deserialize, Serialize};
@@ -462,9 +464,47 @@ pub struct Loaded {
     pub path: PathBuf,
     /// Overrides applied (`key=value`), in order.
     pub overrides: Vec<(String, String)>,
+    /// The scenario's files (it and its includes), for locating errors.
+    pub files: Vec<FileText>,
 }
 
 impl Loaded {
+    /// Moves an error found in a configuration made of a defaults file (`origin`, `text`) with
+    /// the scenario's table at `table` (`["twin"]`, `["modules", "locomotion"]`) merged over it
+    /// to where its key was written: the scenario (or the `--set` that gave it) when the scenario
+    /// sets the key, else the defaults file itself; the start pose the runner tells the
+    /// localization modules (`params.initial_*`) to the scenario's `[rover]`.
+    pub fn relocator(
+        &self,
+        table: &[&str],
+        origin: &str,
+        text: &str,
+    ) -> impl Fn(ConfigError) -> ConfigError + Send + Sync + 'static {
+        let mut overlay = Some(&self.document);
+        for t in table {
+            overlay = overlay.and_then(|d| d.get(*t)).and_then(|v| v.as_table());
+        }
+        let overlay = overlay.cloned().unwrap_or_default();
+        let table: Vec<String> = table.iter().map(|t| t.to_string()).collect();
+        let (files, overrides) = (self.files.clone(), self.overrides.clone());
+        let (origin, text) = (origin.to_string(), text.to_string());
+        move |e: ConfigError| {
+            let Some(key) = e.key.clone() else { return e };
+            let parts: Vec<String> =
+                key.split(['.', '[', ']']).filter(|p| !p.is_empty()).map(String::from).collect();
+            let set_here = parts.first().and_then(|p| overlay.get(p)).is_some();
+            if set_here {
+                let full: Vec<String> = table.iter().cloned().chain(parts).collect();
+                return locate(&full, &files, &overrides, e.message);
+            }
+            if parts.len() == 2 && parts[0] == "params" && parts[1].starts_with("initial_") {
+                let msg = format!("{} (the start the runner derives from [rover])", e.message);
+                return locate(&["rover".to_string()], &files, &overrides, msg);
+            }
+            Source::new(&origin, &text).error_at_key(&key, e.message)
+        }
+    }
+
     /// The folder relative names resolve against.
     pub fn dir(&self) -> &Path {
         self.path.parent().unwrap_or(Path::new("."))
@@ -695,117 +735,12 @@ pub fn load(path: &Path, overrides: &[(String, String)]) -> Result<Loaded, Confi
             message,
         })?;
     }
+    if let Some((key, v)) = framework::config::non_finite(&doc, &mut Vec::new()) {
+        return Err(locate(&key, &files, overrides, format!("must be a finite number, got {v}")));
+    }
     let scenario: Scenario = deserialize_located(&doc, &files, overrides)?;
-    validate(&scenario, &files, overrides)?;
-    Ok(Loaded { scenario, document: doc, path: path.to_path_buf(), overrides: overrides.to_vec() })
-}
-
-/// Checks values the types cannot.
-fn validate(s: &Scenario, files: &[FileText], overrides: &[(String, String)]) -> Result<(), ConfigError> {
-    let err = |key: &str, msg: String| {
-        let parts: Vec<String> = key.split('.').map(String::from).collect();
-        Err(locate(&parts, files, overrides, msg))
-    };
-    let positive = |key: &str, v: f64| {
-        if v.is_finite() && v > 0.0 { Ok(()) } else { err(key, format!("must be positive, got {v}")) }
-    };
-    positive("run.time_limit_s", s.run.time_limit_s)?;
-    positive("run.base_period_s", s.run.base_period_s)?;
-    for (k, v) in [("run.settle_s", s.run.settle_s), ("run.observe_s", s.run.observe_s)] {
-        if !(v >= 0.0 && v.is_finite()) {
-            return err(k, format!("must be >= 0, got {v}"));
-        }
-    }
-    for (k, v) in
-        [("rover.known_sigma_m", s.rover.known_sigma_m), ("rover.known_sigma_deg", s.rover.known_sigma_deg)]
-    {
-        if !(v >= 0.0 && v.is_finite()) {
-            return err(k, format!("must be >= 0, got {v}"));
-        }
-    }
-    if let Some(f) = s.world.friction
-        && !(f.is_finite() && f >= 0.0)
-    {
-        return err("world.friction", format!("must be >= 0, got {f}"));
-    }
-    for name in s.modules.keys() {
-        if !crate::system::MODULES.contains(&name.as_str()) {
-            let modules = crate::system::MODULES.join(", ");
-            return err(
-                &format!("modules.{name}"),
-                format!("no module '{name}' in this system (it has: {modules})"),
-            );
-        }
-    }
-    let mut names = std::collections::HashSet::new();
-    for (i, p) in s.phases.iter().enumerate() {
-        if !names.insert(p.name.as_str()) {
-            return err(&format!("phase.{i}.name"), format!("phase '{}' appears twice", p.name));
-        }
-        for (j, st) in p.steps.iter().enumerate() {
-            positive(&format!("phase.{i}.steps.{j}.timeout_s"), st.timeout_s)?;
-        }
-    }
-    if let Some(req) = &s.criteria.required_phases {
-        for (i, r) in req.iter().enumerate() {
-            if !names.contains(r.as_str()) {
-                return err(&format!("criteria.required_phases.{i}"), format!("no phase named '{r}'"));
-            }
-        }
-    }
-    for (i, p) in s.phases.iter().enumerate() {
-        for (j, a) in p.after.iter().flatten().enumerate() {
-            if !names.contains(a.as_str()) {
-                return err(&format!("phase.{i}.after.{j}"), format!("no phase named '{a}'"));
-            }
-        }
-        for (j, st) in p.recovery.iter().enumerate() {
-            positive(&format!("phase.{i}.recovery.{j}.timeout_s"), st.timeout_s)?;
-        }
-        for (k, list) in [("steps", &p.steps), ("recovery", &p.recovery)] {
-            if let Some(j) = list.iter().position(|st| st.queue == QueueName::Debug) {
-                return err(
-                    &format!("phase.{i}.{k}.{j}.queue"),
-                    "the plan's commands go on the nominal or emergency queue; debug commands are [[event]]s, sent through the Debugger".into(),
-                );
-            }
-        }
-    }
-    if let Err(e) = s.plan().dependencies() {
-        return err("phase", e.replace("activity", "phase"));
-    }
-    for (i, e) in s.events.iter().enumerate() {
-        match (e.at_s, &e.phase) {
-            (Some(t), None) if !(t.is_finite() && t >= 0.0) => {
-                return err(&format!("event.{i}.at_s"), format!("must be >= 0, got {t}"));
-            }
-            (Some(_), None) => {}
-            (None, Some(p)) if !names.contains(p.as_str()) => {
-                return err(&format!("event.{i}.phase"), format!("no phase named '{p}'"));
-            }
-            (None, Some(_)) => {}
-            _ => return err(&format!("event.{i}"), "give either at_s or phase (with after_s)".into()),
-        }
-        if !(e.after_s.is_finite() && e.after_s >= 0.0) {
-            return err(&format!("event.{i}.after_s"), format!("must be >= 0, got {}", e.after_s));
-        }
-    }
-    let l = &s.logging;
-    for (k, v) in [
-        ("logging.truth_hz", l.truth_hz),
-        ("logging.slots_hz", l.slots_hz),
-        ("logging.images_hz", l.images_hz),
-        ("logging.maps_hz", l.maps_hz),
-        ("logging.stats_hz", l.stats_hz),
-    ] {
-        if !(v.is_finite() && v >= 0.0) {
-            return err(k, format!("must be >= 0 (0 turns the stream off), got {v}"));
-        }
-    }
-    if l.image_downsample == 0 {
-        return err("logging.image_downsample", "must be at least 1".into());
-    }
-    Ok(())
+    validate::validate(&scenario, &files, overrides)?;
+    Ok(Loaded { scenario, document: doc, path: path.to_path_buf(), overrides: overrides.to_vec(), files })
 }
 
 #[cfg(test)]

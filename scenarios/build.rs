@@ -15,7 +15,12 @@ fn main() {
     println!("cargo:rustc-env=ROVER_TWIN_GIT_COMMIT={commit}");
     // Without a rerun-if-changed line cargo would rerun this script on any change in the package.
     println!("cargo:rerun-if-changed=build.rs");
-    if let Some(dir) = git(&["rev-parse", "--absolute-git-dir"]) {
+    // HEAD lives in the checkout's git dir; branches in the common one (they differ in a worktree).
+    let dirs = [
+        git(&["rev-parse", "--absolute-git-dir"]),
+        git(&["rev-parse", "--path-format=absolute", "--git-common-dir"]),
+    ];
+    for dir in dirs.into_iter().flatten() {
         for p in ["HEAD", "refs/heads", "packed-refs"] {
             let path = Path::new(&dir).join(p);
             // A path that does not exist would make cargo rerun the script every build.

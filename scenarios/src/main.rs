@@ -46,7 +46,9 @@ enum Cmd {
     /// Benchmarks that need whole runs or other programs: `bench logging` (the logger's share of a
     /// run's wall time and the bytes it writes per simulated minute at the scenario's rates);
     /// `bench physics [--mujoco]` (the twin's full-dynamics step on the Mars-like yard, and with
-    /// `--mujoco` MuJoCo's on the same rover, terrain and rocks, and their ratio).
+    /// `--mujoco` MuJoCo's on the same rover, terrain and rocks, and their ratio); `bench fuzz
+    /// [--cases N]` (mutated scenario, world, module and twin configuration files read by their
+    /// parsers and validators: cases per second, and exit 1 with the inputs if any panics).
     Bench(BenchArgs),
     /// Renders what the rover's cameras see at the canister mission's start as PNG files (head
     /// camera, localization camera, ToF depth): the README's pictures.
@@ -66,8 +68,20 @@ struct SnapshotArgs {
 #[derive(clap::Args)]
 struct BenchArgs {
     /// What to measure.
-    #[arg(value_parser = ["logging", "physics"])]
+    #[arg(value_parser = ["logging", "physics", "fuzz"])]
     what: String,
+    /// `bench fuzz`: mutated inputs to read (the target is 1 000 000).
+    #[arg(long, default_value_t = 1_000_000)]
+    cases: u64,
+    /// `bench fuzz`: the seed of the mutations (case i depends on it and i alone).
+    #[arg(long, default_value_t = 1)]
+    fuzz_seed: u64,
+    /// `bench fuzz`: generate every N-th world a mutant's validation accepts (0: never).
+    #[arg(long, default_value_t = 100)]
+    generate_every: u64,
+    /// `bench fuzz`: where the inputs that panic are written.
+    #[arg(long, default_value = "out/fuzz")]
+    out: PathBuf,
     /// `bench physics`: also step the same scene in MuJoCo (scripts/mujoco_bench.sh; installs
     /// MuJoCo from PyPI into $HOME/.cache/rover-twin/mujoco-venv on first use).
     #[arg(long)]
@@ -389,28 +403,32 @@ fn sweep_main(a: SweepArgs) -> Result<i32> {
         .map(sweep::parse_indices)
         .transpose()
         .map_err(|e| anyhow::anyhow!("--indices: {e}"))?;
+    let mut runs = a.runs;
     if let Some(dir) = &a.rerun_failed {
-        if dir.canonicalize().ok() == out.canonicalize().ok() {
+        if let (Ok(d), Ok(o)) = (dir.canonicalize(), out.canonicalize())
+            && d == o
+        {
             bail!(
                 "--rerun-failed {}: give another --out (the campaign there is kept as it is)",
                 dir.display()
             );
         }
-        let failed = sweep::failed_indices(dir, &sw)?;
+        let (failed, their_runs) = sweep::failed_indices(dir, &sw)?;
         if failed.is_empty() {
             println!("no failed runs in {}: nothing to run again", dir.display());
             return Ok(0);
         }
         indices = Some(failed);
+        runs = runs.or(Some(their_runs));
     }
     if let Some(t) = a.run_timeout
-        && !(t.is_finite() && t > 0.0)
+        && !(t.is_finite() && t > 0.0 && t <= sweep::MAX_RUN_TIMEOUT_S)
     {
-        bail!("--run-timeout {t}: give a positive number of seconds");
+        bail!("--run-timeout {t}: give a number of seconds in (0, {:e}]", sweep::MAX_RUN_TIMEOUT_S);
     }
     let interrupt = interrupt_flag();
     let opts = sweep::SweepOptions {
-        runs: a.runs,
+        runs,
         jobs: a.jobs,
         shard: a.shard,
         indices,
@@ -451,6 +469,9 @@ fn sweep_main(a: SweepArgs) -> Result<i32> {
 fn bench_main(a: &BenchArgs) -> Result<i32> {
     if a.what == "physics" {
         return physics_bench_main(a);
+    }
+    if a.what == "fuzz" {
+        return fuzz_main(a);
     }
     let loaded = scenario::load(&a.scenario, &[])?;
     let tmp = std::env::temp_dir().join(format!("rover-twin-bench-{}", std::process::id()));
@@ -496,6 +517,46 @@ fn bench_main(a: &BenchArgs) -> Result<i32> {
         per_min / 1e6
     );
     Ok(0)
+}
+
+fn fuzz_main(a: &BenchArgs) -> Result<i32> {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("..");
+    let corpus = scenarios::fuzz::corpus(&root)?;
+    println!("fuzz: {} cases over {} corpus files, seed {}", a.cases, corpus.len(), a.fuzz_seed);
+    let bar = indicatif::ProgressBar::new(a.cases);
+    #[allow(clippy::disallowed_methods)] // a benchmark times itself
+    let t0 = std::time::Instant::now();
+    let report = scenarios::fuzz::run(&corpus, a.cases, a.fuzz_seed, a.generate_every, &bar);
+    bar.finish_and_clear();
+    let wall = t0.elapsed().as_secs_f64();
+    println!(
+        "{} cases in {wall:.1} s: {:.0} cases/s; {} worlds generated",
+        report.cases,
+        report.cases as f64 / wall,
+        report.generated
+    );
+    for (target, [n, ok, refused]) in &report.by_target {
+        println!("  {target:<22} {n:>9} cases  {ok:>9} accepted  {refused:>9} refused");
+    }
+    if report.findings.is_empty() {
+        println!("no panic");
+        return Ok(0);
+    }
+    std::fs::create_dir_all(&a.out)?;
+    for f in &report.findings {
+        let file = a.out.join(format!("case-{}.toml", f.case));
+        std::fs::write(&file, &f.input)?;
+        eprintln!(
+            "error: case {} ({} from {}) panicked: {} -- input in {}",
+            f.case,
+            serde_json::to_string(&format!("{:?}", f.target)).unwrap_or_default(),
+            f.seed_file.display(),
+            f.panic,
+            file.display()
+        );
+    }
+    eprintln!("error: {} of {} cases panicked", report.findings.len(), report.cases);
+    Ok(1)
 }
 
 fn check_main(a: &CheckArgs) -> i32 {

@@ -95,6 +95,14 @@ impl Mission {
         self.state.activity(name).and_then(|a| a.start_s)
     }
 
+    /// When phase `name` ended (however), if it has.
+    pub fn ended(&self, name: &str) -> Option<f64> {
+        self.state
+            .activity(name)
+            .filter(|a| !matches!(a.status, ActivityStatus::Pending | ActivityStatus::Running))
+            .and_then(|a| a.end_s)
+    }
+
     /// The system state the mission's end asks for (Hold after an abort, Safe).
     pub fn end_state(&self) -> Option<Lifecycle> {
         if self.lost {
@@ -172,30 +180,79 @@ impl Mission {
 
 /// The scenario's events not sent yet.
 pub struct Events {
-    pending: Vec<TimedEvent>,
+    /// Each with the time its condition first held (near and module-state triggers).
+    pending: Vec<(TimedEvent, Option<f64>)>,
+    /// The event log read so far, and when each (module, state) was first entered.
+    log_seen: usize,
+    entered: std::collections::BTreeMap<(String, String), f64>,
 }
 
 impl Events {
     /// The events of `s`.
     pub fn new(s: &Scenario) -> Self {
-        Events { pending: s.events.clone() }
+        Events {
+            pending: s.events.iter().cloned().map(|e| (e, None)).collect(),
+            log_seen: 0,
+            entered: Default::default(),
+        }
     }
 
     /// Sends those whose time has come by `now` (in file order): commands on the debug queue as the
     /// Debugger's `inject`, the others directly. A send that fails is noted in the event log.
-    pub fn send_due(&mut self, now: Time, mission: &Mission, ep: &Endpoint, log: &EventLog) {
-        let due = |e: &TimedEvent| match (e.at_s, &e.phase) {
-            (Some(t), _) => Some(t),
-            (None, Some(p)) => mission.started(p).map(|t| t + e.after_s),
-            (None, None) => None,
-        };
+    /// `near(object, within_m)` says from ground truth whether the rover is that near the object.
+    pub fn send_due(
+        &mut self,
+        now: Time,
+        mission: &Mission,
+        ep: &Endpoint,
+        log: &EventLog,
+        near: &dyn Fn(&str, f64) -> bool,
+    ) {
+        if self.pending.iter().any(|(e, _)| e.module_state.is_some()) {
+            let (events, count) = log.since(self.log_seen);
+            self.log_seen = count;
+            for ev in events {
+                let t = ev.stamp.as_secs_f64();
+                let entered = match ev.kind {
+                    EventKind::ModuleLifecycle { module, to, .. } => Some((module, to.to_string())),
+                    EventKind::ModuleState { module, to, .. } => Some((module, to)),
+                    EventKind::SystemState { to, .. } => Some(("system".to_string(), to.to_string())),
+                    _ => None,
+                };
+                if let Some(k) = entered {
+                    self.entered.entry(k).or_insert(t);
+                }
+            }
+        }
+        let t_now = now.as_secs_f64();
         let mut i = 0;
         while i < self.pending.len() {
-            let Some(t) = due(&self.pending[i]).filter(|t| Time::from_secs_f64(*t) <= now) else {
+            let (e, armed) = &mut self.pending[i];
+            let start = if let Some(t) = e.at_s {
+                Some(t)
+            } else if let Some(p) = &e.phase {
+                mission.started(p)
+            } else if let Some(p) = &e.phase_end {
+                mission.ended(p)
+            } else if let Some(n) = &e.near {
+                if armed.is_none() && near(&n.object, n.within_m) {
+                    *armed = Some(t_now);
+                }
+                *armed
+            } else if let Some(m) = &e.module_state {
+                self.entered.get(&(m.module.clone(), m.state.clone())).copied()
+            } else {
+                None
+            };
+            let Some(t) = start.map(|s| s + if e.at_s.is_some() { 0.0 } else { e.after_s }) else {
                 i += 1;
                 continue;
             };
-            let e = self.pending.remove(i);
+            if Time::from_secs_f64(t) > now {
+                i += 1;
+                continue;
+            }
+            let (e, _) = self.pending.remove(i);
             let args = e.args.as_ref().and_then(|a| serde_json::to_value(a).ok()).unwrap_or_default();
             let cmd = match e.queue {
                 QueueName::Debug => Command::new(framework::debugger::NAME, "inject")

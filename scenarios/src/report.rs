@@ -159,7 +159,8 @@ fn tracks(dir: &Path, rows: &[Row]) -> Result<Option<String>> {
     })?))
 }
 
-fn esc(s: &str) -> String {
+/// Text escaped for HTML.
+pub(crate) fn esc(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
 }
 

@@ -59,6 +59,21 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
         world.regolith.friction = f;
     }
     on_terrain(loaded, &world, "rover", s.rover.x, s.rover.y)?;
+    for (i, e) in s.events.iter().enumerate() {
+        if let Some(n) = &e.near
+            && world.object(&n.object).is_none()
+        {
+            let names: Vec<&str> = world.objects.iter().map(|o| o.name.as_str()).collect();
+            let parts = ["event".to_string(), i.to_string(), "near".into(), "object".into()];
+            let msg = format!(
+                "world {} has no object '{}' (it has: {})",
+                wpath.display(),
+                n.object,
+                names.join(", ")
+            );
+            return Err(crate::scenario::locate(&parts, &loaded.files, &loaded.overrides, msg).into());
+        }
+    }
     if let Some(c) = &s.canister {
         on_terrain(loaded, &world, "canister", c.x, c.y)?;
     }
@@ -165,7 +180,9 @@ fn on_terrain(loaded: &Loaded, world: &worlds::World, key: &str, x: f64, y: f64)
     if (o.x..=o.x + sx).contains(&x) && (o.y..=o.y + sy).contains(&y) {
         return Ok(());
     }
-    let parts: Vec<String> = key.split('.').map(String::from).collect();
+    // The coordinate that is off (so that a `--set` or a dispersion of it is named).
+    let axis = if (o.x..=o.x + sx).contains(&x) { "y" } else { "x" };
+    let parts: Vec<String> = vec![key.to_string(), axis.to_string()];
     let (x, y) = (framework::config::num(x), framework::config::num(y));
     let msg = format!(
         "({x}, {y}) is off the terrain of {} ({sx} x {sy} m around ({:.1}, {:.1}))",
@@ -411,6 +428,25 @@ fn record(
     }
 }
 
+/// Looks for infractions at `now` and logs the new ones.
+fn note_infractions(
+    now: Time,
+    twin: &SharedTwin,
+    core: &framework::system::Core,
+    infractions: &mut crate::infractions::Infractions,
+    logger: &Mutex<Option<RunLogger>>,
+) -> std::result::Result<(), String> {
+    infractions.sample(now, &twin.lock(), &core.events);
+    let new = infractions.new_since_last();
+    if new.is_empty() {
+        return Ok(());
+    }
+    match logger.lock().as_mut().map(|l| l.infractions(now, new)) {
+        Some(Err(e)) => Err(format!("logging failed: {e:#}")),
+        _ => Ok(()),
+    }
+}
+
 /// Runs a scenario; the score is also written to `out/score.json`. An `Err` is bad input found
 /// before the run started (nothing was simulated).
 pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
@@ -431,12 +467,19 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         None
     }));
     // Under lockstep a hung module blocks the simulation: finalize the logs and leave, naming why.
+    // Who ends the run: the loop, finalizing it, or an abort (a hang, a signal no step answers):
+    // whichever claims it first; the other stands aside.
+    let ending = Arc::new(std::sync::atomic::AtomicU8::new(RUNNING));
     let abort_now: Arc<dyn Fn(String) + Send + Sync> = {
         let logger = logger.clone();
         let out = opts.out.clone();
         let core = ex.core().clone();
         let (name, file) = (s.name.clone(), loaded.path.display().to_string());
+        let ending = ending.clone();
         Arc::new(move |reason: String| {
+            if ending.compare_exchange(RUNNING, ABORTING, Ordering::SeqCst, Ordering::SeqCst).is_err() {
+                return;
+            }
             eprintln!("error: {reason}");
             let logs = logger.lock().take().map(|l| l.finish(None));
             // What is known of the run: it did not succeed, and why.
@@ -459,7 +502,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         }));
     }
     let steps = Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let watch = StuckWatch::start(opts.interrupt.clone(), steps.clone(), abort_now)?;
+    let watch = StuckWatch::start(opts.interrupt.clone(), steps.clone(), abort_now, ending)?;
     ex.walk_to(Lifecycle::Run).context("bringing the system to Run")?;
     let ground = ex.endpoint("ground")?;
     let events_ep = ex.endpoint("events")?;
@@ -467,6 +510,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let mut events = Events::new(s);
     let pose_reader = ex.core().board.reader::<PoseEstimate>(gnc::localization_fusion::SLOT).ok().flatten();
     let mut scorer = Scorer::new(LocalizationScorer::new(&ex.core().board));
+    let mut infractions = crate::infractions::Infractions::new(s.criteria.max_tilt_deg);
     let limit = Time::from_secs_f64(s.run.time_limit_s);
     let settle = Time::from_secs_f64(s.run.settle_s);
     let after = s.criteria.max_travel_after.as_ref().map(|t| t.after_s);
@@ -485,8 +529,21 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             mission.start(s, &ground);
         }
         mission.update(now, &ground, ex.core());
-        events.send_due(now, &mission, &events_ep, &ex.core().events);
+        events.send_due(now, &mission, &events_ep, &ex.core().events, &|object, within| {
+            let t = twin.lock();
+            let base = t.base_pose().translation.vector;
+            let at = if object == "canister" {
+                t.canister_truth().map(|c| c.translation.vector)
+            } else {
+                t.world().object(object).map(|o| o.position.coords)
+            };
+            at.is_some_and(|p| (p.x - base.x).hypot(p.y - base.y) <= within)
+        });
         if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
+            abort = Some(e);
+            break;
+        }
+        if let Err(e) = note_infractions(now, &twin, ex.core(), &mut infractions, &logger) {
             abort = Some(e);
             break;
         }
@@ -544,6 +601,10 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
                 abort = Some(e);
                 break;
             }
+            if let Err(e) = note_infractions(now, &twin, ex.core(), &mut infractions, &logger) {
+                abort = Some(e);
+                break;
+            }
         }
     }
     // The loops are over: finalizing below is not a stuck simulation.
@@ -579,6 +640,11 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         grasp_position_error_m: t.grasp_truth().map(|g| g.position_error_m),
         grasp_angle_error_deg: t.grasp_truth().map(|g| g.angle_error_deg),
         max_tilt_deg: scorer.max_tilt,
+        route_completion: if phases.is_empty() {
+            1.0
+        } else {
+            phases.iter().filter(|p| p.success).count() as f64 / phases.len() as f64
+        },
         localization: (!localization.sources.is_empty()).then_some(localization),
         final_state: final_state.to_string(),
         isolated_modules: ex
@@ -597,6 +663,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     };
     let criteria = check_criteria(s, mission.faults(), &phases, &metrics, &scorer, final_state, &t);
     let success = abort.is_none() && criteria.iter().all(|c| c.passed);
+    let infractions = infractions.finish(&phases);
     let wall = wall0.elapsed().as_secs_f64();
     let mut score = Score {
         scenario: s.name.clone(),
@@ -620,6 +687,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         phases,
         faults: mission.faults().to_vec(),
         criteria,
+        infractions,
         metrics,
         logs: LogFiles::default(),
     };
@@ -627,13 +695,14 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     if let Some(l) = logger.lock().take() {
         score.logs = l.finish(Some(&score))?;
     }
-    let _ = ex.walk_to(Lifecycle::Shutdown);
     let mut track = String::from("t_s,x_m,y_m\n");
     for (t, x, y) in &scorer.track {
         track += &format!("{t:.3},{x:.4},{y:.4}\n");
     }
     std::fs::write(opts.out.join("track.csv"), track)?;
+    // Written before the shutdown: a module that hangs on its way down loses nothing of the run.
     write_score(&opts.out, &score)?;
+    let _ = ex.walk_to(Lifecycle::Shutdown);
     Ok(score)
 }
 
@@ -643,7 +712,15 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
 /// the process leaves through `abort_now`. Stops watching when dropped (when the run's loops end).
 struct StuckWatch {
     done: Arc<AtomicBool>,
+    ending: Arc<std::sync::atomic::AtomicU8>,
 }
+
+/// The run's loop is going.
+const RUNNING: u8 = 0;
+/// The loop ended and the run is being finalized: no abort may exit the process now.
+const FINALIZING: u8 = 1;
+/// An abort is finalizing the logs and will exit the process.
+const ABORTING: u8 = 2;
 
 impl StuckWatch {
     /// How long a signalled run's loop may take to see the signal.
@@ -653,6 +730,7 @@ impl StuckWatch {
         interrupt: Arc<AtomicBool>,
         steps: Arc<std::sync::atomic::AtomicU64>,
         abort_now: Arc<dyn Fn(String) + Send + Sync>,
+        ending: Arc<std::sync::atomic::AtomicU8>,
     ) -> Result<Self> {
         let done = Arc::new(AtomicBool::new(false));
         let d = done.clone();
@@ -667,23 +745,32 @@ impl StuckWatch {
                 let mut waited = std::time::Duration::ZERO;
                 while !d.load(Ordering::SeqCst) && steps.load(Ordering::SeqCst) == at {
                     if waited >= Self::PATIENCE {
+                        // Returns at once if the loop got to finalizing first.
                         abort_now(format!(
                             "interrupted (SIGINT/SIGTERM) while the simulation was stuck: no step finished within {} s",
                             Self::PATIENCE.as_secs()
                         ));
+                        return;
                     }
                     std::thread::sleep(tick);
                     waited += tick;
                 }
             })
             .context("starting the stuck-run watch")?;
-        Ok(Self { done })
+        Ok(Self { done, ending })
     }
 }
 
 impl Drop for StuckWatch {
+    /// The loop is over: from now on the run finalizes itself. If an abort claimed the run first,
+    /// it is writing the logs and will exit the process: this thread waits for that.
     fn drop(&mut self) {
         self.done.store(true, Ordering::SeqCst);
+        if self.ending.compare_exchange(RUNNING, FINALIZING, Ordering::SeqCst, Ordering::SeqCst).is_err() {
+            loop {
+                std::thread::park();
+            }
+        }
     }
 }
 

@@ -85,6 +85,10 @@ pub struct Metrics {
     pub grasp_angle_error_deg: Option<f64>,
     /// Largest tilt of the rover body from the vertical, degrees.
     pub max_tilt_deg: f64,
+    /// The fraction of the plan done: its phases that succeeded over all its phases (1 when it
+    /// has none).
+    #[serde(default)]
+    pub route_completion: f64,
     /// The system's lifecycle state at the end.
     pub final_state: String,
     /// Each localization source's error against truth, and the fused covariance's consistency
@@ -140,6 +144,9 @@ pub struct Score {
     pub faults: Vec<framework::data::FaultReport>,
     /// Criteria checked.
     pub criteria: Vec<CriterionResult>,
+    /// What the rover did that it should not have, in time order, each with when and where.
+    #[serde(default)]
+    pub infractions: Vec<crate::infractions::Infraction>,
     /// Metrics.
     pub metrics: Metrics,
     /// Log files written.

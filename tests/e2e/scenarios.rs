@@ -645,3 +645,57 @@ fn every_hostile_file_is_refused_with_its_file_line_and_key_never_a_panic() {
         assert!(located && err.contains(want), "{file}: wanted a located message with '{want}', got: {err}");
     }
 }
+
+#[test]
+fn events_fire_on_phase_ends_module_states_and_distances_and_infractions_say_when_and_where() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = run(&data("conditions.toml"), dir.path(), &[]);
+    assert!(o.status.code().is_some_and(|c| c < 2), "{}", show(&o));
+    let s = score(dir.path());
+    let phase_end = |name: &str| {
+        s["phases"].as_array().unwrap().iter().find(|p| p["name"] == name).unwrap()["end_s"].as_f64().unwrap()
+    };
+    let isolated = |module: &str| {
+        s["infractions"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|i| {
+                i["kind"] == "isolated" && i["detail"].as_str().unwrap().contains(&format!("'{module}'"))
+            })
+            .unwrap_or_else(|| panic!("no isolation of {module} in {}", s["infractions"]))
+            .clone()
+    };
+    let t = |i: &serde_json::Value| i["t_s"].as_f64().unwrap();
+    // Half a second after the mast was up (the debug command reaches the arm within a few ticks).
+    let arm = isolated("arm");
+    let delay = t(&arm) - phase_end("mast_up");
+    assert!((0.5..0.7).contains(&delay), "the arm crashed {delay} s after mast_up ended");
+    // A fifth of a second after the arm entered Safe.
+    let delay = t(&isolated("ptu")) - t(&arm);
+    assert!((0.2..0.4).contains(&delay), "the pan-tilt crashed {delay} s after the arm");
+    // Where the rover came within 2.5 m of the canister at (3, 0).
+    let g = isolated("gripper");
+    let [x, y] = [g["position_m"][0].as_f64().unwrap(), g["position_m"][1].as_f64().unwrap()];
+    let d = (3.0 - x).hypot(y);
+    assert!((2.2..=2.5).contains(&d), "the gripper crashed {d} m from the canister");
+    assert_eq!(s["metrics"]["route_completion"], 1.0);
+}
+
+#[test]
+fn a_short_fuzzing_run_finds_no_panic() {
+    // The campaign is `rover-twin bench fuzz` (1 000 000 cases by default, minutes on a release
+    // build); a few thousand here keep the harness itself tested.
+    let dir = tempfile::tempdir().unwrap();
+    let o = rover_twin()
+        .args(["bench", "fuzz", "--cases", "3000", "--generate-every", "50", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(o.status.code(), Some(0), "{}", show(&o));
+    assert!(out.contains("3000 cases in") && out.contains("no panic"), "{out}");
+    for target in ["scenario", "world", "module configuration", "twin configuration"] {
+        assert!(out.contains(target), "no {target} cases: {out}");
+    }
+}

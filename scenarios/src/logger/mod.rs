@@ -34,6 +34,7 @@ use twin::Twin;
 mod autonomy;
 mod framework_log;
 mod images;
+mod infractions;
 mod known;
 mod maps;
 mod mcap_writer;
@@ -69,6 +70,10 @@ enum Item {
     Stats {
         now: Time,
         reports: Vec<framework::system::ModuleReport>,
+    },
+    Infractions {
+        now: Time,
+        list: Vec<crate::infractions::Infraction>,
     },
     Finish {
         score: Option<Box<Score>>,
@@ -194,6 +199,7 @@ impl RunLogger {
                     Item::Slots { now, base, records } => record(w.slots(now, base, records)),
                     Item::Events { now, events, messages } => record(w.events(now, events, messages)),
                     Item::Stats { now, reports } => record(w.stats(now, reports)),
+                    Item::Infractions { now, list } => record(w.infractions(now, list)),
                     Item::Finish { score, reply } => {
                         let _ = reply.send(w.finish(score.as_deref()));
                         return;
@@ -310,6 +316,11 @@ impl RunLogger {
             out.push(SlotRecord { name, type_name: slot.type_name(), json: slot.to_json(), known });
         }
         out
+    }
+
+    /// Logs infractions as they happen (from the scorer: ground truth, never read by the GNC).
+    pub fn infractions(&mut self, now: Time, list: Vec<crate::infractions::Infraction>) -> Result<()> {
+        self.send(Item::Infractions { now, list })
     }
 
     /// Logs the score (if any) and finalizes both files; returns where they are.

@@ -313,6 +313,17 @@ pub struct TimedEvent {
     /// The phase whose (first) start triggers it; never sent if the phase never starts.
     #[serde(default)]
     pub phase: Option<String>,
+    /// ... or the end of this phase (however it ended); never sent if it never ends.
+    #[serde(default)]
+    pub phase_end: Option<String>,
+    /// ... or the moment the rover's `base_link` first comes within a distance of a world object
+    /// (ground truth: the scenario's script, not the robot, knows where things are).
+    #[serde(default)]
+    pub near: Option<NearTrigger>,
+    /// ... or the moment a module first enters a state: a lifecycle state (`Safe`, `Hold`...) or
+    /// a state of its own machine; module `system` is the system's lifecycle.
+    #[serde(default)]
+    pub module_state: Option<StateTrigger>,
     /// ... this long after that start, s.
     #[serde(default)]
     pub after_s: f64,
@@ -326,6 +337,26 @@ pub struct TimedEvent {
     /// Queue (default: debug, where fault injections belong).
     #[serde(default = "debug_queue")]
     pub queue: QueueName,
+}
+
+/// An event sent when the rover comes near an object.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct NearTrigger {
+    /// A world object's name (`canister`, ...).
+    pub object: String,
+    /// Horizontal distance from `base_link`, m.
+    pub within_m: f64,
+}
+
+/// An event sent when a module enters a state.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StateTrigger {
+    /// The module (or `system`).
+    pub module: String,
+    /// The state's name.
+    pub state: String,
 }
 
 fn debug_queue() -> QueueName {
@@ -492,7 +523,16 @@ impl Loaded {
             let Some(key) = e.key.clone() else { return e };
             let parts: Vec<String> =
                 key.split(['.', '[', ']']).filter(|p| !p.is_empty()).map(String::from).collect();
-            let set_here = parts.first().and_then(|p| overlay.get(p)).is_some();
+            // The scenario wrote this very key (its whole path, not just a table on the way).
+            let mut at = Some(toml::Value::Table(overlay.clone()));
+            for p in &parts {
+                at = at.and_then(|v| match v {
+                    toml::Value::Table(t) => t.get(p).cloned(),
+                    toml::Value::Array(a) => p.parse::<usize>().ok().and_then(|i| a.get(i).cloned()),
+                    _ => None,
+                });
+            }
+            let set_here = !parts.is_empty() && at.is_some();
             if set_here {
                 let full: Vec<String> = table.iter().cloned().chain(parts).collect();
                 return locate(&full, &files, &overrides, e.message);
@@ -534,12 +574,13 @@ pub struct FileText {
 /// merges them; returns the merged table and the files in precedence order (last wins).
 pub fn load_merged(path: &Path) -> Result<(toml::Table, Vec<FileText>), ConfigError> {
     let mut files = Vec::new();
-    let table = load_rec(path, &mut files, &mut Vec::new())?;
+    let table = load_rec(path, None, &mut files, &mut Vec::new())?;
     Ok((table, files))
 }
 
 fn load_rec(
     path: &Path,
+    text: Option<&str>,
     files: &mut Vec<FileText>,
     stack: &mut Vec<PathBuf>,
 ) -> Result<toml::Table, ConfigError> {
@@ -554,7 +595,10 @@ fn load_rec(
             message: "includes itself (include cycle)".into(),
         });
     }
-    let text = read_file(path)?;
+    let text = match text {
+        Some(t) => t.to_string(),
+        None => read_file(path)?,
+    };
     let src = Source::new(&origin, &text);
     let table: toml::Table = src.parse()?;
     let mut merged = toml::Table::new();
@@ -579,7 +623,7 @@ fn load_rec(
                     format!("included file {} does not exist", p.display()),
                 ));
             }
-            let t = load_rec(&p, files, stack)?;
+            let t = load_rec(&p, None, files, stack)?;
             merge(&mut merged, t);
         }
         stack.pop();
@@ -725,7 +769,18 @@ pub fn locate(
 
 /// Loads a scenario with `--set` overrides applied.
 pub fn load(path: &Path, overrides: &[(String, String)]) -> Result<Loaded, ConfigError> {
-    let (mut doc, files) = load_merged(path)?;
+    load_from(path, None, overrides)
+}
+
+/// Loads a scenario whose main file's text is given rather than read (its includes are read
+/// relative to `path`): text that is not on disk, as a fuzzer makes it.
+pub fn load_text(path: &Path, text: &str, overrides: &[(String, String)]) -> Result<Loaded, ConfigError> {
+    load_from(path, Some(text), overrides)
+}
+
+fn load_from(path: &Path, text: Option<&str>, overrides: &[(String, String)]) -> Result<Loaded, ConfigError> {
+    let mut files = Vec::new();
+    let mut doc = load_rec(path, text, &mut files, &mut Vec::new())?;
     for (k, v) in overrides {
         set_key(&mut doc, k, parse_value(v)).map_err(|message| ConfigError {
             file: format!("--set {k}={v}"),

@@ -121,13 +121,42 @@ pub(super) fn validate(
         return err("phase", e.replace("activity", "phase"));
     }
     for (i, e) in s.events.iter().enumerate() {
-        match (e.at_s, &e.phase) {
-            (Some(_), None) => {}
-            (None, Some(p)) if !names.contains(p.as_str()) => {
-                return err(&format!("event.{i}.phase"), format!("no phase named '{p}'"));
+        let triggers = [
+            e.at_s.is_some(),
+            e.phase.is_some(),
+            e.phase_end.is_some(),
+            e.near.is_some(),
+            e.module_state.is_some(),
+        ];
+        if triggers.iter().filter(|t| **t).count() != 1 {
+            return err(
+                &format!("event.{i}"),
+                "give one of at_s, phase, phase_end, near or module_state (with after_s)".into(),
+            );
+        }
+        for (k, p) in [("phase", &e.phase), ("phase_end", &e.phase_end)] {
+            if let Some(p) = p
+                && !names.contains(p.as_str())
+            {
+                return err(&format!("event.{i}.{k}"), format!("no phase named '{p}'"));
             }
-            (None, Some(_)) => {}
-            _ => return err(&format!("event.{i}"), "give either at_s or phase (with after_s)".into()),
+        }
+        if let Some(n) = &e.near
+            && !(n.within_m > 0.0 && n.within_m <= 1e4)
+        {
+            return err(
+                &format!("event.{i}.near.within_m"),
+                format!("must be in (0, 1e4] m, got {}", num(n.within_m)),
+            );
+        }
+        if let Some(m) = &e.module_state
+            && m.module != "system"
+            && !crate::system::MODULES.contains(&m.module.as_str())
+        {
+            return err(
+                &format!("event.{i}.module_state.module"),
+                format!("no module '{}' (it has: system, {})", m.module, crate::system::MODULES.join(", ")),
+            );
         }
     }
     let l = &s.logging;

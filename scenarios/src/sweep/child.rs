@@ -133,6 +133,15 @@ impl ChildRun<'_> {
             cmd.env("RAYON_NUM_THREADS", n.to_string());
         }
         cmd.stdin(Stdio::null()).stdout(Stdio::null()).stderr(stderr).process_group(0);
+        // A run outlives no sweep: if the sweep dies (SIGKILL, a second Ctrl-C, a CI job's end),
+        // the run gets SIGTERM and ends as an interrupted run does, its logs finalized.
+        #[cfg(target_os = "linux")]
+        #[allow(unsafe_code)]
+        // SAFETY: the closure runs in the forked child before exec and only calls prctl(2), which
+        // is async-signal-safe and touches no memory shared with the parent.
+        unsafe {
+            cmd.pre_exec(|| nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from));
+        }
         let _ = std::fs::remove_file(dir.join("score.json"));
         #[allow(clippy::disallowed_methods)] // the sweep driver times its child processes
         let t0 = std::time::Instant::now();
@@ -143,7 +152,7 @@ impl ChildRun<'_> {
         let mut timed_out = false;
         let ended = loop {
             if let Some(st) = child.try_wait()? {
-                break if timed_out { Ended::TimedOut } else { Ended::Exited(st) };
+                break (st, timed_out);
             }
             let now = t0.elapsed();
             if signalled.is_none() && self.interrupt.load(Ordering::SeqCst) {
@@ -167,6 +176,13 @@ impl ChildRun<'_> {
         let text = std::fs::read_to_string(dir.join("score.json")).ok();
         let full: Option<Score> = text.as_deref().and_then(|t| serde_json::from_str(t).ok());
         let partial: Option<serde_json::Value> = text.as_deref().and_then(|t| serde_json::from_str(t).ok());
+        // A run that finished on its own just as the limit came is not a timeout.
+        let (status, timed_out) = ended;
+        let ended = if timed_out && full.as_ref().is_none_or(|s| s.outcome == "aborted") {
+            Ended::TimedOut
+        } else {
+            Ended::Exited(status)
+        };
         let mut r = match (&ended, &full) {
             (Ended::TimedOut, _) => {
                 let at = partial

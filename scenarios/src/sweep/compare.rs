@@ -8,6 +8,7 @@
 //! medians. `compare.json` and `compare.html` (with plots) hold the result.
 
 use super::results::{METRICS, Row, metric_value, read, wilson};
+use crate::report::esc;
 use anyhow::{Result, bail};
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -67,7 +68,7 @@ pub struct Comparison {
     pub paired: bool,
     /// Indices run in both.
     pub common_runs: usize,
-    /// Success rate of B minus A.
+    /// Success rate of B minus A (paired: over the runs both made).
     pub success_rate_difference: f64,
     /// The test used: `mcnemar_exact` (paired) or `fisher_exact`.
     pub test: String,
@@ -89,6 +90,7 @@ impl Comparison {
         self.paired
             && self.changes.is_empty()
             && self.a.runs == self.b.runs
+            && self.common_runs == self.a.runs
             && self.metrics.values().all(|s| s.max_abs_shift == 0.0)
     }
 }
@@ -183,6 +185,9 @@ pub fn compare_rows(dir_a: &Path, a: &[Row], dir_b: &Path, b: &[Row]) -> Compari
         }
         cmp.test = "mcnemar_exact".into();
         cmp.p_value = mcnemar_exact(cmp.fixed.len(), cmp.broken.len());
+        // Over the runs both made, as the test is: a campaign compared with its re-run failures
+        // is not a drop of the whole rate.
+        cmp.success_rate_difference = (cmp.fixed.len() as f64 - cmp.broken.len() as f64) / pairs.len() as f64;
     } else {
         cmp.test = "fisher_exact".into();
         cmp.p_value = fisher_exact(
@@ -371,10 +376,6 @@ fn plot(name: &str, cmp: &Comparison, a: &[Row], b: &[Row], k: usize) -> Result<
         root.present().map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     Ok(Some(buf))
-}
-
-fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
 }
 
 fn write_html(path: &PathBuf, cmp: &Comparison, a: &[Row], b: &[Row], notes: &[String]) -> Result<()> {

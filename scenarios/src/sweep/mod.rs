@@ -224,8 +224,16 @@ pub fn load(path: &Path) -> Result<Sweep, ConfigError> {
     let err = |parts: &[&str], msg: String| {
         Err(scenario::locate(&parts.iter().map(|s| s.to_string()).collect::<Vec<_>>(), &files, &[], msg))
     };
-    if file.sweep.runs == 0 {
-        return err(&["sweep", "runs"], "must be at least 1".into());
+    if !(1..=MAX_RUNS).contains(&file.sweep.runs) {
+        return err(&["sweep", "runs"], format!("must be 1..={MAX_RUNS}, got {}", file.sweep.runs));
+    }
+    if let Some(t) = file.sweep.run_timeout_s
+        && !(t > 0.0 && t <= MAX_RUN_TIMEOUT_S)
+    {
+        return err(
+            &["sweep", "run_timeout_s"],
+            format!("must be in (0, {MAX_RUN_TIMEOUT_S:e}] s, got {}", framework::config::num(t)),
+        );
     }
     for (i, d) in file.dispersions.iter().enumerate() {
         let idx = i.to_string();
@@ -252,7 +260,7 @@ pub fn load(path: &Path) -> Result<Sweep, ConfigError> {
             return err(&["dispersion", &idx, "grid"], "needs at least one value".into());
         }
         if let Some([lo, hi]) = d.uniform
-            && !(lo.is_finite() && hi.is_finite() && lo < hi)
+            && !(lo.is_finite() && hi.is_finite() && lo < hi && (hi - lo).is_finite())
         {
             return err(&["dispersion", &idx, "uniform"], format!("needs lo < hi, got [{lo}, {hi}]"));
         }
@@ -336,6 +344,11 @@ pub fn check_ranges(sweep: &Sweep) -> Result<(), ConfigError> {
     }
     Ok(())
 }
+
+/// Most runs a campaign may have.
+pub const MAX_RUNS: u64 = 1_000_000;
+/// Longest wall-clock limit of a run, s.
+pub const MAX_RUN_TIMEOUT_S: f64 = 1e7;
 
 /// Scenario keys whose values only building the run's world, twin and modules checks.
 const BUILT: &[&str] = &["twin.", "modules.", "sensors.", "world.", "rover.", "canister."];
@@ -498,14 +511,16 @@ fn resumed(c: &Campaign, indices: &[u64], o: &SweepOptions) -> Result<BTreeMap<u
     Ok(rows.into_iter().filter(|r| indices.contains(&r.index)).map(|r| (r.index, r)).collect())
 }
 
-/// The indices of the failed runs in sweep folder `dir`, which must hold a campaign of `sweep`
-/// (`--rerun-failed`).
-pub fn failed_indices(dir: &Path, sweep: &Sweep) -> Result<Vec<u64>> {
+/// The indices of the failed runs in sweep folder `dir`, which must hold a campaign of `sweep`,
+/// and that campaign's run count (`--rerun-failed`; it may have been run with `--runs`).
+pub fn failed_indices(dir: &Path, sweep: &Sweep) -> Result<(Vec<u64>, u64)> {
     let (c, rows) = read(dir)?;
-    if c.sweep != sweep.file {
+    let mut theirs = c.sweep.clone();
+    theirs.sweep.runs = sweep.file.sweep.runs;
+    if theirs != sweep.file {
         bail!("--rerun-failed: {} holds a campaign of another sweep file (or an edited one)", dir.display());
     }
-    Ok(rows.iter().filter(|r| !r.success).map(|r| r.index).collect())
+    Ok((rows.iter().filter(|r| !r.success).map(|r| r.index).collect(), c.runs))
 }
 
 /// Runs a sweep (or one shard of it, or chosen runs of it).
@@ -514,6 +529,14 @@ pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
     let t0 = std::time::Instant::now();
     let mut sweep = sweep.clone();
     sweep.file.sweep.runs = o.runs.unwrap_or(sweep.file.sweep.runs);
+    if !(1..=MAX_RUNS).contains(&sweep.file.sweep.runs) {
+        bail!("--runs {}: give 1 to {MAX_RUNS}", sweep.file.sweep.runs);
+    }
+    // Everything run 0 builds, built once before any run starts: a misspelt [twin] or
+    // [modules.*] key (free tables the scenario's types cannot check) fails the campaign here, not
+    // as N error rows.
+    let first = scenario::load(&sweep.scenario_path, &sweep.plan(0).overrides)?;
+    crate::runner::check(&first).context("run 0 cannot start")?;
     let (campaign, indices) = campaign(&sweep, o)?;
     let done = if o.resume { resumed(&campaign, &indices, o)? } else { BTreeMap::new() };
     std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;

@@ -1,6 +1,7 @@
 //! What made a campaign's results: the binary (package version, git commit) and SHA-256 digests
 //! of the inputs a user edits without committing them (the sweep file, the scenario and its
-//! includes, the world file, the module configuration files). `sweep merge` and `--resume` refuse
+//! includes, the world file, the module configuration files, the rover's model and configuration;
+//! a world's heightmap image is not digested). `sweep merge` and `--resume` refuse
 //! to mix results whose provenance differs.
 
 use super::Sweep;
@@ -26,6 +27,9 @@ pub struct Provenance {
     pub world_sha256: String,
     /// Every module configuration file (`scenarios/config/modules/*.toml`), by name.
     pub module_config_sha256: String,
+    /// The rover's model and configuration (`assets/rover`: URDF, twin, sensors, objects).
+    #[serde(default)]
+    pub rover_sha256: String,
 }
 
 fn digest<'a>(parts: impl IntoIterator<Item = (&'a str, &'a [u8])>) -> String {
@@ -45,11 +49,11 @@ fn files_digest(files: &[scenario::FileText]) -> String {
     digest(files.iter().map(|f| ("", f.text.as_bytes())))
 }
 
-fn dir_digest(dir: &Path) -> Result<String> {
+fn dir_digest(dir: &Path, extensions: &[&str]) -> Result<String> {
     let mut entries: Vec<_> = std::fs::read_dir(dir)
         .with_context(|| format!("reading {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .filter(|p| p.extension().and_then(|e| e.to_str()).is_some_and(|e| extensions.contains(&e)))
         .collect();
     entries.sort();
     let contents = entries
@@ -67,7 +71,11 @@ impl Provenance {
     pub fn of(sweep: &Sweep) -> Result<Self> {
         let (_, sweep_files) = scenario::load_merged(&sweep.path)?;
         let (_, scenario_files) = scenario::load_merged(&sweep.scenario_path)?;
-        let loaded = scenario::load(&sweep.scenario_path, &[])?;
+        // With the campaign's fixed overrides: they may name another world, and a scenario may be
+        // valid only with them.
+        let set: Vec<(String, String)> =
+            sweep.plan(0).overrides.into_iter().take(sweep.file.sweep.set.len()).collect();
+        let loaded = scenario::load(&sweep.scenario_path, &set)?;
         let world = loaded.world_path();
         let world_bytes = std::fs::read(&world).with_context(|| format!("reading {}", world.display()))?;
         Ok(Self {
@@ -76,7 +84,11 @@ impl Provenance {
             sweep_sha256: files_digest(&sweep_files),
             scenario_sha256: files_digest(&scenario_files),
             world_sha256: digest([("", world_bytes.as_slice())]),
-            module_config_sha256: dir_digest(&crate::system::module_config_dir())?,
+            module_config_sha256: dir_digest(&crate::system::module_config_dir(), &["toml"])?,
+            rover_sha256: dir_digest(
+                twin::TwinConfig::default_path().parent().unwrap_or(Path::new(".")),
+                &["toml", "urdf"],
+            )?,
         })
     }
 
@@ -95,6 +107,7 @@ impl Provenance {
             ("scenario files", &a.scenario_sha256, &b.scenario_sha256),
             ("world file", &a.world_sha256, &b.world_sha256),
             ("module configuration", &a.module_config_sha256, &b.module_config_sha256),
+            ("rover model and configuration", &a.rover_sha256, &b.rover_sha256),
         ];
         fields
             .iter()
@@ -123,6 +136,7 @@ mod tests {
             scenario_sha256: "2".into(),
             world_sha256: "3".into(),
             module_config_sha256: "4".into(),
+            rover_sha256: "6".into(),
         };
         assert!(Provenance::differences(Some(&p), Some(&p)).is_empty());
         let q = Provenance { world_sha256: "5".into(), git_commit: "def".into(), ..p.clone() };

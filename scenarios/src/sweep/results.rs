@@ -75,6 +75,8 @@ pub const METRICS: &[Metric] = &[
     ("self_collisions", |s| s.metrics.self_collisions.to_string()),
     ("grasp_position_error_m", |s| optional(s.metrics.grasp_position_error_m)),
     ("max_tilt_deg", |s| format!("{:.6}", s.metrics.max_tilt_deg)),
+    ("route_completion", |s| format!("{:.6}", s.metrics.route_completion)),
+    ("infractions", |s| s.infractions.len().to_string()),
     ("final_state", |s| s.metrics.final_state.clone()),
 ];
 

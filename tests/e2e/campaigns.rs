@@ -10,33 +10,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-fn rover_twin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_rover-twin"))
-}
-
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
-
-fn data(name: &str) -> PathBuf {
-    root().join("tests/e2e/data").join(name)
-}
-
-fn show(o: &Output) -> String {
-    format!(
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
-fn score(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
-}
-
-fn json(path: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
-}
+mod common;
+use common::*;
 
 fn sweep(file: &Path, out: &Path, extra: &[&str]) -> Output {
     rover_twin().arg("sweep").arg(file).arg("--quiet").arg("--out").arg(out).args(extra).output().unwrap()

@@ -2,12 +2,11 @@
 //! through the Debugger are detected and recovered by Autonomy, and the mission still succeeds; a
 //! Mission-context run refuses the injection.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
+mod common;
+use common::*;
 
 fn run(scenario: &str, out: &Path, extra: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_rover-twin"))
@@ -19,18 +18,6 @@ fn run(scenario: &str, out: &Path, extra: &[&str]) -> Output {
         .args(extra)
         .output()
         .unwrap()
-}
-
-fn show(o: &Output) -> String {
-    format!(
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
-fn score(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
 }
 
 fn responses(s: &serde_json::Value) -> Vec<String> {

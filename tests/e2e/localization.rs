@@ -3,12 +3,11 @@
 
 #![allow(clippy::disallowed_methods)]
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
+mod common;
+use common::*;
 
 fn run(scenario: &Path, out: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_rover-twin"))
@@ -20,18 +19,6 @@ fn run(scenario: &Path, out: &Path) -> Output {
         .args(["--set", "logging.rrd=false"])
         .output()
         .unwrap()
-}
-
-fn show(o: &Output) -> String {
-    format!(
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
-fn score(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
 }
 
 /// A source's drift as a percentage of the distance driven.

@@ -2,12 +2,11 @@
 //! parked, the canister at arm's reach, only the wrist camera rendering), in both fidelities; and the
 //! same grasp with the visual servoing switched off.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output};
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
+mod common;
+use common::*;
 
 fn run(out: &Path, extra: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_rover-twin"))
@@ -19,18 +18,6 @@ fn run(out: &Path, extra: &[&str]) -> Output {
         .args(extra)
         .output()
         .unwrap()
-}
-
-fn show(o: &Output) -> String {
-    format!(
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
-
-fn score(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
 }
 
 #[test]

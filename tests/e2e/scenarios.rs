@@ -4,36 +4,15 @@
 #![allow(clippy::disallowed_methods)] // the tests time out their child processes on the wall clock
 
 use std::collections::{BTreeMap, BTreeSet};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-fn rover_twin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_rover-twin"))
-}
-
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
-
-fn data(name: &str) -> PathBuf {
-    root().join("tests/e2e/data").join(name)
-}
-
-fn show(o: &Output) -> String {
-    format!(
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    )
-}
+mod common;
+use common::*;
 
 fn run(scenario: &Path, out: &Path, extra: &[&str]) -> Output {
     rover_twin().arg("run").arg(scenario).arg("--out").arg(out).arg("--quiet").args(extra).output().unwrap()
-}
-
-fn score(out: &Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(out.join("score.json")).unwrap()).unwrap()
 }
 
 /// Messages per topic of an MCAP file, checking CRCs, the summary and monotonic log times.

@@ -12,7 +12,7 @@
 //! through `TwinConfig::from_str`. A refusal is the expected outcome for most mutants; a panic is
 //! a bug, reported with the input that makes it (written under `--out`).
 //!
-//! Case `i` depends on the seed and `i` alone, so a failure reproduces with `--seed S --cases
+//! Case `i` depends on the seed and `i` alone, so a failure reproduces with `--fuzz-seed S --cases
 //! i+1` (the cases run in parallel, their outcomes do not depend on the thread count).
 //! Written by hand: cargo-fuzz needs a nightly compiler and a libFuzzer build, which CI here has
 //! not; this runs on the stable toolchain in the workbench's own binary.
@@ -344,6 +344,7 @@ pub fn run(
                 input = mutate(&mut rng, &input);
             }
             let generate = s.target == Target::World && generate_every > 0 && case % generate_every == 0;
+            LAST_PANIC.with(|l| l.borrow_mut().take());
             let r = std::panic::catch_unwind(|| read(s, &input, generate));
             let n = done.fetch_add(1, Ordering::Relaxed);
             if n.is_multiple_of(1024) {

@@ -15,6 +15,8 @@ use serde::{Deserialize, Serialize};
 
 /// The tilt limit when the scenario sets none, degrees (the rover's static stability margin).
 pub const DEFAULT_TILT_LIMIT_DEG: f64 = 30.0;
+/// How far below the limit the tilt must come back before another excursion counts, degrees.
+const TILT_REARM_DEG: f64 = 1.0;
 
 /// One infraction.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -73,8 +75,12 @@ impl Infractions {
         let tilt = crate::score::tilt_deg(&base);
         if tilt > self.tilt_limit_deg && !self.tilted {
             self.add("tilt", t, format!("body tilted {tilt:.1} deg (limit {:.1} deg)", self.tilt_limit_deg));
+            self.tilted = true;
+        } else if tilt < self.tilt_limit_deg - TILT_REARM_DEG {
+            // One excursion ends when the body is well back below the limit, not at every
+            // crossing of a body shaking at it.
+            self.tilted = false;
         }
-        self.tilted = tilt > self.tilt_limit_deg;
         let contacts = twin.contact_events();
         for c in contacts.get(self.contacts_seen..).unwrap_or_default().to_vec() {
             let kind = if c.self_collision { "self_collision" } else { "collision" };
@@ -115,8 +121,26 @@ impl Infractions {
         new
     }
 
-    /// Every infraction, the phases' timeouts added, in time order.
-    pub fn finish(mut self, phases: &[PhaseResult]) -> Vec<Infraction> {
+    /// At the end of the run: the last of the event log (the Safe or Hold the plan's end asked
+    /// for), the contacts beyond those the twin lists, and the phases' timeouts. What this adds
+    /// comes out of [`Infractions::new_since_last`] like the rest, for the logs.
+    pub fn close(&mut self, phases: &[PhaseResult], log: &framework::events::EventLog, twin: &twin::Twin) {
+        let (events, count) = log.since(self.events_seen);
+        self.events_seen = count;
+        self.read_events(&events);
+        let counted = (twin.collisions() + twin.self_collisions()) as usize;
+        let listed = twin.contact_events().len();
+        if counted > listed {
+            let t = twin.time().as_secs_f64();
+            self.add(
+                "collision",
+                t,
+                format!(
+                    "{} more contacts than the twin lists (it keeps the first {listed})",
+                    counted - listed
+                ),
+            );
+        }
         for p in phases {
             let Some(reason) = p.reason.as_deref() else { continue };
             // Autonomy's words for a step out of time, and the runner's for the run's limit.
@@ -133,6 +157,10 @@ impl Infractions {
                 });
             }
         }
+    }
+
+    /// Every infraction, in time order.
+    pub fn into_list(mut self) -> Vec<Infraction> {
         self.list.sort_by(|a, b| a.t_s.total_cmp(&b.t_s));
         self.list
     }
@@ -159,7 +187,7 @@ mod tests {
         f.events_seen = n;
         let (events, _) = log.since(f.events_seen);
         f.read_events(&events);
-        let all = f.finish(&[]);
+        let all = f.into_list();
         assert_eq!(all.len(), 1);
         assert_eq!((all[0].kind.as_str(), all[0].t_s), ("safe", 2.0));
     }

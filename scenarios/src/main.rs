@@ -338,11 +338,7 @@ fn run_main(a: RunArgs) -> Result<i32> {
         score.metrics.final_position_error_m.map(|e| format!("{e:.3} m")).unwrap_or_else(|| "n/a".into()),
         out.join("score.json").display()
     );
-    Ok(match score.outcome.as_str() {
-        "success" => 0,
-        "mission_failure" => 1,
-        _ => 2,
-    })
+    Ok(runner::exit_code(&score.outcome))
 }
 
 /// Exit status 1 with the reason when a gate is set and the rate is below it.

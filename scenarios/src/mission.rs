@@ -188,13 +188,19 @@ pub struct Events {
 }
 
 impl Events {
-    /// The events of `s`.
-    pub fn new(s: &Scenario) -> Self {
+    /// The events of `s`, once the system runs: states entered before (the start-up walk) do not
+    /// trigger them.
+    pub fn new(s: &Scenario, log: &EventLog) -> Self {
         Events {
             pending: s.events.iter().cloned().map(|e| (e, None)).collect(),
-            log_seen: 0,
+            log_seen: log.since(usize::MAX).1,
             entered: Default::default(),
         }
+    }
+
+    /// The events not sent, as `module.command`.
+    pub fn unsent(&self) -> Vec<String> {
+        self.pending.iter().map(|(e, _)| format!("{}.{}", e.to, e.command)).collect()
     }
 
     /// Sends those whose time has come by `now` (in file order): commands on the debug queue as the

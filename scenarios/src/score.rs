@@ -147,6 +147,9 @@ pub struct Score {
     /// What the rover did that it should not have, in time order, each with when and where.
     #[serde(default)]
     pub infractions: Vec<crate::infractions::Infraction>,
+    /// The scenario's events never sent (their condition never held), as `module.command`.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub unsent_events: Vec<String>,
     /// Metrics.
     pub metrics: Metrics,
     /// Log files written.

@@ -659,6 +659,8 @@ fn events_fire_on_phase_ends_module_states_and_distances_and_infractions_say_whe
     let d = (3.0 - x).hypot(y);
     assert!((2.2..=2.5).contains(&d), "the gripper crashed {d} m from the canister");
     assert_eq!(s["metrics"]["route_completion"], 1.0);
+    // States entered on the way up do not trigger events.
+    assert_eq!(s["unsent_events"], serde_json::json!(["locomotion.get_state"]));
 }
 
 #[test]

@@ -19,8 +19,10 @@ impl Writer {
                     "logs/infractions",
                     &rerun::TextLog::new(text.clone()).with_level(rerun::TextLogLevel::WARN),
                 )?;
+                // One entity each, so that a later infraction does not replace an earlier one.
+                self.infractions_logged += 1;
                 rec.log(
-                    format!("world/infractions/{}", i.kind),
+                    format!("world/infractions/{}/{}", i.kind, self.infractions_logged),
                     &rerun::Points3D::new([i.position_m.map(|v| v as f32)])
                         .with_radii([0.15])
                         .with_colors([rerun::Color::from_rgb(230, 60, 30)]),

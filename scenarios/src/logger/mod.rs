@@ -22,7 +22,6 @@
 use crate::scenario::{LoggingSettings, Scenario};
 use crate::score::{LogFiles, Score};
 use anyhow::{Context, Result};
-use base64::Engine;
 use framework::data::{PoseEstimate, VisualOdometry};
 use framework::system::Core;
 use framework::{Duration, Time};
@@ -40,6 +39,7 @@ mod maps;
 mod mcap_writer;
 mod rerun_view;
 mod tracking;
+mod world;
 
 use known::Known;
 use mcap_writer::{Mcap, own_schema, pose_json, stamp_json};
@@ -105,6 +105,8 @@ struct Writer {
     target_arrow: bool,
     /// Autonomy's faults logged so far.
     autonomy_faults_seen: usize,
+    /// Infractions drawn so far (each its own entity).
+    infractions_logged: usize,
 }
 
 /// Records one run. The run loop only takes snapshots (link poses, new blackboard records, new
@@ -168,6 +170,7 @@ impl RunLogger {
             last_stats: BTreeMap::new(),
             target_arrow: false,
             autonomy_faults_seen: 0,
+            infractions_logged: 0,
         };
         let world = twin.world().clone();
         let modules: Vec<(String, framework::ModuleKind)> =
@@ -188,7 +191,8 @@ impl RunLogger {
                 if let Item::Truth { now, .. }
                 | Item::Slots { now, .. }
                 | Item::Events { now, .. }
-                | Item::Stats { now, .. } = &item
+                | Item::Stats { now, .. }
+                | Item::Infractions { now, .. } = &item
                 {
                     w.set_time(*now);
                 }
@@ -360,173 +364,6 @@ impl Writer {
         if let Some(rec) = &self.rrd {
             rec.set_time(TIMELINE, std::time::Duration::from_nanos(t.as_nanos().max(0) as u64));
         }
-    }
-
-    fn statics(
-        &mut self,
-        s: &Scenario,
-        world: &worlds::World,
-        modules: &[(String, framework::ModuleKind)],
-    ) -> Result<()> {
-        let hf = &world.terrain;
-        // Terrain mesh, decimated to at most ~200 x 200 vertices for the viewer.
-        let step = hf.nx.max(hf.ny).div_ceil(200).max(1);
-        let (nx, ny) = ((hf.nx - 1) / step + 1, (hf.ny - 1) / step + 1);
-        let (lo, hi) = hf.height_range();
-        let mut verts = Vec::with_capacity(nx * ny);
-        let mut colors = Vec::with_capacity(nx * ny);
-        for j in 0..ny {
-            for i in 0..nx {
-                let (ii, jj) = ((i * step).min(hf.nx - 1), (j * step).min(hf.ny - 1));
-                let p = hf.position(ii, jj);
-                let h = hf.at(ii, jj);
-                verts.push([p.x as f32, p.y as f32, h as f32]);
-                let shade = if hi > lo { (h - lo) / (hi - lo) } else { 0.5 };
-                let c = (120.0 + 100.0 * shade) as u8;
-                colors.push([c, (c as f32 * 0.75) as u8, (c as f32 * 0.55) as u8]);
-            }
-        }
-        let mut tris = Vec::new();
-        for j in 0..ny - 1 {
-            for i in 0..nx - 1 {
-                let a = (j * nx + i) as u32;
-                let (b, c, d) = (a + 1, a + nx as u32, a + nx as u32 + 1);
-                tris.push([a, b, d]);
-                tris.push([a, d, c]);
-            }
-        }
-        let rock_centers: Vec<[f32; 3]> = world
-            .rocks
-            .iter()
-            .map(|r| [r.position.x as f32, r.position.y as f32, (r.position.z + r.height * 0.4) as f32])
-            .collect();
-        let rock_half: Vec<[f32; 3]> = world
-            .rocks
-            .iter()
-            .map(|r| [(r.diameter / 2.0) as f32, (r.diameter / 2.0) as f32, (r.height * 0.6) as f32])
-            .collect();
-        if let Some(rec) = &self.rrd {
-            rec.log_static("world", &rerun::ViewCoordinates::RIGHT_HAND_Z_UP())?;
-            rec.log_static(
-                "world/terrain",
-                &rerun::Mesh3D::new(verts).with_triangle_indices(tris).with_vertex_colors(colors),
-            )?;
-            rec.log_static(
-                "world/rocks",
-                &rerun::Ellipsoids3D::from_centers_and_half_sizes(rock_centers, rock_half)
-                    .with_fill_mode(rerun::FillMode::Solid)
-                    .with_colors([[110u8, 95, 80]]),
-            )?;
-            self.robot_geometry(rec)?;
-            rec.log_static(
-                "scenario",
-                &rerun::TextDocument::from_markdown(format!(
-                    "# {}\n\n{}\n\nWorld `{}` (seed {}), {} phases, {} timed events.",
-                    s.name,
-                    s.description,
-                    world.name,
-                    world.seed,
-                    s.phases.len(),
-                    s.events.len()
-                )),
-            )?;
-            for (name, kind) in modules {
-                rec.log_static(
-                    format!("modules/{name}"),
-                    &rerun::TextLog::new(format!(
-                        "{} module '{name}' registered",
-                        format!("{kind:?}").to_lowercase()
-                    ))
-                    .with_level(rerun::TextLogLevel::DEBUG),
-                )?;
-            }
-        }
-        if let Some(m) = &mut self.mcap {
-            // The terrain as a Foxglove grid of float32 heights (once), rocks as JSON.
-            let mut bytes = Vec::with_capacity(hf.heights.len() * 4);
-            for h in &hf.heights {
-                bytes.extend_from_slice(&(*h as f32).to_le_bytes());
-            }
-            let origin = Isometry3::translation(hf.origin.x, hf.origin.y, 0.0);
-            m.foxglove(
-                "/world/terrain",
-                "foxglove.Grid",
-                Time::ZERO,
-                &serde_json::json!({
-                    "timestamp": stamp_json(Time::ZERO), "frame_id": "world", "pose": pose_json(&origin),
-                    "column_count": hf.nx, "cell_size": { "x": hf.cell, "y": hf.cell },
-                    "row_stride": hf.nx * 4, "cell_stride": 4,
-                    "fields": [{ "name": "height", "offset": 0, "type": 7 }],
-                    "data": base64::engine::general_purpose::STANDARD.encode(&bytes),
-                }),
-            )?;
-            let rocks: Vec<_> = world
-                .rocks
-                .iter()
-                .map(|r| serde_json::json!({ "x": r.position.x, "y": r.position.y, "z": r.position.z, "yaw": r.yaw, "diameter_m": r.diameter, "height_m": r.height }))
-                .collect();
-            m.write(
-                "/world/rocks",
-                "rover_twin.Rocks",
-                || own_schema("rover_twin.Rocks", "Rocks of the world (positions on the ground, world frame, m)", r#""rocks":{"type":"array","items":{"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"yaw":{"type":"number"},"diameter_m":{"type":"number"},"height_m":{"type":"number"}}}}"#),
-                Time::ZERO,
-                &serde_json::json!({ "rocks": rocks }),
-            )?;
-        }
-        Ok(())
-    }
-
-    /// The robot drawn from its description: each link's URDF visuals, static, under the link's
-    /// entity (which gets the link's pose every truth tick).
-    fn robot_geometry(&self, rec: &rerun::RecordingStream) -> Result<()> {
-        let robot = urdf_rs::read_file(twin::rover_urdf()).context("reading the robot description")?;
-        for link in &robot.links {
-            for (k, v) in link.visual.iter().enumerate() {
-                let pose = framework::mechanism::urdf_pose(&v.origin);
-                let path = format!("world/truth/{}/visual_{k}", link.name);
-                let color = v
-                    .material
-                    .as_ref()
-                    .and_then(|m| m.color.as_ref())
-                    .map(|c| {
-                        [(c.rgba[0] * 255.0) as u8, (c.rgba[1] * 255.0) as u8, (c.rgba[2] * 255.0) as u8]
-                    })
-                    .unwrap_or([180, 180, 185]);
-                rec.log_static(path.as_str(), &rr_transform(&pose))?;
-                match &v.geometry {
-                    urdf_rs::Geometry::Box { size } => rec.log_static(
-                        path.as_str(),
-                        &rerun::Boxes3D::from_half_sizes([[
-                            size[0] as f32 / 2.0,
-                            size[1] as f32 / 2.0,
-                            size[2] as f32 / 2.0,
-                        ]])
-                        .with_fill_mode(rerun::FillMode::Solid)
-                        .with_colors([color]),
-                    )?,
-                    urdf_rs::Geometry::Cylinder { radius, length } => rec.log_static(
-                        path.as_str(),
-                        &rerun::Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
-                            .with_fill_mode(rerun::FillMode::Solid)
-                            .with_colors([color]),
-                    )?,
-                    urdf_rs::Geometry::Sphere { radius } => rec.log_static(
-                        path.as_str(),
-                        &rerun::Ellipsoids3D::from_radii([*radius as f32])
-                            .with_fill_mode(rerun::FillMode::Solid)
-                            .with_colors([color]),
-                    )?,
-                    _ => {}
-                }
-            }
-        }
-        rec.log_static(
-            "world/truth/canister/body",
-            &rerun::Boxes3D::from_centers_and_half_sizes([[0.0f32, 0.0, 0.075]], [[0.05f32, 0.05, 0.075]])
-                .with_fill_mode(rerun::FillMode::Solid)
-                .with_colors([[230u8, 230, 235]]),
-        )?;
-        Ok(())
     }
 
     fn truth(

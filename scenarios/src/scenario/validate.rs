@@ -128,6 +128,25 @@ pub(super) fn validate(
             e.near.is_some(),
             e.module_state.is_some(),
         ];
+        if e.at_s.is_some() && e.after_s != 0.0 {
+            return err(
+                &format!("event.{i}.after_s"),
+                "applies to a condition; with at_s give the time itself".into(),
+            );
+        }
+        if let Some(m) = &e.module_state {
+            // Lifecycle states are capitalised, a module's own states are not: a near miss of a
+            // lifecycle name would never fire.
+            if let Some(l) =
+                framework::Lifecycle::ALL.iter().find(|l| l.name().eq_ignore_ascii_case(&m.state))
+                && l.name() != m.state
+            {
+                return err(
+                    &format!("event.{i}.module_state.state"),
+                    format!("'{}' is not a state; the lifecycle state is '{}'", m.state, l.name()),
+                );
+            }
+        }
         if triggers.iter().filter(|t| **t).count() != 1 {
             return err(
                 &format!("event.{i}"),

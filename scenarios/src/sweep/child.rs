@@ -137,10 +137,21 @@ impl ChildRun<'_> {
         // the run gets SIGTERM and ends as an interrupted run does, its logs finalized.
         #[cfg(target_os = "linux")]
         #[allow(unsafe_code)]
-        // SAFETY: the closure runs in the forked child before exec and only calls prctl(2), which
-        // is async-signal-safe and touches no memory shared with the parent.
-        unsafe {
-            cmd.pre_exec(|| nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from));
+        {
+            let sweep_pid = nix::unistd::getpid();
+            // SAFETY: the closure runs in the forked child before exec and only calls prctl(2)
+            // and getppid(2), which are async-signal-safe; it touches no memory shared with the
+            // parent.
+            unsafe {
+                cmd.pre_exec(move || {
+                    nix::sys::prctl::set_pdeathsig(Signal::SIGTERM).map_err(std::io::Error::from)?;
+                    // The sweep died between the fork and the line above: no run without it.
+                    if nix::unistd::getppid() != sweep_pid {
+                        return Err(std::io::Error::other("the sweep is gone"));
+                    }
+                    Ok(())
+                });
+            }
         }
         let _ = std::fs::remove_file(dir.join("score.json"));
         #[allow(clippy::disallowed_methods)] // the sweep driver times its child processes

@@ -532,11 +532,14 @@ pub fn run(sweep: &Sweep, o: &SweepOptions) -> Result<SweepResult> {
     if !(1..=MAX_RUNS).contains(&sweep.file.sweep.runs) {
         bail!("--runs {}: give 1 to {MAX_RUNS}", sweep.file.sweep.runs);
     }
-    // Everything run 0 builds, built once before any run starts: a misspelt [twin] or
-    // [modules.*] key (free tables the scenario's types cannot check) fails the campaign here, not
-    // as N error rows.
-    let first = scenario::load(&sweep.scenario_path, &sweep.plan(0).overrides)?;
-    crate::runner::check(&first).context("run 0 cannot start")?;
+    // What every run builds, built once before any run starts (with the fixed overrides; a value
+    // a dispersion draws is its run's own affair): a misspelt [twin] or [modules.*] key of the
+    // scenario or of `set` (free tables its types cannot check) fails the campaign here, not as N
+    // error rows.
+    let fixed: Vec<(String, String)> =
+        sweep.plan(0).overrides.into_iter().take(sweep.file.sweep.set.len()).collect();
+    let first = scenario::load(&sweep.scenario_path, &fixed)?;
+    crate::runner::check(&first).context("the scenario with the sweep's fixed overrides cannot start")?;
     let (campaign, indices) = campaign(&sweep, o)?;
     let done = if o.resume { resumed(&campaign, &indices, o)? } else { BTreeMap::new() };
     std::fs::create_dir_all(&o.out).with_context(|| format!("creating {}", o.out.display()))?;

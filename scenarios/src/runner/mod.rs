@@ -6,6 +6,8 @@
 //! time `t`, the twin is stepped to `t`, so modules running at `t` read sensors stamped `t` and their
 //! commands act from `t` on.
 
+mod ending;
+
 use crate::localization_score::LocalizationScorer;
 use crate::logger::RunLogger;
 use crate::mission::{Events, Mission};
@@ -467,34 +469,16 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         None
     }));
     // Under lockstep a hung module blocks the simulation: finalize the logs and leave, naming why.
-    // Who ends the run: the loop, finalizing it, or an abort (a hang, a signal no step answers):
-    // whichever claims it first; the other stands aside.
-    let ending = Arc::new(std::sync::atomic::AtomicU8::new(RUNNING));
-    let abort_now: Arc<dyn Fn(String) + Send + Sync> = {
-        let logger = logger.clone();
-        let out = opts.out.clone();
-        let core = ex.core().clone();
+    let end = ending::Ending::new();
+    let abort_now = end.abort_handler(logger.clone(), opts.out.clone(), ex.core().clone(), {
         let (name, file) = (s.name.clone(), loaded.path.display().to_string());
-        let ending = ending.clone();
-        Arc::new(move |reason: String| {
-            if ending.compare_exchange(RUNNING, ABORTING, Ordering::SeqCst, Ordering::SeqCst).is_err() {
-                return;
-            }
-            eprintln!("error: {reason}");
-            let logs = logger.lock().take().map(|l| l.finish(None));
-            // What is known of the run: it did not succeed, and why.
-            let score = serde_json::json!({
+        move |reason: &str, sim_time_s: f64, logs: Option<LogFiles>| {
+            serde_json::json!({
                 "scenario": name, "scenario_file": file, "seed": seed, "success": false,
-                "outcome": "aborted", "abort_reason": reason, "sim_time_s": core.now().as_secs_f64(),
-                "logs": logs.and_then(Result::ok),
-            });
-            let _ = std::fs::write(
-                out.join("score.json"),
-                serde_json::to_string_pretty(&score).unwrap_or_default() + "\n",
-            );
-            std::process::exit(2);
-        })
-    };
+                "outcome": "aborted", "abort_reason": reason, "sim_time_s": sim_time_s, "logs": logs,
+            })
+        }
+    });
     {
         let abort_now = abort_now.clone();
         ex.on_hang(Arc::new(move |module, busy| {
@@ -502,12 +486,24 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         }));
     }
     let steps = Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let watch = StuckWatch::start(opts.interrupt.clone(), steps.clone(), abort_now, ending)?;
+    let watch = ending::StuckWatch::start(opts.interrupt.clone(), steps.clone(), abort_now, &end)?;
     ex.walk_to(Lifecycle::Run).context("bringing the system to Run")?;
     let ground = ex.endpoint("ground")?;
     let events_ep = ex.endpoint("events")?;
     let mut mission = Mission::new(s, &ex.core().board);
-    let mut events = Events::new(s);
+    let mut events = Events::new(s, &ex.core().events);
+    // Whether the rover is within a distance of a world object (ground truth, for the scenario's
+    // events only).
+    let near = |object: &str, within: f64| {
+        let t = twin.lock();
+        let base = t.base_pose().translation.vector;
+        let at = if object == "canister" {
+            t.canister_truth().map(|c| c.translation.vector)
+        } else {
+            t.world().object(object).map(|o| o.position.coords)
+        };
+        at.is_some_and(|p| (p.x - base.x).hypot(p.y - base.y) <= within)
+    };
     let pose_reader = ex.core().board.reader::<PoseEstimate>(gnc::localization_fusion::SLOT).ok().flatten();
     let mut scorer = Scorer::new(LocalizationScorer::new(&ex.core().board));
     let mut infractions = crate::infractions::Infractions::new(s.criteria.max_tilt_deg);
@@ -529,16 +525,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             mission.start(s, &ground);
         }
         mission.update(now, &ground, ex.core());
-        events.send_due(now, &mission, &events_ep, &ex.core().events, &|object, within| {
-            let t = twin.lock();
-            let base = t.base_pose().translation.vector;
-            let at = if object == "canister" {
-                t.canister_truth().map(|c| c.translation.vector)
-            } else {
-                t.world().object(object).map(|o| o.position.coords)
-            };
-            at.is_some_and(|p| (p.x - base.x).hypot(p.y - base.y) <= within)
-        });
+        events.send_due(now, &mission, &events_ep, &ex.core().events, &near);
         if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
             abort = Some(e);
             break;
@@ -594,9 +581,15 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     // on in whatever state the plan left them, the plan sends nothing more.
     if abort.is_none() && !timed_out {
         let until = ex.now() + Duration::from_secs_f64(s.run.observe_s);
-        while ex.now() < until && !opts.interrupt.load(Ordering::SeqCst) {
+        while ex.now() < until {
+            if opts.interrupt.load(Ordering::SeqCst) {
+                // Cut short: what the window was to show was not seen.
+                abort = Some("interrupted (SIGINT/SIGTERM) while observing the end".into());
+                break;
+            }
             let now = step(&mut ex, &twin);
             steps.fetch_add(1, Ordering::Relaxed);
+            events.send_due(now, &mission, &events_ep, &ex.core().events, &near);
             if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
                 abort = Some(e);
                 break;
@@ -612,6 +605,11 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let now = ex.now();
     let final_state = ex.system_state();
     let phases = mission.results();
+    // The last infractions: what the end of the plan did (Safe, Hold), and the timeouts.
+    infractions.close(&phases, &ex.core().events, &twin.lock());
+    if let Err(e) = note_infractions(now, &twin, ex.core(), &mut infractions, &logger) {
+        abort.get_or_insert(e);
+    }
     let reports = ex.reports();
     let t = twin.lock();
     let est = pose_reader.as_ref().and_then(|r| r.read());
@@ -663,7 +661,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     };
     let criteria = check_criteria(s, mission.faults(), &phases, &metrics, &scorer, final_state, &t);
     let success = abort.is_none() && criteria.iter().all(|c| c.passed);
-    let infractions = infractions.finish(&phases);
+    let infractions = infractions.into_list();
     let wall = wall0.elapsed().as_secs_f64();
     let mut score = Score {
         scenario: s.name.clone(),
@@ -688,6 +686,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         faults: mission.faults().to_vec(),
         criteria,
         infractions,
+        unsent_events: events.unsent(),
         metrics,
         logs: LogFiles::default(),
     };
@@ -700,77 +699,20 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         track += &format!("{t:.3},{x:.4},{y:.4}\n");
     }
     std::fs::write(opts.out.join("track.csv"), track)?;
-    // Written before the shutdown: a module that hangs on its way down loses nothing of the run.
+    // Written before the shutdown: a module that hangs on its way down loses nothing of the run,
+    // and the hang ends the process with the run's own exit status.
     write_score(&opts.out, &score)?;
+    end.scored(exit_code(&score.outcome));
     let _ = ex.walk_to(Lifecycle::Shutdown);
     Ok(score)
 }
 
-/// Ends a run whose simulation is stuck when SIGINT/SIGTERM comes (a module's cycle that never
-/// returns and a hang timeout too long to matter, as when a sweep's wall-clock limit stops it):
-/// if no step finishes within [`StuckWatch::PATIENCE`] of the signal, the logs are finalized and
-/// the process leaves through `abort_now`. Stops watching when dropped (when the run's loops end).
-struct StuckWatch {
-    done: Arc<AtomicBool>,
-    ending: Arc<std::sync::atomic::AtomicU8>,
-}
-
-/// The run's loop is going.
-const RUNNING: u8 = 0;
-/// The loop ended and the run is being finalized: no abort may exit the process now.
-const FINALIZING: u8 = 1;
-/// An abort is finalizing the logs and will exit the process.
-const ABORTING: u8 = 2;
-
-impl StuckWatch {
-    /// How long a signalled run's loop may take to see the signal.
-    const PATIENCE: std::time::Duration = std::time::Duration::from_secs(5);
-
-    fn start(
-        interrupt: Arc<AtomicBool>,
-        steps: Arc<std::sync::atomic::AtomicU64>,
-        abort_now: Arc<dyn Fn(String) + Send + Sync>,
-        ending: Arc<std::sync::atomic::AtomicU8>,
-    ) -> Result<Self> {
-        let done = Arc::new(AtomicBool::new(false));
-        let d = done.clone();
-        let tick = std::time::Duration::from_millis(100);
-        std::thread::Builder::new()
-            .name("stuck-watch".into())
-            .spawn(move || {
-                while !d.load(Ordering::SeqCst) && !interrupt.load(Ordering::SeqCst) {
-                    std::thread::sleep(tick);
-                }
-                let at = steps.load(Ordering::SeqCst);
-                let mut waited = std::time::Duration::ZERO;
-                while !d.load(Ordering::SeqCst) && steps.load(Ordering::SeqCst) == at {
-                    if waited >= Self::PATIENCE {
-                        // Returns at once if the loop got to finalizing first.
-                        abort_now(format!(
-                            "interrupted (SIGINT/SIGTERM) while the simulation was stuck: no step finished within {} s",
-                            Self::PATIENCE.as_secs()
-                        ));
-                        return;
-                    }
-                    std::thread::sleep(tick);
-                    waited += tick;
-                }
-            })
-            .context("starting the stuck-run watch")?;
-        Ok(Self { done, ending })
-    }
-}
-
-impl Drop for StuckWatch {
-    /// The loop is over: from now on the run finalizes itself. If an abort claimed the run first,
-    /// it is writing the logs and will exit the process: this thread waits for that.
-    fn drop(&mut self) {
-        self.done.store(true, Ordering::SeqCst);
-        if self.ending.compare_exchange(RUNNING, FINALIZING, Ordering::SeqCst, Ordering::SeqCst).is_err() {
-            loop {
-                std::thread::park();
-            }
-        }
+/// The exit status of `rover-twin run` for an outcome: 0 success, 1 mission failure, 2 otherwise.
+pub fn exit_code(outcome: &str) -> i32 {
+    match outcome {
+        "success" => 0,
+        "mission_failure" => 1,
+        _ => 2,
     }
 }
 

@@ -24,11 +24,14 @@ cargo clippy --workspace --all-targets --locked -- -D warnings
 step "cargo test"
 cargo test --workspace --locked
 
-step "logs read by the official readers (python mcap, rerun-sdk)"
+step "logs read by the official readers (python mcap, rerun-sdk), Foxglove messages checked against Foxglove's schemas"
 logs="$(mktemp -d)"
 trap 'rm -rf "$logs"' EXIT
 cargo run --locked -q -p scenarios --bin rover-twin -- run tests/e2e/data/short.toml --out "$logs" --quiet
 scripts/validate_logs.sh "$logs"
+# With the rendered cameras: images, point clouds and their annotations too.
+cargo run --locked -q -p scenarios --bin rover-twin -- run tests/e2e/data/cameras.toml --out "$logs/cameras" --quiet >/dev/null
+scripts/validate_logs.sh "$logs/cameras"
 
 step "a sweep's junit.xml validated against the JUnit schema"
 cargo run --locked -q -p scenarios --bin rover-twin -- sweep tests/e2e/data/junit_sweep.toml --out "$logs/sweep" --quiet >/dev/null

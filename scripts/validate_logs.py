@@ -1,12 +1,19 @@
 """Validates a run's logs with the official readers: the mcap package (Python) iterates the MCAP
-with CRC checks, and rerun-sdk loads the .rrd. Usage: validate_logs.py RUN_DIR"""
+with CRC checks, every message whose schema is a Foxglove one (foxglove.Log, foxglove.FrameTransform,
+...) is validated against Foxglove's published JSON schema of that name, and rerun-sdk loads the
+.rrd. Usage: validate_logs.py RUN_DIR FOXGLOVE_SCHEMA_DIR"""
 import json
 import sys
 from pathlib import Path
 
+import jsonschema
 from mcap.reader import make_reader
 
 run = Path(sys.argv[1])
+official = {}
+for p in Path(sys.argv[2]).glob("*.json"):
+    schema = json.loads(p.read_text())
+    official[schema["title"]] = jsonschema.Draft202012Validator(schema)
 
 # MCAP: every message decodes as JSON, log times never go backwards, the summary agrees.
 with open(run / "run.mcap", "rb") as f:
@@ -15,16 +22,26 @@ with open(run / "run.mcap", "rb") as f:
     assert summary is not None and summary.statistics is not None, "no summary section"
     counts = {}
     last = 0
+    foxglove = {}
     for schema, channel, message in reader.iter_messages(log_time_order=False):
         assert schema.encoding == "jsonschema", schema.encoding
-        json.loads(message.data)
+        value = json.loads(message.data)
+        if schema.name.startswith("foxglove."):
+            assert schema.name in official, f"{channel.topic}: {schema.name} is no Foxglove schema"
+            errors = list(official[schema.name].iter_errors(value))
+            assert not errors, f"{channel.topic}: not a valid {schema.name}: {errors[0].message} at {list(errors[0].absolute_path)}"
+            foxglove[schema.name] = foxglove.get(schema.name, 0) + 1
         assert message.log_time >= last, f"log time goes backwards on {channel.topic}"
         last = message.log_time
         counts[channel.topic] = counts.get(channel.topic, 0) + 1
     assert sum(counts.values()) == summary.statistics.message_count
     for t in ["/tf", "/events", "/messages", "/world/terrain", "/score"]:
         assert counts.get(t, 0) > 0, f"no messages on {t}"
-print(f"mcap ok: {sum(counts.values())} messages on {len(counts)} topics")
+    meta = {m.name: m.metadata for m in reader.iter_metadata()}
+    assert "rover_twin" in meta and {"scenario", "seed", "version"} <= set(meta["rover_twin"]), meta
+print(f"mcap ok: {sum(counts.values())} messages on {len(counts)} topics, metadata {meta['rover_twin']}")
+checked = ", ".join(f"{n} {k}" for k, n in sorted(foxglove.items()))
+print(f"foxglove schemas ok: {checked}")
 
 # Rerun: the recording loads in rerun-sdk, holds the expected entities and a default blueprint.
 import rerun.experimental as rrx  # noqa: E402

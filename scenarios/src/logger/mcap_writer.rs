@@ -154,6 +154,13 @@ impl Mcap {
         self.write(topic, name, || foxglove_schema(name), t, msg)
     }
 
+    /// A metadata record (name, key-value pairs).
+    pub(super) fn metadata<const N: usize>(&mut self, name: &str, pairs: [(&str, String); N]) -> Result<()> {
+        let metadata = pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect();
+        self.writer.write_metadata(&mcap::records::Metadata { name: name.into(), metadata })?;
+        Ok(())
+    }
+
     pub(super) fn finish(mut self) -> Result<()> {
         self.writer.finish()?;
         Ok(())

@@ -629,6 +629,19 @@ impl Writer {
                 rec.log("score", &rerun::TextDocument::from_markdown(md))?;
             }
             if let Some(m) = &mut self.mcap {
+                // What made the file, for a viewer's file info and for tools that sort logs.
+                m.metadata(
+                    "rover_twin",
+                    [
+                        ("scenario", s.scenario.clone()),
+                        ("scenario_file", s.scenario_file.clone()),
+                        ("seed", s.seed.to_string()),
+                        ("fidelity", s.fidelity.clone()),
+                        ("outcome", s.outcome.clone()),
+                        ("version", env!("CARGO_PKG_VERSION").to_string()),
+                        ("git_commit", env!("ROVER_TWIN_GIT_COMMIT").to_string()),
+                    ],
+                )?;
                 m.write("/score", "rover_twin.Score", || own_schema("rover_twin.Score", "The run's score (score.json)", r#""scenario":{"type":"string"},"success":{"type":"boolean"},"phases":{"type":"array"},"criteria":{"type":"array"},"metrics":{"type":"object"}"#), t, &serde_json::to_value(s)?)?;
             }
         }

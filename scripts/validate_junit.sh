@@ -36,5 +36,5 @@ schema.validate(sys.argv[2])
 root = ET.parse(sys.argv[2]).getroot()
 cases = root.findall(".//testcase")
 failed = [c for c in cases if c.find("failure") is not None or c.find("error") is not None]
-print(f"validate_junit: {sys.argv[2]} is valid JUnit XML: {len(cases)} test cases, {len(failed)} failed")
+print(f"validate_junit: {sys.argv[2]} is valid JUnit XML: {len(cases)} test cases ({len(cases) - len(failed)} passed, {len(failed)} recorded as failure or error)")
 PY

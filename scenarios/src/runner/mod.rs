@@ -526,11 +526,9 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         }
         mission.update(now, &ground, ex.core());
         events.send_due(now, &mission, &events_ep, &ex.core().events, &near);
-        if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
-            abort = Some(e);
-            break;
-        }
-        if let Err(e) = note_infractions(now, &twin, ex.core(), &mut infractions, &logger) {
+        let scored = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger)
+            .and_then(|()| note_infractions(now, &twin, ex.core(), &mut infractions, &logger));
+        if let Err(e) = scored {
             abort = Some(e);
             break;
         }
@@ -590,11 +588,9 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             let now = step(&mut ex, &twin);
             steps.fetch_add(1, Ordering::Relaxed);
             events.send_due(now, &mission, &events_ep, &ex.core().events, &near);
-            if let Err(e) = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger) {
-                abort = Some(e);
-                break;
-            }
-            if let Err(e) = note_infractions(now, &twin, ex.core(), &mut infractions, &logger) {
+            let scored = record(now, &twin, ex.core(), pose_reader.as_ref(), &mut scorer, after, &logger)
+                .and_then(|()| note_infractions(now, &twin, ex.core(), &mut infractions, &logger));
+            if let Err(e) = scored {
                 abort = Some(e);
                 break;
             }

@@ -31,12 +31,16 @@ with open(run / "run.mcap", "rb") as f:
             errors = list(official[schema.name].iter_errors(value))
             assert not errors, f"{channel.topic}: not a valid {schema.name}: {errors[0].message} at {list(errors[0].absolute_path)}"
             foxglove[schema.name] = foxglove.get(schema.name, 0) + 1
+            if schema.name == "foxglove.FrameTransform" and value["child_frame_id"] == "map":
+                assert value["parent_frame_id"] == "world", value
+                foxglove["world -> map transform"] = 1
         assert message.log_time >= last, f"log time goes backwards on {channel.topic}"
         last = message.log_time
         counts[channel.topic] = counts.get(channel.topic, 0) + 1
     assert sum(counts.values()) == summary.statistics.message_count
     for t in ["/tf", "/events", "/messages", "/world/terrain", "/score"]:
         assert counts.get(t, 0) > 0, f"no messages on {t}"
+    assert "world -> map transform" in foxglove, "no world -> map transform: the estimates (frame map) would not show in 3D"
     meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert "rover_twin" in meta and {"scenario", "seed", "version"} <= set(meta["rover_twin"]), meta
 print(f"mcap ok: {sum(counts.values())} messages on {len(counts)} topics, metadata {meta['rover_twin']}")

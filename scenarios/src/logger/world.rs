@@ -91,6 +91,20 @@ impl Writer {
             }
         }
         if let Some(m) = &mut self.mcap {
+            // The robot's estimates are in frame `map`: the world as the operator surveyed the start
+            // (the localization starts from the surveyed pose, world coordinates), so `map` is
+            // `world`; what an estimate got wrong shows as its offset from the truth, not in this
+            // transform. Published once, so that Foxglove draws the estimates beside the truth.
+            m.foxglove(
+                "/tf",
+                "foxglove.FrameTransform",
+                Time::ZERO,
+                &serde_json::json!({
+                    "timestamp": stamp_json(Time::ZERO), "parent_frame_id": "world", "child_frame_id": "map",
+                    "translation": { "x": 0.0, "y": 0.0, "z": 0.0 },
+                    "rotation": { "x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0 },
+                }),
+            )?;
             // The terrain as a Foxglove grid of float32 heights (once), rocks as JSON.
             let mut bytes = Vec::with_capacity(hf.heights.len() * 4);
             for h in &hf.heights {

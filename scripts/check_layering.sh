@@ -2,7 +2,8 @@
 # Enforces the dependency direction of ARCHITECTURE.md:
 #   framework depends on no crate of ours; gnc never on twin, rapier, parry or wgpu (it sees the world
 #   only through the framework's HAL); twin and gnc never on each other; worlds on none of ours but
-#   framework... and nothing depends on scenarios.
+#   framework; logger on framework and worlds only (no twin, gnc or scenarios: it is told what to
+#   draw through its run header)... and nothing depends on scenarios.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 fail=0
@@ -17,9 +18,10 @@ forbid() { # crate, forbidden dependency names...
     fi
   done
 }
-forbid framework twin gnc worlds scenarios
+forbid framework twin gnc worlds logger scenarios
 forbid gnc twin worlds scenarios rapier3d parry3d wgpu
 forbid twin gnc scenarios
 forbid worlds twin gnc scenarios rapier3d wgpu
+forbid logger twin gnc scenarios rapier3d wgpu
 [ $fail -eq 0 ] && echo "layering: ok"
 exit $fail

@@ -23,6 +23,9 @@ with open(run / "run.mcap", "rb") as f:
     counts = {}
     last = 0
     foxglove = {}
+    frames = {"world"}  # every frame /tf gives a pose
+    entity_frames = {}  # scene entity id -> its frame
+    images, calibrations = set(), set()
     for schema, channel, message in reader.iter_messages(log_time_order=False):
         assert schema.encoding == "jsonschema", schema.encoding
         value = json.loads(message.data)
@@ -31,20 +34,41 @@ with open(run / "run.mcap", "rb") as f:
             errors = list(official[schema.name].iter_errors(value))
             assert not errors, f"{channel.topic}: not a valid {schema.name}: {errors[0].message} at {list(errors[0].absolute_path)}"
             foxglove[schema.name] = foxglove.get(schema.name, 0) + 1
-            if schema.name == "foxglove.FrameTransform" and value["child_frame_id"] == "map":
-                assert value["parent_frame_id"] == "world", value
-                foxglove["world -> map transform"] = 1
+            if schema.name == "foxglove.FrameTransform":
+                frames.add(value["child_frame_id"])
+                if value["child_frame_id"] == "map":
+                    assert value["parent_frame_id"] == "world", value
+                    foxglove["world -> map transform"] = 1
+            if schema.name == "foxglove.SceneUpdate":
+                for e in value["entities"]:
+                    entity_frames[e["id"]] = e["frame_id"]
+            if schema.name == "foxglove.RawImage":
+                images.add(channel.topic)
+            if schema.name == "foxglove.CameraCalibration":
+                calibrations.add(channel.topic)
         assert message.log_time >= last, f"log time goes backwards on {channel.topic}"
         last = message.log_time
         counts[channel.topic] = counts.get(channel.topic, 0) + 1
     assert sum(counts.values()) == summary.statistics.message_count
-    for t in ["/tf", "/events", "/messages", "/world/terrain", "/score"]:
+    for t in ["/tf", "/events", "/messages", "/world/terrain", "/score", "/scene/world", "/scene/robot", "/scene/tracks"]:
         assert counts.get(t, 0) > 0, f"no messages on {t}"
+    # The 3D scene: the terrain, the robot's links and the canister are entities, each in a frame
+    # the transforms define (or the 3D panel could not place it).
+    assert "terrain" in entity_frames, sorted(entity_frames)[:10]
+    assert ("canister" in entity_frames) == ("canister" in frames), "the canister's entity goes with its frame"
+    assert any(i.startswith("robot/base_link/") for i in entity_frames), "no robot body in the scene"
+    lost = {i: f for i, f in entity_frames.items() if f not in frames}
+    assert not lost, f"scene entities in frames no transform gives: {dict(list(lost.items())[:5])}"
+    # Every image has the calibrations of its camera beside it (as built, as believed).
+    for t in images:
+        for c in (f"{t}/calibration", f"{t}/calibration_believed"):
+            assert c in calibrations, f"{t}: no {c}"
     assert "world -> map transform" in foxglove, "no world -> map transform: the estimates (frame map) would not show in 3D"
     meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert "rover_twin" in meta and {"scenario", "seed", "version"} <= set(meta["rover_twin"]), meta
 print(f"mcap ok: {sum(counts.values())} messages on {len(counts)} topics, metadata {meta['rover_twin']}")
 checked = ", ".join(f"{n} {k}" for k, n in sorted(foxglove.items()))
+print(f"3d scene ok: {len(entity_frames)} entities, all in the {len(frames)} frames of /tf; {len(images)} image topics with their calibrations")
 print(f"foxglove schemas ok: {checked}")
 
 # Rerun: the recording loads in rerun-sdk, holds the expected entities and a default blueprint.

@@ -7,6 +7,11 @@ pub fn wrap(a: f64) -> f64 {
     (a + PI).rem_euclid(TAU) - PI
 }
 
+/// Tilt of a body from the vertical (the angle between its z axis and the world's), degrees.
+pub fn tilt_deg(pose: &nalgebra::Isometry3<f64>) -> f64 {
+    (pose.rotation * nalgebra::Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

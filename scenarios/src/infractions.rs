@@ -11,25 +11,13 @@
 use crate::score::{PhaseResult, PhaseStatus};
 use framework::Time;
 use framework::events::{Event, EventKind};
-use serde::{Deserialize, Serialize};
 
 /// The tilt limit when the scenario sets none, degrees (the rover's static stability margin).
 pub const DEFAULT_TILT_LIMIT_DEG: f64 = 30.0;
 /// How far below the limit the tilt must come back before another excursion counts, degrees.
 const TILT_REARM_DEG: f64 = 1.0;
 
-/// One infraction.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Infraction {
-    /// `collision`, `self_collision`, `tilt`, `safe`, `isolated` or `timeout`.
-    pub kind: String,
-    /// Simulated time, s.
-    pub t_s: f64,
-    /// Where the rover's `base_link` was (world frame: east, north, up), m.
-    pub position_m: [f64; 3],
-    /// What, in words.
-    pub detail: String,
-}
+pub use logger::Infraction;
 
 /// Collects infractions as the run goes.
 pub struct Infractions {
@@ -72,7 +60,7 @@ impl Infractions {
         if self.track.last().is_none_or(|l| t - l.0 >= 1.0 - 1e-9) {
             self.track.push((t, self.last_xy));
         }
-        let tilt = crate::score::tilt_deg(&base);
+        let tilt = framework::angle::tilt_deg(&base);
         if tilt > self.tilt_limit_deg && !self.tilted {
             self.add("tilt", t, format!("body tilted {tilt:.1} deg (limit {:.1} deg)", self.tilt_limit_deg));
             self.tilted = true;

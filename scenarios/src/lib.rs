@@ -2,9 +2,9 @@
 //!
 //! Scenario files and their loader ([`scenario`]), the runner that steps the twin and the module
 //! system in lockstep and plays a mission's ground plan ([`runner`]), the module system it runs
-//! ([`system`]), the scorer ([`score`], [`localization_score`], [`infractions`]), the
-//! run logger writing Rerun and MCAP files ([`logger`]), Monte Carlo sweeps with shards and merging
-//! ([`sweep`], [`report`]), file validation ([`check`]) and its input fuzzer ([`fuzz`]), the twin's fault injector ([`faults`]), the scripted operator ([`operator`]) and
+//! ([`system`]), the scorer ([`score`], [`localization_score`], [`infractions`]) feeding the
+//! run logger (the `logger` crate: Rerun and MCAP files), Monte Carlo sweeps with shards and merging
+//! ([`sweep`], with its HTML report), file validation ([`check`]) and its input fuzzer ([`fuzz`]), the twin's fault injector ([`faults`]), the scripted operator ([`operator`]) and
 //! the framework demo ([`demo`]). The `rover-twin` binary is a thin CLI over these.
 
 pub mod check;
@@ -13,11 +13,10 @@ pub mod faults;
 pub mod fuzz;
 pub mod infractions;
 pub mod localization_score;
-pub mod logger;
 pub mod mission;
+pub mod module_names;
 pub mod operator;
 pub mod physics_bench;
-pub mod report;
 pub mod runner;
 pub mod scenario;
 pub mod score;

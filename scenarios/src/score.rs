@@ -6,11 +6,6 @@
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 
-/// Tilt of a body from the vertical (the angle between its z axis and the world's), degrees.
-pub fn tilt_deg(pose: &nalgebra::Isometry3<f64>) -> f64 {
-    (pose.rotation * nalgebra::Vector3::z()).z.clamp(-1.0, 1.0).acos().to_degrees()
-}
-
 /// How a phase ended.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -101,14 +96,7 @@ pub struct Metrics {
     pub module_cpu_s: BTreeMap<String, f64>,
 }
 
-/// Where the logs went.
-#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
-pub struct LogFiles {
-    /// Rerun recording.
-    pub rrd: Option<String>,
-    /// MCAP file.
-    pub mcap: Option<String>,
-}
+pub use logger::LogFiles;
 
 /// The score of one run.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -146,7 +134,7 @@ pub struct Score {
     pub criteria: Vec<CriterionResult>,
     /// What the rover did that it should not have, in time order, each with when and where.
     #[serde(default)]
-    pub infractions: Vec<crate::infractions::Infraction>,
+    pub infractions: Vec<logger::Infraction>,
     /// The scenario's events never sent (their condition never held), as `module.command`.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub unsent_events: Vec<String>,

@@ -18,38 +18,7 @@ pub fn module_config_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("config/modules")
 }
 
-/// Modules of the system a scenario runs, in registration order.
-/// `cameras` is registered only when the scenario has a `[modules.cameras]` table (it renders); the
-/// navigation chain (the ToF modules to the navigator) only with the cameras and a ToF rate; visual
-/// odometry only with the cameras and a localization stereo rate; the head camera's trackers only
-/// with the cameras and a head stereo rate; the wrist camera's marker tracker with the cameras (it
-/// sees images once a plan or the scenario gives the wrist camera a rate; it is off by default), and
-/// the manipulator and its coordinator with it (they grasp under the wrist camera's view).
-pub const MODULES: &[&str] = &[
-    "localization_mechanical",
-    "localization_inertial",
-    "locomotion",
-    "arm",
-    "ptu",
-    "gripper",
-    "cameras",
-    "localization_visual",
-    "localization_fusion",
-    "tracking_marker",
-    "tracking_marker_wrist",
-    "tracking_target",
-    "perception_tof",
-    "perception_fusion",
-    "traversability",
-    "path_planning",
-    "navigator",
-    "visual_tracking",
-    "manipulator_control",
-    "manipulation",
-    "autonomy",
-    framework::debugger::NAME,
-    faults::NAME,
-];
+pub use crate::module_names::MODULES;
 
 /// The modules that track in the head camera's images.
 const HEAD_TRACKING: &[&str] = &["tracking_marker", "tracking_target", "visual_tracking"];
@@ -176,7 +145,7 @@ pub(crate) fn build_system(
 
 /// The rendered sensors' configuration: `assets/rover/sensors.toml` with the scenario's `[sensors]`
 /// table over it (an error is reported when a camera is asked for, naming both files).
-fn sensor_config(loaded: &Loaded) -> std::result::Result<twin::render::SensorConfig, String> {
+pub(crate) fn sensor_config(loaded: &Loaded) -> std::result::Result<twin::render::SensorConfig, String> {
     let path = twin::render::SensorConfig::default_path();
     let s = &loaded.scenario;
     if s.sensors.is_empty() {

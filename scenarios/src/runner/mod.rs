@@ -7,15 +7,16 @@
 //! commands act from `t` on.
 
 mod ending;
+mod logging;
 
 use crate::localization_score::LocalizationScorer;
-use crate::logger::RunLogger;
 use crate::mission::{Events, Mission};
 use crate::scenario::{FidelityName, Loaded, Scenario};
 use crate::score::{CriterionResult, LogFiles, Metrics, PhaseResult, Score};
 use anyhow::{Context, Result, anyhow};
 use framework::data::PoseEstimate;
 use framework::{Duration, Executor, Lifecycle, LockstepExecutor, Time};
+use logger::RunLogger;
 use nalgebra::Isometry3;
 use parking_lot::Mutex;
 use std::collections::BTreeMap;
@@ -229,7 +230,7 @@ impl Scorer {
     }
 
     fn sample(&mut self, now: Time, base: &Isometry3<f64>, est: Option<&PoseEstimate>, after: Option<f64>) {
-        let tilt = crate::score::tilt_deg(base);
+        let tilt = framework::angle::tilt_deg(base);
         self.max_tilt = self.max_tilt.max(tilt);
         if self.last_sample.is_some_and(|t| (now - t).as_secs_f64() < 0.1 - 1e-9) {
             return;
@@ -424,7 +425,7 @@ fn record(
     let est = pose.and_then(|r| r.read());
     scorer.sample(now, &t.base_pose(), est.as_ref().map(|e| &e.value), after);
     scorer.localization.sample(now, &t.base_pose(), false);
-    match logger.lock().as_mut().map(|l| l.tick(now, &t, core)) {
+    match logger.lock().as_mut().map(|l| l.tick(now, &logging::TwinTruth(&t), core)) {
         Some(Err(e)) => Err(format!("logging failed: {e:#}")),
         _ => Ok(()),
     }
@@ -464,7 +465,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let base = Duration::from_secs_f64(s.run.base_period_s);
     let mut ex = LockstepExecutor::new(builder, base)?;
     let logger = Arc::new(Mutex::new(if opts.write_logs && (s.logging.rrd || s.logging.mcap) {
-        Some(RunLogger::create(&opts.out, s, &twin.lock(), ex.core())?)
+        Some(RunLogger::create(&opts.out, logging::header(loaded, &twin, ex.core(), seed), &s.logging)?)
     } else {
         None
     }));
@@ -688,7 +689,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     };
     drop(t);
     if let Some(l) = logger.lock().take() {
-        score.logs = l.finish(Some(&score))?;
+        score.logs = l.finish(Some(logging::summary(&score)?))?;
     }
     let mut track = String::from("t_s,x_m,y_m\n");
     for (t, x, y) in &scorer.track {

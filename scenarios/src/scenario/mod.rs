@@ -447,45 +447,7 @@ pub struct TravelAfter {
     pub max_m: f64,
 }
 
-/// Logging rates (0 turns a stream off).
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct LoggingSettings {
-    /// Write `run.rrd`.
-    pub rrd: bool,
-    /// Write `run.mcap`.
-    pub mcap: bool,
-    /// Ground truth (links, canister), Hz.
-    pub truth_hz: f64,
-    /// Blackboard slots (estimates, states), Hz.
-    pub slots_hz: f64,
-    /// Camera images, Hz.
-    pub images_hz: f64,
-    /// Image downsampling factor (1: full resolution).
-    pub image_downsample: u32,
-    /// Maps (elevation and navigation maps), Hz per slot.
-    pub maps_hz: f64,
-    /// Framework events (lifecycle, FSM, messages, watchdog).
-    pub events: bool,
-    /// Scheduler statistics, Hz.
-    pub stats_hz: f64,
-}
-
-impl Default for LoggingSettings {
-    fn default() -> Self {
-        LoggingSettings {
-            rrd: true,
-            mcap: true,
-            truth_hz: 10.0,
-            slots_hz: 10.0,
-            images_hz: 1.0,
-            image_downsample: 2,
-            maps_hz: 0.5,
-            events: true,
-            stats_hz: 1.0,
-        }
-    }
-}
+pub use logger::LoggingSettings;
 
 /// One parsed file of a scenario (or sweep) with its text, for locating errors.
 #[derive(Clone, Debug)]

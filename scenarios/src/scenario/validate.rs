@@ -81,8 +81,8 @@ pub(super) fn validate(
         return err("world.friction", format!("must be >= 0, got {f}"));
     }
     for name in s.modules.keys() {
-        if !crate::system::MODULES.contains(&name.as_str()) {
-            let modules = crate::system::MODULES.join(", ");
+        if !crate::module_names::MODULES.contains(&name.as_str()) {
+            let modules = crate::module_names::MODULES.join(", ");
             return err(
                 &format!("modules.{name}"),
                 format!("no module '{name}' in this system (it has: {modules})"),
@@ -170,11 +170,15 @@ pub(super) fn validate(
         }
         if let Some(m) = &e.module_state
             && m.module != "system"
-            && !crate::system::MODULES.contains(&m.module.as_str())
+            && !crate::module_names::MODULES.contains(&m.module.as_str())
         {
             return err(
                 &format!("event.{i}.module_state.module"),
-                format!("no module '{}' (it has: system, {})", m.module, crate::system::MODULES.join(", ")),
+                format!(
+                    "no module '{}' (it has: system, {})",
+                    m.module,
+                    crate::module_names::MODULES.join(", ")
+                ),
             );
         }
     }

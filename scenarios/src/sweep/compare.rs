@@ -7,8 +7,8 @@
 //! run by run. Otherwise the campaigns are two samples: Fisher's exact test, and shifts of the
 //! medians. `compare.json` and `compare.html` (with plots) hold the result.
 
+use super::report::esc;
 use super::results::{METRICS, Row, metric_value, read, wilson};
-use crate::report::esc;
 use anyhow::{Result, bail};
 use plotters::prelude::*;
 use serde::{Deserialize, Serialize};

@@ -11,6 +11,7 @@ mod child;
 pub mod compare;
 mod junit;
 pub mod provenance;
+mod report;
 pub mod results;
 
 pub use bench::bench;

@@ -245,7 +245,7 @@ pub fn write_results(
     std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&summary)? + "\n")?;
     let name = campaign.map(|c| c.sweep_file.clone()).unwrap_or_else(|| sweep.sweep.scenario.clone());
     super::junit::write(&out.join("junit.xml"), &name, sweep, rows, &summary)?;
-    crate::report::write(out, sweep, rows, &summary, campaign)?;
+    super::report::write(out, sweep, rows, &summary, campaign)?;
     Ok(summary)
 }
 

@@ -3,7 +3,7 @@
 
 use super::Writer;
 use super::mcap_writer::stamp_json;
-use crate::infractions::Infraction;
+use crate::Infraction;
 use anyhow::Result;
 use framework::Time;
 

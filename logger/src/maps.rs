@@ -4,6 +4,7 @@
 //! Grids are cut to their known cells' bounding box: a global map is mostly unknown.
 
 use super::mcap_writer::{Mcap, pose_json, stamp_json};
+use super::scene::{self, Entity};
 use anyhow::Result;
 use base64::Engine;
 use framework::data::{ElevationMap, GridGeometry, NavigationMap, Path, cost};
@@ -169,7 +170,7 @@ pub(super) fn path(
             p.points.iter().zip(z).map(|(q, z)| [q[0] as f32, q[1] as f32, (*z + 0.05) as f32]).collect();
         rec.log(
             format!("world/estimate/{topic}"),
-            &rerun::LineStrips3D::new([line]).with_colors([[0u8, 230, 230]]).with_radii([0.03f32]),
+            &rerun::LineStrips3D::new([line]).with_colors([PATH]).with_radii([0.03f32]),
         )?;
     }
     if let Some(mc) = mcap {
@@ -177,6 +178,18 @@ pub(super) fn path(
             p.points.iter().zip(z).map(|(q, z)| pose_json(&Isometry3::translation(q[0], q[1], *z))).collect();
         let msg = serde_json::json!({ "timestamp": stamp_json(stamp), "frame_id": p.frame, "poses": poses });
         mc.foxglove(&format!("/{topic}"), "foxglove.PosesInFrame", stamp, &msg)?;
+        // And as a line in the 3D scene (replacing the path before it; an empty path deletes it).
+        let id = format!("path/{name}");
+        if p.points.len() >= 2 {
+            let line: Vec<[f64; 3]> = p.points.iter().zip(z).map(|(q, z)| [q[0], q[1], z + 0.05]).collect();
+            let e = Entity::new(&id, &p.frame, stamp).line_strip(&line, 4.0, PATH).meta("points", line.len());
+            scene::update(mc, "/scene/paths", stamp, vec![e], &[])?;
+        } else {
+            scene::update(mc, "/scene/paths", stamp, vec![], &[&id])?;
+        }
     }
     Ok(())
 }
+
+/// Colour of planned paths.
+const PATH: [u8; 3] = [0, 230, 230];

@@ -3,6 +3,7 @@
 
 use super::Writer;
 use super::mcap_writer::{pose_json, stamp_json};
+use super::scene;
 use anyhow::Result;
 use base64::Engine;
 use framework::camera::{Image, TofFrame};
@@ -58,7 +59,23 @@ impl Writer {
             let msg = raw_image(img.stamp, &img.frame, [w, h], "mono8", w, &data);
             m.foxglove(&format!("/{path}"), "foxglove.RawImage", img.stamp, &msg)?;
         }
-        Ok(())
+        self.calibrations(path, &img.frame, img.stamp)
+    }
+
+    /// The calibrations of the image at `path` (in `frame`, stamped `stamp`), beside it in the
+    /// MCAP: `.../calibration` the camera as built (the twin's: what made the image, so the 3D
+    /// scene projected with it lines up with the image), `.../calibration_believed` the camera as
+    /// the robot's software believes it.
+    fn calibrations(&mut self, path: &str, frame: &str, stamp: framework::Time) -> Result<()> {
+        let (Some(m), Some(cam)) = (&mut self.mcap, self.header.cameras.iter().find(|c| c.image == path))
+        else {
+            return Ok(());
+        };
+        let k = self.downsample;
+        let truth = scene::calibration(&cam.truth, k, frame, stamp);
+        m.foxglove(&format!("/{path}/calibration"), "foxglove.CameraCalibration", stamp, &truth)?;
+        let believed = scene::calibration(&cam.believed, k, frame, stamp);
+        m.foxglove(&format!("/{path}/calibration_believed"), "foxglove.CameraCalibration", stamp, &believed)
     }
 
     /// A ToF frame: the depth image (Rerun `DepthImage`, MCAP `foxglove.RawImage` 32FC1,
@@ -88,6 +105,8 @@ impl Writer {
         if let Some(m) = &mut self.mcap {
             let msg = raw_image(d.stamp, &d.frame, [w, h], "32FC1", w * 4, &depth_bytes);
             m.foxglove(&format!("/sensors/{name}/depth"), "foxglove.RawImage", d.stamp, &msg)?;
+            self.calibrations(&format!("sensors/{name}/depth"), &d.frame, d.stamp)?;
+            let Some(m) = &mut self.mcap else { return Ok(()) };
             let bytes: Vec<u8> = points.iter().flat_map(|p| p.iter().flat_map(|c| c.to_le_bytes())).collect();
             m.foxglove(
                 &format!("/sensors/{name}/points"),

@@ -19,31 +19,42 @@
 //! `score`. MCAP topics and schemas are listed in `docs/logging.md`. The MCAP writer and its schemas
 //! are in `mcap_writer`, the Rerun layout and helpers in `rerun_view`.
 
-use crate::scenario::{LoggingSettings, Scenario};
-use crate::score::{LogFiles, Score};
 use anyhow::{Context, Result};
-use framework::data::{PoseEstimate, VisualOdometry};
+use framework::data::{LocomotionState, PoseEstimate, VisualOdometry};
 use framework::system::Core;
 use framework::{Duration, Time};
 use nalgebra::Isometry3;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use twin::Twin;
 
 mod autonomy;
 mod framework_log;
+mod header;
 mod images;
 mod infractions;
 mod known;
 mod maps;
 mod mcap_writer;
 mod rerun_view;
+mod scene;
 mod tracking;
 mod world;
 
+pub use header::{
+    CameraInfo, CriterionRow, GroundTruth, Infraction, LogFiles, LoggingSettings, PhaseRow, RunHeader,
+    RunSummary,
+};
 use known::Known;
-use mcap_writer::{Mcap, own_schema, pose_json, stamp_json};
-use rerun_view::{blueprint, extend_track, rr_transform};
+use mcap_writer::{Mcap, own_schema, pose_json, stamp_json, transform_json};
+use rerun_view::{blueprint, draw_track, rr_transform};
+use scene::Entity;
+
+/// Colour of the true track, and of estimates' tracks that the header gives no colour.
+const TRUTH_TRACK: [u8; 3] = [40, 200, 60];
+/// See [`TRUTH_TRACK`].
+const ESTIMATE_TRACK: [u8; 3] = [60, 140, 255];
+/// Colour of locomotion's goal.
+const GOAL: [u8; 3] = [255, 200, 0];
 
 /// Simulated-time timeline of the recording.
 pub const TIMELINE: &str = "sim_time";
@@ -73,10 +84,10 @@ enum Item {
     },
     Infractions {
         now: Time,
-        list: Vec<crate::infractions::Infraction>,
+        list: Vec<Infraction>,
     },
     Finish {
-        score: Option<Box<Score>>,
+        summary: Option<Box<RunSummary>>,
         reply: std::sync::mpsc::Sender<Result<LogFiles>>,
     },
 }
@@ -91,6 +102,7 @@ struct SlotRecord {
 
 /// The logging thread's side: owns the files and does all the encoding.
 struct Writer {
+    header: RunHeader,
     downsample: u32,
     mcap: Option<Mcap>,
     rrd: Option<rerun::RecordingStream>,
@@ -107,6 +119,10 @@ struct Writer {
     autonomy_faults_seen: usize,
     /// Infractions drawn so far (each its own entity).
     infractions_logged: usize,
+    /// Locomotion's goal as last drawn in the MCAP's scene (position, manoeuvre).
+    goal_shown: Option<([f64; 3], String)>,
+    /// The canister's entity is in the MCAP's scene.
+    canister_drawn: bool,
 }
 
 /// Records one run. The run loop only takes snapshots (link poses, new blackboard records, new
@@ -124,12 +140,14 @@ pub struct RunLogger {
     /// Next time each image or map slot may be logged (`images_hz`, `maps_hz`).
     next_image: BTreeMap<String, Time>,
     events_seen: usize,
+    /// The world, for the ground heights under goals and paths.
+    world: std::sync::Arc<worlds::World>,
 }
 
 /// The entity (Rerun) and topic (MCAP, with a leading `/`) of camera `camera`'s image that
 /// overlays are drawn on: a stereo pair's left image, a single camera's image.
-pub(super) fn image_entity(camera: &str) -> String {
-    if twin::devices::MONO_CAMERAS.contains(&camera) {
+pub fn image_entity(camera: &str, mono_cameras: &[String]) -> String {
+    if mono_cameras.iter().any(|c| c == camera) {
         format!("sensors/{camera}/image")
     } else {
         format!("sensors/{camera}/left")
@@ -141,14 +159,14 @@ fn period(hz: f64) -> Option<Duration> {
 }
 
 impl RunLogger {
-    /// Opens `out/run.rrd` and `out/run.mcap` (as the scenario asks) and starts the logging thread,
+    /// Opens `out/run.rrd` and `out/run.mcap` (as `settings` ask) and starts the logging thread,
     /// which first logs what never changes: the terrain, the rocks, the robot's link geometry.
-    pub fn create(out: &Path, s: &Scenario, twin: &Twin, core: &Core) -> Result<Self> {
+    pub fn create(out: &Path, header: RunHeader, settings: &LoggingSettings) -> Result<Self> {
         let rrd_path = out.join("run.rrd");
         let mcap_path = out.join("run.mcap");
-        let rrd = if s.logging.rrd {
+        let rrd = if settings.rrd {
             let rec = rerun::RecordingStreamBuilder::new("rover-twin")
-                .recording_name(s.name.clone())
+                .recording_name(header.name.clone())
                 .with_blueprint(blueprint())
                 .save(&rrd_path)
                 .with_context(|| format!("creating {}", rrd_path.display()))?;
@@ -157,9 +175,11 @@ impl RunLogger {
         } else {
             None
         };
-        let mcap = if s.logging.mcap { Some(Mcap::create(&mcap_path)?) } else { None };
+        let mcap = if settings.mcap { Some(Mcap::create(&mcap_path)?) } else { None };
+        let world = header.world.clone();
         let mut w = Writer {
-            downsample: s.logging.image_downsample.max(1),
+            header,
+            downsample: settings.image_downsample.max(1),
             mcap,
             rrd,
             rrd_path,
@@ -171,11 +191,9 @@ impl RunLogger {
             target_arrow: false,
             autonomy_faults_seen: 0,
             infractions_logged: 0,
+            goal_shown: None,
+            canister_drawn: false,
         };
-        let world = twin.world().clone();
-        let modules: Vec<(String, framework::ModuleKind)> =
-            core.modules().iter().map(|m| (m.name.clone(), m.kind)).collect();
-        let scenario = s.clone();
         let failed = std::sync::Arc::new(parking_lot::Mutex::new(None));
         let fail = failed.clone();
         // Bounded: if encoding ever falls behind the simulation, the simulation waits.
@@ -186,7 +204,7 @@ impl RunLogger {
                     fail.lock().get_or_insert_with(|| format!("{e:#}"));
                 }
             };
-            record(w.statics(&scenario, &world, &modules));
+            record(w.statics());
             for item in rx {
                 if let Item::Truth { now, .. }
                 | Item::Slots { now, .. }
@@ -204,8 +222,8 @@ impl RunLogger {
                     Item::Events { now, events, messages } => record(w.events(now, events, messages)),
                     Item::Stats { now, reports } => record(w.stats(now, reports)),
                     Item::Infractions { now, list } => record(w.infractions(now, list)),
-                    Item::Finish { score, reply } => {
-                        let _ = reply.send(w.finish(score.as_deref()));
+                    Item::Finish { summary, reply } => {
+                        let _ = reply.send(w.finish(summary.as_deref()));
                         return;
                     }
                 }
@@ -214,7 +232,7 @@ impl RunLogger {
             let _ = w.finish(None);
         })?;
         Ok(RunLogger {
-            settings: s.logging.clone(),
+            settings: settings.clone(),
             tx: Some(tx),
             thread: Some(thread),
             failed,
@@ -224,6 +242,7 @@ impl RunLogger {
             slot_seq: BTreeMap::new(),
             next_image: BTreeMap::new(),
             events_seen: 0,
+            world,
         })
     }
 
@@ -239,27 +258,26 @@ impl RunLogger {
     }
 
     /// Takes the snapshots due at `now` and hands them to the logging thread.
-    pub fn tick(&mut self, now: Time, twin: &Twin, core: &Core) -> Result<()> {
+    pub fn tick(&mut self, now: Time, truth: &dyn GroundTruth, core: &Core) -> Result<()> {
         if let Some(p) = period(self.settings.truth_hz)
             && now >= self.next_truth
         {
             self.next_truth = now + p;
-            let poses = twin.link_poses().into_iter().map(|(n, p)| (n.to_string(), p)).collect();
             self.send(Item::Truth {
                 now,
-                poses,
-                canister: twin.canister_truth(),
-                base: twin.base_pose(),
-                collisions: [twin.collisions(), twin.self_collisions()],
+                poses: truth.link_poses(),
+                canister: truth.canister(),
+                base: truth.base(),
+                collisions: truth.collisions(),
             })?;
         }
         if let Some(p) = period(self.settings.slots_hz)
             && now >= self.next_slots
         {
             self.next_slots = now + p;
-            let records = self.new_records(now, twin, core);
+            let records = self.new_records(now, core);
             if !records.is_empty() {
-                self.send(Item::Slots { now, base: twin.base_pose(), records })?;
+                self.send(Item::Slots { now, base: truth.base(), records })?;
             }
         }
         if self.settings.events {
@@ -285,7 +303,7 @@ impl RunLogger {
     }
 
     /// Blackboard records written since the last look.
-    fn new_records(&mut self, now: Time, twin: &Twin, core: &Core) -> Vec<SlotRecord> {
+    fn new_records(&mut self, now: Time, core: &Core) -> Vec<SlotRecord> {
         let mut out = Vec::new();
         for name in core.board.names() {
             let Some(slot) = core.board.slot(&name) else { continue };
@@ -294,7 +312,7 @@ impl RunLogger {
                 continue;
             }
             self.slot_seq.insert(name.clone(), seq);
-            let known = known::classify(slot.as_any(), twin);
+            let known = known::classify(slot.as_any(), &self.world);
             if matches!(known, Known::Elevation(..) | Known::Navigation(..)) {
                 // Maps: at their own rate, never as JSON (a global map is megabytes of it). One
                 // skipped for the rate stays unseen, so the newest is logged when the rate allows.
@@ -323,17 +341,15 @@ impl RunLogger {
     }
 
     /// Logs infractions as they happen (from the scorer: ground truth, never read by the GNC).
-    pub fn infractions(&mut self, now: Time, list: Vec<crate::infractions::Infraction>) -> Result<()> {
+    pub fn infractions(&mut self, now: Time, list: Vec<Infraction>) -> Result<()> {
         self.send(Item::Infractions { now, list })
     }
 
-    /// Logs the score (if any) and finalizes both files; returns where they are.
-    pub fn finish(mut self, score: Option<&Score>) -> Result<LogFiles> {
+    /// Logs how the run ended (if it got that far) and finalizes both files; returns where they are.
+    pub fn finish(mut self, summary: Option<RunSummary>) -> Result<LogFiles> {
         let (reply, rx) = std::sync::mpsc::channel();
-        let sent = self
-            .tx
-            .take()
-            .map(|tx| tx.send(Item::Finish { score: score.cloned().map(Box::new), reply }).is_ok());
+        let sent =
+            self.tx.take().map(|tx| tx.send(Item::Finish { summary: summary.map(Box::new), reply }).is_ok());
         let files = match sent {
             Some(true) => rx.recv().map_err(|_| anyhow::anyhow!("the logging thread stopped"))?,
             _ => Err(anyhow::anyhow!("the logging thread stopped")),
@@ -381,37 +397,38 @@ impl Writer {
             if let Some(c) = &canister {
                 rec.log("world/truth/canister", &rr_transform(c))?;
             }
-            let tilt = crate::score::tilt_deg(&b);
+            let tilt = framework::angle::tilt_deg(&b);
             rec.log("plots/motion/tilt_deg", &rerun::Scalars::single(tilt))?;
             rec.log("plots/motion/collisions", &rerun::Scalars::single(collisions as f64))?;
             rec.log("plots/motion/self_collisions", &rerun::Scalars::single(self_collisions as f64))?;
-            if now >= self.next_track {
-                self.next_track = now + Duration::from_secs(1);
-                let t = b.translation;
-                extend_track(
-                    rec,
-                    "world/truth/track",
-                    &mut self.truth_track,
-                    [t.x, t.y, t.z],
-                    [40, 200, 60],
-                )?;
+        }
+        if now >= self.next_track {
+            self.next_track = now + Duration::from_secs(1);
+            let t = b.translation;
+            self.truth_track.push([t.x as f32, t.y as f32, t.z as f32 + 0.05]);
+            if let Some(rec) = &self.rrd {
+                draw_track(rec, "world/truth/track", &self.truth_track, TRUTH_TRACK)?;
+            }
+            if let Some(m) = &mut self.mcap {
+                scene::track_chunk(m, "track/truth", "world", now, &self.truth_track, TRUTH_TRACK)?;
             }
         }
         if let Some(m) = &mut self.mcap {
             for (name, pose) in poses {
-                let q = pose.rotation.quaternion();
+                m.foxglove("/tf", "foxglove.FrameTransform", now, &transform_json(now, "world", name, pose))?;
+            }
+            if let Some(c) = &canister {
+                // The canister's frame, which its scene entity is locked to.
                 m.foxglove(
                     "/tf",
                     "foxglove.FrameTransform",
                     now,
-                    &serde_json::json!({
-                        "timestamp": stamp_json(now), "parent_frame_id": "world", "child_frame_id": name,
-                        "translation": { "x": pose.translation.x, "y": pose.translation.y, "z": pose.translation.z },
-                        "rotation": { "x": q.i, "y": q.j, "z": q.k, "w": q.w },
-                    }),
+                    &transform_json(now, "world", "canister", c),
                 )?;
-            }
-            if let Some(c) = &canister {
+                if !self.canister_drawn {
+                    self.canister_drawn = true;
+                    scene::update(m, "/scene/robot", now, vec![world::canister_entity(now)], &[])?;
+                }
                 m.foxglove(
                     "/truth/canister",
                     "foxglove.PoseInFrame",
@@ -449,11 +466,12 @@ impl Writer {
                                 "world/estimate/goal",
                                 &rerun::Points3D::new([[x as f32, y as f32, *z as f32 + 0.1]])
                                     .with_radii([0.12_f32])
-                                    .with_colors([[255u8, 200, 0]])
+                                    .with_colors([GOAL])
                                     .with_labels([l.mode.clone()]),
                             )?;
                         }
                     }
+                    self.goal(now, l, *goal_z)?;
                 }
                 Known::Stereo(img) => {
                     let name = r.name.trim_start_matches("cameras/").to_string();
@@ -462,7 +480,7 @@ impl Writer {
                 }
                 Known::Mono(img) => {
                     let name = r.name.trim_start_matches("cameras/");
-                    self.grey(&image_entity(name), &img.value)?;
+                    self.grey(&image_entity(name, &self.header.mono_cameras), &img.value)?;
                 }
                 Known::Tof(f) => {
                     let name = r.name.trim_start_matches("cameras/").to_string();
@@ -516,6 +534,27 @@ impl Writer {
                 )?;
             }
         }
+        Ok(())
+    }
+
+    /// Locomotion's goal in the 3D scene (frame `map`), labelled with the manoeuvre; deleted when
+    /// the manoeuvre has none. Published only when it changes.
+    fn goal(&mut self, now: Time, l: &LocomotionState, z: Option<f64>) -> Result<()> {
+        let Some(m) = &mut self.mcap else { return Ok(()) };
+        let goal = l.goal.zip(z).map(|([x, y], z)| ([x, y, z + 0.1], l.mode.clone()));
+        if goal == self.goal_shown {
+            return Ok(());
+        }
+        match &goal {
+            Some((p, mode)) => {
+                let e = Entity::new("goal", "map", now)
+                    .sphere(&Isometry3::translation(p[0], p[1], p[2]), [0.24; 3], GOAL, 0.9)
+                    .text([p[0], p[1], p[2] + 0.3], mode, GOAL);
+                scene::update(m, "/scene/goals", now, vec![e], &[])?;
+            }
+            None => scene::update(m, "/scene/goals", now, vec![], &["goal"])?,
+        }
+        self.goal_shown = goal;
         Ok(())
     }
 
@@ -574,19 +613,27 @@ impl Writer {
                 format!("plots/errors/{slot}/yaw_error_deg"),
                 &rerun::Scalars::single(yaw_err.to_degrees()),
             )?;
-            let p = e.pose.translation;
-            let track = self.est_track.entry(slot.to_string()).or_default();
-            if track
-                .last()
-                .is_none_or(|l| ((l[0] - p.x as f32).powi(2) + (l[1] - p.y as f32).powi(2)).sqrt() > 0.25)
-            {
-                // Each source its own colour: the fused estimate blue, the wheels orange, vision green.
-                let color = match slot {
-                    s if s == gnc::localization_mechanical::SLOT => [255, 150, 40],
-                    s if s == gnc::localization_visual::POSE_SLOT => [60, 200, 90],
-                    _ => [60, 140, 255],
-                };
-                extend_track(rec, &format!("{base}/track"), track, [p.x, p.y, p.z], color)?;
+        }
+        let p = e.pose.translation;
+        let track = self.est_track.entry(slot.to_string()).or_default();
+        if track
+            .last()
+            .is_none_or(|l| ((l[0] - p.x as f32).powi(2) + (l[1] - p.y as f32).powi(2)).sqrt() > 0.25)
+        {
+            track.push([p.x as f32, p.y as f32, p.z as f32 + 0.05]);
+            // Each source its own colour: the fused estimate blue, the wheels orange, vision green.
+            let color = self
+                .header
+                .estimate_colours
+                .iter()
+                .find(|(s, _)| s == slot)
+                .map_or(ESTIMATE_TRACK, |(_, c)| *c);
+            if let Some(rec) = &self.rrd {
+                let base = format!("world/estimate/{}", slot.replace('/', "_"));
+                draw_track(rec, &format!("{base}/track"), track, color)?;
+            }
+            if let Some(m) = &mut self.mcap {
+                scene::track_chunk(m, &format!("track/{slot}"), &e.frame, stamp, track, color)?;
             }
         }
         if let Some(m) = &mut self.mcap {
@@ -600,10 +647,10 @@ impl Writer {
         Ok(())
     }
 
-    /// Logs the score (if any) and finalizes both files; returns where they are.
-    fn finish(&mut self, score: Option<&Score>) -> Result<LogFiles> {
+    /// Logs how the run ended (if it got that far) and finalizes both files; returns where they are.
+    fn finish(&mut self, summary: Option<&RunSummary>) -> Result<LogFiles> {
         let mut files = LogFiles::default();
-        if let Some(s) = score {
+        if let Some(s) = summary {
             let t = Time::from_secs_f64(s.sim_time_s);
             self.set_time(t);
             if let Some(rec) = &self.rrd {
@@ -614,7 +661,7 @@ impl Writer {
                 for p in &s.phases {
                     let f = |v: Option<f64>| v.map(|v| format!("{v:.1}")).unwrap_or_default();
                     md += &format!(
-                        "| {} | {:?} | {} | {} | {} |\n",
+                        "| {} | {} | {} | {} | {} |\n",
                         p.name,
                         p.status,
                         f(p.start_s),
@@ -630,19 +677,11 @@ impl Writer {
             }
             if let Some(m) = &mut self.mcap {
                 // What made the file, for a viewer's file info and for tools that sort logs.
-                m.metadata(
-                    "rover_twin",
-                    [
-                        ("scenario", s.scenario.clone()),
-                        ("scenario_file", s.scenario_file.clone()),
-                        ("seed", s.seed.to_string()),
-                        ("fidelity", s.fidelity.clone()),
-                        ("outcome", s.outcome.clone()),
-                        ("version", env!("CARGO_PKG_VERSION").to_string()),
-                        ("git_commit", env!("ROVER_TWIN_GIT_COMMIT").to_string()),
-                    ],
-                )?;
-                m.write("/score", "rover_twin.Score", || own_schema("rover_twin.Score", "The run's score (score.json)", r#""scenario":{"type":"string"},"success":{"type":"boolean"},"phases":{"type":"array"},"criteria":{"type":"array"},"metrics":{"type":"object"}"#), t, &serde_json::to_value(s)?)?;
+                let mut pairs = s.metadata.clone();
+                pairs.push(("version".into(), self.header.version.clone()));
+                pairs.push(("git_commit".into(), self.header.git_commit.clone()));
+                m.metadata("rover_twin", pairs)?;
+                m.write("/score", "rover_twin.Score", || own_schema("rover_twin.Score", "The run's score (score.json)", r#""scenario":{"type":"string"},"success":{"type":"boolean"},"phases":{"type":"array"},"criteria":{"type":"array"},"metrics":{"type":"object"}"#), t, &s.json)?;
             }
         }
         if let Some(m) = self.mcap.take() {

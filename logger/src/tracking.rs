@@ -52,7 +52,7 @@ impl Writer {
                 .map(|c| [(c[0] / k) as f32, (c[1] / k) as f32])
                 .collect()
         };
-        let path = format!("{}/markers", super::image_entity(&m.camera));
+        let path = format!("{}/markers", super::image_entity(&m.camera, &self.header.mono_cameras));
         if let Some(rec) = &self.rrd {
             let labels: Vec<String> = m
                 .markers
@@ -108,7 +108,7 @@ impl Writer {
             m.holding.as_deref().map_or(String::new(), |h| format!(" (holding the {h})"))
         );
         if let Some(rec) = &self.rrd {
-            let base = format!("world/estimate/{}/tool", gnc::localization_fusion::SLOT.replace('/', "_"));
+            let base = format!("world/estimate/{}/tool", self.header.tool_base_slot.replace('/', "_"));
             if let Some(t) = &m.tool_in_base {
                 rec.log(base.as_str(), &rr_transform(t))?;
                 rec.log(
@@ -175,7 +175,7 @@ impl Writer {
         let lost = t.status == TargetStatus::Lost;
         let colour: [u8; 3] = if lost { [230, 40, 40] } else { [255, 200, 0] };
         let label = format!("{} {:?} {:.2}", t.target, t.status, t.confidence);
-        let path = format!("{}/track", super::image_entity(&t.camera));
+        let path = format!("{}/track", super::image_entity(&t.camera, &self.header.mono_cameras));
         if let Some(rec) = &self.rrd {
             rec.log(
                 path.as_str(),

@@ -16,6 +16,38 @@ const VEC2: &str = r#"{"title":"foxglove.Vector2","type":"object","properties":{
 const QUAT: &str = r#"{"title":"foxglove.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}}}"#;
 const PEF: &str = r#"{"title":"foxglove.PackedElementField","type":"object","properties":{"name":{"type":"string"},"offset":{"type":"integer","minimum":0},"type":{"title":"foxglove.NumericType","oneOf":[{"title":"UNKNOWN","const":0},{"title":"UINT8","const":1},{"title":"INT8","const":2},{"title":"UINT16","const":3},{"title":"INT16","const":4},{"title":"UINT32","const":5},{"title":"INT32","const":6},{"title":"FLOAT32","const":7},{"title":"FLOAT64","const":8}]}}}"#;
 
+const COLOR: &str = r#"{"title":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type":"number"}}}"#;
+const POINT3: &str = r#"{"title":"foxglove.Point3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}}"#;
+
+/// The JSON schema of a scene primitive `name` with `fields` besides its pose.
+fn primitive(name: &str, fields: &str) -> String {
+    format!(
+        r#"{{"title":"foxglove.{name}","type":"object","properties":{{"pose":{},{fields}}}}}"#,
+        pose_schema()
+    )
+}
+
+fn scene_update_schema() -> String {
+    let arr = |items: String| format!(r#"{{"type":"array","items":{items}}}"#);
+    let sized = format!(r#""size":{VEC3},"color":{COLOR}"#);
+    let entity = format!(
+        r#"{{"title":"foxglove.SceneEntity","type":"object","properties":{{"timestamp":{TIME},"frame_id":{{"type":"string"}},"id":{{"type":"string"}},"lifetime":{{"title":"duration","type":"object","properties":{{"sec":{{"type":"integer"}},"nsec":{{"type":"integer","minimum":0,"maximum":999999999}}}}}},"frame_locked":{{"type":"boolean"}},"metadata":{},"arrows":{},"cubes":{},"spheres":{},"cylinders":{},"lines":{},"triangles":{},"texts":{},"models":{}}}}}"#,
+        arr(r#"{"title":"foxglove.KeyValuePair","type":"object","properties":{"key":{"type":"string"},"value":{"type":"string"}}}"#.into()),
+        arr(primitive("ArrowPrimitive", &format!(r#""shaft_length":{{"type":"number"}},"shaft_diameter":{{"type":"number"}},"head_length":{{"type":"number"}},"head_diameter":{{"type":"number"}},"color":{COLOR}"#))),
+        arr(primitive("CubePrimitive", &sized)),
+        arr(primitive("SpherePrimitive", &sized)),
+        arr(primitive("CylinderPrimitive", &format!(r#"{sized},"bottom_scale":{{"type":"number"}},"top_scale":{{"type":"number"}}"#))),
+        arr(primitive("LinePrimitive", &format!(r#""type":{{"title":"foxglove.LineType","oneOf":[{{"title":"LINE_STRIP","const":0}},{{"title":"LINE_LOOP","const":1}},{{"title":"LINE_LIST","const":2}}]}},"thickness":{{"type":"number"}},"scale_invariant":{{"type":"boolean"}},"points":{{"type":"array","items":{POINT3}}},"color":{COLOR},"colors":{{"type":"array","items":{COLOR}}},"indices":{{"type":"array","items":{{"type":"integer","minimum":0}}}}"#))),
+        arr(primitive("TriangleListPrimitive", &format!(r#""points":{{"type":"array","items":{POINT3}}},"color":{COLOR},"colors":{{"type":"array","items":{COLOR}}},"indices":{{"type":"array","items":{{"type":"integer","minimum":0}}}}"#))),
+        arr(primitive("TextPrimitive", &format!(r#""billboard":{{"type":"boolean"}},"font_size":{{"type":"number"}},"scale_invariant":{{"type":"boolean"}},"color":{COLOR},"text":{{"type":"string"}}"#))),
+        arr(primitive("ModelPrimitive", &format!(r#""scale":{VEC3},"color":{COLOR},"override_color":{{"type":"boolean"}},"url":{{"type":"string"}},"media_type":{{"type":"string"}},"data":{{"type":"string","contentEncoding":"base64"}}"#))),
+    );
+    format!(
+        r#""deletions":{{"type":"array","items":{{"title":"foxglove.SceneEntityDeletion","type":"object","properties":{{"timestamp":{TIME},"type":{{"title":"foxglove.SceneEntityDeletionType","oneOf":[{{"title":"MATCHING_ID","const":0}},{{"title":"ALL","const":1}}]}},"id":{{"type":"string"}}}}}}}},"entities":{}"#,
+        arr(entity)
+    )
+}
+
 pub(super) fn pose_schema() -> String {
     format!(
         r#"{{"title":"foxglove.Pose","type":"object","properties":{{"position":{VEC3},"orientation":{QUAT}}}}}"#
@@ -49,10 +81,22 @@ pub(super) fn foxglove_schema(name: &str) -> String {
             pose_schema()
         ),
         "foxglove.ImageAnnotations" => {
-            let colour = r#"{"title":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type":"number"}}}"#;
+            let colour = COLOR;
             let point2 = r#"{"title":"foxglove.Point2","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"}}}"#;
             format!(
                 r#""circles":{{"type":"array","items":{{"title":"foxglove.CircleAnnotation","type":"object","properties":{{"timestamp":{TIME},"position":{point2},"diameter":{{"type":"number"}},"thickness":{{"type":"number"}},"fill_color":{colour},"outline_color":{colour}}}}}}},"points":{{"type":"array","items":{{"title":"foxglove.PointsAnnotation","type":"object","properties":{{"timestamp":{TIME},"type":{{"title":"foxglove.PointsAnnotationType","oneOf":[{{"title":"UNKNOWN","const":0}},{{"title":"POINTS","const":1}},{{"title":"LINE_LOOP","const":2}},{{"title":"LINE_STRIP","const":3}},{{"title":"LINE_LIST","const":4}}]}},"points":{{"type":"array","items":{point2}}},"outline_color":{colour},"outline_colors":{{"type":"array","items":{colour}}},"fill_color":{colour},"thickness":{{"type":"number"}}}}}}}},"texts":{{"type":"array","items":{{"title":"foxglove.TextAnnotation","type":"object","properties":{{"timestamp":{TIME},"position":{point2},"text":{{"type":"string"}},"font_size":{{"type":"number"}},"text_color":{colour},"background_color":{colour}}}}}}}"#
+            )
+        }
+        "foxglove.SceneUpdate" => scene_update_schema(),
+        "foxglove.CameraCalibration" => {
+            let matrix = |n: usize| {
+                format!(r#"{{"type":"array","items":{{"type":"number"}},"minItems":{n},"maxItems":{n}}}"#)
+            };
+            format!(
+                r#""timestamp":{TIME},"frame_id":{{"type":"string"}},"width":{{"type":"integer","minimum":0}},"height":{{"type":"integer","minimum":0}},"distortion_model":{{"type":"string"}},"D":{{"type":"array","items":{{"type":"number"}}}},"K":{},"R":{},"P":{}"#,
+                matrix(9),
+                matrix(9),
+                matrix(12)
             )
         }
         _ => unreachable!("known schema"),
@@ -80,6 +124,22 @@ pub(super) fn pose_json(p: &Isometry3<f64>) -> serde_json::Value {
     serde_json::json!({
         "position": { "x": p.translation.x, "y": p.translation.y, "z": p.translation.z },
         "orientation": { "x": q.i, "y": q.j, "z": q.k, "w": q.w }
+    })
+}
+
+/// A `foxglove.FrameTransform`: `child`'s pose `pose` in `parent` at `stamp`.
+pub(super) fn transform_json(
+    stamp: Time,
+    parent: &str,
+    child: &str,
+    pose: &Isometry3<f64>,
+) -> serde_json::Value {
+    let q = pose.rotation.quaternion();
+    let t = pose.translation;
+    serde_json::json!({
+        "timestamp": stamp_json(stamp), "parent_frame_id": parent, "child_frame_id": child,
+        "translation": { "x": t.x, "y": t.y, "z": t.z },
+        "rotation": { "x": q.i, "y": q.j, "z": q.k, "w": q.w },
     })
 }
 
@@ -155,8 +215,8 @@ impl Mcap {
     }
 
     /// A metadata record (name, key-value pairs).
-    pub(super) fn metadata<const N: usize>(&mut self, name: &str, pairs: [(&str, String); N]) -> Result<()> {
-        let metadata = pairs.into_iter().map(|(k, v)| (k.to_string(), v)).collect();
+    pub(super) fn metadata(&mut self, name: &str, pairs: Vec<(String, String)>) -> Result<()> {
+        let metadata = pairs.into_iter().collect();
         self.writer.write_metadata(&mcap::records::Metadata { name: name.into(), metadata })?;
         Ok(())
     }
@@ -164,5 +224,31 @@ impl Mcap {
     pub(super) fn finish(mut self) -> Result<()> {
         self.writer.finish()?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_schema_written_is_json_with_its_title() {
+        for name in [
+            "foxglove.FrameTransform",
+            "foxglove.PoseInFrame",
+            "foxglove.Grid",
+            "foxglove.Log",
+            "foxglove.RawImage",
+            "foxglove.PointCloud",
+            "foxglove.PosesInFrame",
+            "foxglove.ImageAnnotations",
+            "foxglove.SceneUpdate",
+            "foxglove.CameraCalibration",
+        ] {
+            let v: serde_json::Value = serde_json::from_str(&foxglove_schema(name))
+                .unwrap_or_else(|e| panic!("{name}: not JSON: {e}"));
+            assert_eq!(v["title"], name);
+            assert!(v["properties"].as_object().is_some_and(|p| !p.is_empty()), "{name}");
+        }
     }
 }

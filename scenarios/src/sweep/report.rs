@@ -1,7 +1,7 @@
 //! The sweep report: one self-contained HTML page with SVG plots (plotters) — success rate by
 //! dispersed parameter, metric histograms, and the rover tracks over the yard.
 
-use crate::sweep::{Campaign, METRICS, Row, Summary, SweepFile, metric_values};
+use super::{Campaign, METRICS, Row, Summary, SweepFile, metric_values};
 use anyhow::Result;
 use plotters::prelude::*;
 use std::collections::BTreeMap;
@@ -119,7 +119,7 @@ fn histogram(name: &str, values: &[f64]) -> Result<String> {
 
 /// Reads a run's `track.csv` (t, x, y).
 fn track(dir: &Path, index: u64) -> Vec<(f64, f64)> {
-    let p = crate::sweep::run_dir(dir, index).join("track.csv");
+    let p = super::run_dir(dir, index).join("track.csv");
     let Ok(mut r) = csv::Reader::from_path(p) else { return Vec::new() };
     r.records()
         .filter_map(|rec| {
@@ -283,7 +283,7 @@ fn grid_label(text: &str) -> String {
 /// One run of a grid, as a table cell: its outcome, the phase that failed and why, the system's
 /// final state and what Autonomy did about faults (from the run's `score.json`).
 pub fn grid_cell(dir: &Path, row: &Row) -> String {
-    let p = crate::sweep::run_dir(dir, row.index).join("score.json");
+    let p = super::run_dir(dir, row.index).join("score.json");
     let Ok(score) = std::fs::read_to_string(&p)
         .map_err(anyhow::Error::from)
         .and_then(|t| serde_json::from_str::<crate::score::Score>(&t).map_err(anyhow::Error::from))

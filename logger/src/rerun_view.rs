@@ -59,20 +59,17 @@ pub(super) fn blueprint() -> rerun::blueprint::Blueprint {
     .with_time_panel(TimePanel::new().with_timeline(TIMELINE))
 }
 
-/// Adds a point (5 cm above `p`) to a track and logs the whole track (a line strip is logged
-/// whole) at its first points and then at every fifth only.
-pub(super) fn extend_track(
+/// Draws `track` as a line strip at `path` (every 5th point: a long track is redrawn whole).
+pub(super) fn draw_track(
     rec: &rerun::RecordingStream,
     path: &str,
-    track: &mut Vec<[f32; 3]>,
-    p: [f64; 3],
+    track: &[[f32; 3]],
     color: [u8; 3],
 ) -> Result<()> {
-    track.push([p[0] as f32, p[1] as f32, p[2] as f32 + 0.05]);
     if track.len() % 5 == 1 || track.len() < 5 {
         rec.log(
             path,
-            &rerun::LineStrips3D::new([track.clone()]).with_colors([color]).with_radii([0.02_f32]),
+            &rerun::LineStrips3D::new([track.to_vec()]).with_colors([color]).with_radii([0.02_f32]),
         )?;
     }
     Ok(())

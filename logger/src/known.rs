@@ -11,7 +11,6 @@ use framework::data::{
 };
 use std::any::Any;
 use std::sync::Arc;
-use twin::Twin;
 
 /// A slot's latest record, by the type the logger draws it as.
 pub(super) enum Known {
@@ -42,9 +41,9 @@ fn latest<T: framework::blackboard::BoardData>(any: &dyn Any) -> Option<Arc<Stam
     any.downcast_ref::<SlotCell<T>>().and_then(|c| c.latest())
 }
 
-/// What a slot's latest record is (`twin`: ground heights under goals and paths, for drawing).
-pub(super) fn classify(any: &dyn Any, twin: &Twin) -> Known {
-    let ground = |x: f64, y: f64| twin.world().ground_height(x, y);
+/// What a slot's latest record is (`world`: ground heights under goals and paths, for drawing).
+pub(super) fn classify(any: &dyn Any, world: &worlds::World) -> Known {
+    let ground = |x: f64, y: f64| world.ground_height(x, y);
     if let Some(s) = latest::<PoseEstimate>(any) {
         Known::Pose(s.stamp, Box::new(s.value.clone()))
     } else if let Some(s) = latest::<JointStates>(any) {

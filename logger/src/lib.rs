@@ -33,6 +33,7 @@ mod header;
 mod images;
 mod infractions;
 mod known;
+mod live;
 mod maps;
 mod mcap_writer;
 mod rerun_view;
@@ -45,6 +46,7 @@ pub use header::{
     RunSummary,
 };
 use known::Known;
+pub use live::LiveServer;
 use mcap_writer::{Mcap, own_schema, pose_json, stamp_json, transform_json};
 use rerun_view::{blueprint, draw_track, rr_transform};
 use scene::Entity;
@@ -161,7 +163,13 @@ fn period(hz: f64) -> Option<Duration> {
 impl RunLogger {
     /// Opens `out/run.rrd` and `out/run.mcap` (as `settings` ask) and starts the logging thread,
     /// which first logs what never changes: the terrain, the rocks, the robot's link geometry.
-    pub fn create(out: &Path, header: RunHeader, settings: &LoggingSettings) -> Result<Self> {
+    /// With `live`, everything the MCAP gets is also streamed to it as it is written.
+    pub fn create(
+        out: &Path,
+        header: RunHeader,
+        settings: &LoggingSettings,
+        live: Option<LiveServer>,
+    ) -> Result<Self> {
         let rrd_path = out.join("run.rrd");
         let mcap_path = out.join("run.mcap");
         let rrd = if settings.rrd {
@@ -175,7 +183,11 @@ impl RunLogger {
         } else {
             None
         };
-        let mcap = if settings.mcap { Some(Mcap::create(&mcap_path)?) } else { None };
+        let mcap = if settings.mcap || live.is_some() {
+            Some(Mcap::create(settings.mcap.then_some(mcap_path.as_path()), live)?)
+        } else {
+            None
+        };
         let world = header.world.clone();
         let mut w = Writer {
             header,
@@ -414,6 +426,7 @@ impl Writer {
             }
         }
         if let Some(m) = &mut self.mcap {
+            m.time(now);
             for (name, pose) in poses {
                 m.foxglove("/tf", "foxglove.FrameTransform", now, &transform_json(now, "world", name, pose))?;
             }
@@ -427,7 +440,9 @@ impl Writer {
                 )?;
                 if !self.canister_drawn {
                     self.canister_drawn = true;
+                    m.latching = true;
                     scene::update(m, "/scene/robot", now, vec![world::canister_entity(now)], &[])?;
+                    m.latching = false;
                 }
                 m.foxglove(
                     "/truth/canister",
@@ -684,8 +699,9 @@ impl Writer {
                 m.write("/score", "rover_twin.Score", || own_schema("rover_twin.Score", "The run's score (score.json)", r#""scenario":{"type":"string"},"success":{"type":"boolean"},"phases":{"type":"array"},"criteria":{"type":"array"},"metrics":{"type":"object"}"#), t, &s.json)?;
             }
         }
-        if let Some(m) = self.mcap.take() {
-            m.finish()?;
+        if let Some(m) = self.mcap.take()
+            && m.finish()?
+        {
             files.mcap = Some(self.mcap_path.display().to_string());
         }
         if let Some(rec) = self.rrd.take() {

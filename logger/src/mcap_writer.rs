@@ -2,6 +2,7 @@
 //! own, their JSON encodings of times and poses, and the writer that registers each topic's channel
 //! and schema on first use and keeps log times monotonic.
 
+use crate::live::LiveServer;
 use anyhow::{Context, Result};
 use framework::Time;
 use mcap::records::MessageHeader;
@@ -143,44 +144,71 @@ pub(super) fn transform_json(
     })
 }
 
+/// Where the messages go: the MCAP file, the live server, or both. Each topic's channel and schema
+/// are registered on first use; log times never go backwards.
 pub(super) struct Mcap {
-    writer: mcap::Writer<BufWriter<std::fs::File>>,
-    channels: BTreeMap<String, u16>,
-    schemas: BTreeMap<String, u16>,
+    writer: Option<mcap::Writer<BufWriter<std::fs::File>>>,
+    live: Option<LiveServer>,
+    /// Each topic's channel id in the file, and its schema's name.
+    channels: BTreeMap<String, (u16, String)>,
+    /// Each schema's id in the file and its text.
+    schemas: BTreeMap<String, (u16, String)>,
     seq: u32,
     last_log_time: u64,
+    /// What is written now is latched for the live server's late subscribers (the static scene).
+    pub(super) latching: bool,
 }
 
 impl Mcap {
-    pub(super) fn create(path: &Path) -> Result<Self> {
-        let file = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-        let writer = mcap::WriteOptions::new()
-            .compression(Some(mcap::Compression::Zstd))
-            .compression_threads(0)
-            .profile("")
-            .create(BufWriter::new(file))?;
-        Ok(Mcap { writer, channels: BTreeMap::new(), schemas: BTreeMap::new(), seq: 0, last_log_time: 0 })
+    /// Writes to `path` if given, streams to `live` if given.
+    pub(super) fn create(path: Option<&Path>, live: Option<LiveServer>) -> Result<Self> {
+        let writer = match path {
+            Some(path) => {
+                let file =
+                    std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
+                Some(
+                    mcap::WriteOptions::new()
+                        .compression(Some(mcap::Compression::Zstd))
+                        .compression_threads(0)
+                        .profile("")
+                        .create(BufWriter::new(file))?,
+                )
+            }
+            None => None,
+        };
+        Ok(Mcap {
+            writer,
+            live,
+            channels: BTreeMap::new(),
+            schemas: BTreeMap::new(),
+            seq: 0,
+            last_log_time: 0,
+            latching: false,
+        })
     }
 
-    pub(super) fn channel(
-        &mut self,
-        topic: &str,
-        schema_name: &str,
-        schema: impl FnOnce() -> String,
-    ) -> Result<u16> {
-        if let Some(&c) = self.channels.get(topic) {
-            return Ok(c);
+    /// The file's channel of `topic` (0 when there is no file) and its schema's name.
+    fn channel(&mut self, topic: &str, schema_name: &str, schema: impl FnOnce() -> String) -> Result<u16> {
+        if let Some((c, _)) = self.channels.get(topic) {
+            return Ok(*c);
         }
         let sid = match self.schemas.get(schema_name) {
-            Some(&s) => s,
+            Some((s, _)) => *s,
             None => {
-                let s = self.writer.add_schema(schema_name, "jsonschema", schema().as_bytes())?;
-                self.schemas.insert(schema_name.to_string(), s);
+                let text = schema();
+                let s = match &mut self.writer {
+                    Some(w) => w.add_schema(schema_name, "jsonschema", text.as_bytes())?,
+                    None => 0,
+                };
+                self.schemas.insert(schema_name.to_string(), (s, text));
                 s
             }
         };
-        let c = self.writer.add_channel(sid, topic, "json", &BTreeMap::new())?;
-        self.channels.insert(topic.to_string(), c);
+        let c = match &mut self.writer {
+            Some(w) => w.add_channel(sid, topic, "json", &BTreeMap::new())?,
+            None => 0,
+        };
+        self.channels.insert(topic.to_string(), (c, schema_name.to_string()));
         Ok(c)
     }
 
@@ -197,10 +225,17 @@ impl Mcap {
         let log_time = (t.as_nanos().max(0) as u64).max(self.last_log_time);
         self.last_log_time = log_time;
         self.seq += 1;
-        self.writer.write_to_known_channel(
-            &MessageHeader { channel_id: ch, sequence: self.seq, log_time, publish_time: log_time },
-            &serde_json::to_vec(msg)?,
-        )?;
+        let data = serde_json::to_vec(msg)?;
+        if let Some(w) = &mut self.writer {
+            w.write_to_known_channel(
+                &MessageHeader { channel_id: ch, sequence: self.seq, log_time, publish_time: log_time },
+                &data,
+            )?;
+        }
+        if let Some(live) = &self.live {
+            let text = self.schemas.get(schema_name).map_or("", |(_, t)| t.as_str());
+            live.log(topic, schema_name, text, log_time, &data, self.latching)?;
+        }
         Ok(())
     }
 
@@ -214,16 +249,31 @@ impl Mcap {
         self.write(topic, name, || foxglove_schema(name), t, msg)
     }
 
-    /// A metadata record (name, key-value pairs).
+    /// Tells live viewers the simulated time.
+    pub(super) fn time(&self, t: Time) {
+        if let Some(live) = &self.live {
+            live.time(t.as_nanos().max(0) as u64);
+        }
+    }
+
+    /// A metadata record (name, key-value pairs), in the file.
     pub(super) fn metadata(&mut self, name: &str, pairs: Vec<(String, String)>) -> Result<()> {
-        let metadata = pairs.into_iter().collect();
-        self.writer.write_metadata(&mcap::records::Metadata { name: name.into(), metadata })?;
+        if let Some(w) = &mut self.writer {
+            let metadata = pairs.into_iter().collect();
+            w.write_metadata(&mcap::records::Metadata { name: name.into(), metadata })?;
+        }
         Ok(())
     }
 
-    pub(super) fn finish(mut self) -> Result<()> {
-        self.writer.finish()?;
-        Ok(())
+    /// Finishes the file (its summary section); true when there was one. The live server stops.
+    pub(super) fn finish(self) -> Result<bool> {
+        match self.writer {
+            Some(mut w) => {
+                w.finish()?;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
     }
 }
 

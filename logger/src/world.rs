@@ -66,6 +66,8 @@ impl Writer {
             }
         }
         if let Some(m) = &mut self.mcap {
+            // What never changes: latched for live viewers that connect later.
+            m.latching = true;
             // The robot's estimates are in frame `map`: the world as the operator surveyed the start
             // (the localization starts from the surveyed pose, world coordinates), so `map` is
             // `world`; what an estimate got wrong shows as its offset from the truth, not in this
@@ -131,6 +133,7 @@ impl Writer {
                 });
             }
             scene::update(m, "/scene/robot", Time::ZERO, links, &[])?;
+            m.latching = false;
         }
         Ok(())
     }

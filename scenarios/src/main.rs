@@ -119,6 +119,15 @@ struct RunArgs {
     /// Write score.json (and the track) only, no Rerun or MCAP logs.
     #[arg(long)]
     no_logs: bool,
+    /// Stream the run to Foxglove while it goes: the MCAP's messages from a WebSocket server on
+    /// HOST:PORT (default 127.0.0.1:8765; port 0 picks a free one, printed). The run then keeps to
+    /// real time unless --pace says otherwise.
+    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    live: Option<String>,
+    /// Simulated seconds per wall-clock second at most (0: as fast as it goes; default 1 with
+    /// --live, else 0).
+    #[arg(long, value_name = "X")]
+    pace: Option<f64>,
 }
 
 #[derive(clap::Args)]
@@ -302,6 +311,13 @@ fn run_main(a: RunArgs) -> Result<i32> {
         quiet: a.quiet,
         write_logs: !a.no_logs,
         interrupt: interrupt_flag(),
+        pace: match a.pace {
+            Some(p) if !(p.is_finite() && p >= 0.0) => bail!("--pace {p}: give a number of at least 0"),
+            Some(p) => p,
+            None if a.live.is_some() => 1.0,
+            None => 0.0,
+        },
+        live: a.live.clone(),
     };
     // A panic of the runner itself (a bug, or an input not yet validated) ends the run with a
     // clear error and exit status 2, never a crash dump alone.
@@ -485,6 +501,8 @@ fn bench_main(a: &BenchArgs) -> Result<i32> {
                 quiet: true,
                 write_logs: logs,
                 interrupt: interrupt.clone(),
+                live: None,
+                pace: 0.0,
             };
             let score = runner::run(&loaded, &opts)?;
             best[k] = best[k].min(score.wall_time_s);

@@ -93,6 +93,28 @@ fn a_short_run_succeeds_scores_and_writes_valid_logs() {
     assert!(topics["/events"].iter().any(|e| e["message"].as_str().unwrap().contains("module_lifecycle")));
     assert!(topics["/messages"].iter().any(|m| m["kind"] == "ack"));
     assert_eq!(topics["/score"].len(), 1);
+    // Foxglove's 3D scene: the robot's links as entities locked to the frames /tf moves, the
+    // terrain mesh, the true track.
+    let entities = |topic: &str| -> Vec<serde_json::Value> {
+        topics[topic].iter().flat_map(|u| u["entities"].as_array().unwrap().clone()).collect()
+    };
+    let robot = entities("/scene/robot");
+    let frames: BTreeSet<&str> = tf.iter().map(|t| t["child_frame_id"].as_str().unwrap()).collect();
+    assert!(robot.len() > 20, "{} robot entities", robot.len());
+    for e in &robot {
+        assert_eq!(e["frame_locked"], true, "{e}");
+        assert!(frames.contains(e["frame_id"].as_str().unwrap()), "{} has no transform", e["frame_id"]);
+    }
+    let terrain = entities("/scene/world").into_iter().find(|e| e["id"] == "terrain").expect("terrain");
+    let mesh = &terrain["triangles"][0];
+    let (points, indices) = (mesh["points"].as_array().unwrap().len(), mesh["indices"].as_array().unwrap());
+    assert!(points > 100 && indices.len() % 3 == 0, "{points} points, {} indices", indices.len());
+    assert!(indices.iter().all(|i| (i.as_u64().unwrap() as usize) < points), "indices within the points");
+    let truth = entities("/scene/tracks")
+        .into_iter()
+        .filter(|e| e["id"].as_str().unwrap().starts_with("track/truth/"))
+        .count();
+    assert!(truth as f64 >= sim - 2.0, "{truth} updates of the true track over {sim} s");
     // Rerun: the entity tree.
     let ents = rrd_entities(&dir.path().join("run.rrd"));
     for e in [
@@ -679,4 +701,74 @@ fn a_short_fuzzing_run_finds_no_panic() {
     for target in ["scenario", "world", "module configuration", "twin configuration"] {
         assert!(out.contains(target), "no {target} cases: {out}");
     }
+}
+
+/// `run --live`: a Foxglove client (the SDK's WebSocket protocol, `foxglove.sdk.v1`) connecting
+/// after the run started is told the topics, gets the latched robot model on subscribing, and the
+/// simulated time; the run still writes its files and ends as it would.
+#[test]
+fn a_live_run_streams_the_scene_to_a_foxglove_client() {
+    use std::io::BufRead;
+    use tungstenite::Message;
+    use tungstenite::client::IntoClientRequest;
+    let dir = tempfile::tempdir().unwrap();
+    let mut child = rover_twin()
+        .arg("run")
+        .arg(data("short.toml"))
+        .args(["--quiet", "--live", "127.0.0.1:0", "--pace", "4", "--out"])
+        .arg(dir.path())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = std::io::BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    stdout.read_line(&mut line).unwrap();
+    let port: u16 = line
+        .split("ws://127.0.0.1:")
+        .nth(1)
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|p| p.parse().ok())
+        .unwrap_or_else(|| panic!("no address in {line:?}"));
+    let mut req = format!("ws://127.0.0.1:{port}").into_client_request().unwrap();
+    req.headers_mut().insert("Sec-WebSocket-Protocol", "foxglove.sdk.v1".parse().unwrap());
+    let (mut ws, _) = tungstenite::connect(req).unwrap();
+    let (mut topics, mut subscribed, mut robot, mut time) = (BTreeMap::new(), false, None, 0u64);
+    let t0 = Instant::now();
+    let wanted = ["/tf", "/scene/world", "/estimate/localization/pose"];
+    while robot.is_none() || time == 0 || !wanted.iter().all(|t| topics.contains_key(*t)) {
+        assert!(t0.elapsed() < Duration::from_secs(60), "robot {robot:?}, time {time}, topics {topics:?}");
+        let m = ws.read().unwrap_or_else(|e| panic!("{e}: robot {robot:?}, time {time}, topics {topics:?}"));
+        match m {
+            Message::Text(t) => {
+                let v: serde_json::Value = serde_json::from_str(t.as_str()).unwrap();
+                if v["op"] == "advertise" {
+                    for c in v["channels"].as_array().unwrap() {
+                        topics.insert(c["topic"].as_str().unwrap().to_string(), c["id"].as_u64().unwrap());
+                    }
+                }
+            }
+            Message::Binary(b) if b[0] == 1 => {
+                // Message data: opcode, subscription id (u32), log time (u64), the JSON message.
+                let msg: serde_json::Value = serde_json::from_slice(&b[13..]).unwrap();
+                let base = msg["entities"]
+                    .as_array()
+                    .and_then(|e| e.iter().find(|e| e["id"] == "robot/base_link/0"));
+                robot = robot.or(base.cloned());
+            }
+            Message::Binary(b) if b[0] == 2 => time = u64::from_le_bytes(b[1..9].try_into().unwrap()),
+            _ => {}
+        }
+        if !subscribed && let Some(id) = topics.get("/scene/robot") {
+            let sub =
+                serde_json::json!({ "op": "subscribe", "subscriptions": [{ "id": 7, "channelId": id }] });
+            ws.send(Message::Text(sub.to_string().into())).unwrap();
+            subscribed = true;
+        }
+    }
+    assert_eq!(robot.unwrap()["frame_id"], "base_link");
+    drop(ws);
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(0));
+    assert_eq!(score(dir.path())["success"], true);
+    assert!(dir.path().join("run.mcap").exists());
 }

@@ -42,6 +42,11 @@ pub struct RunOptions {
     pub write_logs: bool,
     /// Set to stop the run (SIGINT/SIGTERM): it ends as aborted, logs finalized.
     pub interrupt: Arc<AtomicBool>,
+    /// Stream the logs' MCAP messages to Foxglove from a WebSocket server on this address
+    /// (`host:port`; port 0 picks a free one).
+    pub live: Option<String>,
+    /// Simulated seconds per wall-clock second at most (0: as fast as it goes).
+    pub pace: f64,
 }
 
 /// Radius kept free of rocks around the rover's start, m (its footprint's half-diagonal, 0.7 m,
@@ -411,6 +416,33 @@ fn step(ex: &mut LockstepExecutor, twin: &SharedTwin) -> Time {
     ex.tick()
 }
 
+/// Waits until the wall clock since `wall0` has caught up with simulated time `now` at `pace`
+/// simulated seconds per second (0: no wait), for a viewer watching live.
+fn keep_pace(now: Time, pace: f64, wall0: std::time::Instant) {
+    if pace > 0.0 {
+        let due = std::time::Duration::from_secs_f64(now.as_secs_f64() / pace);
+        let elapsed = wall0.elapsed();
+        if due > elapsed {
+            std::thread::sleep(due - elapsed);
+        }
+    }
+}
+
+/// Starts the live server `addr` (`host:port`) asks for and says where it is.
+fn start_live(addr: &str) -> Result<logger::LiveServer> {
+    let (host, port) = addr
+        .rsplit_once(':')
+        .and_then(|(h, p)| Some((h, p.parse::<u16>().ok()?)))
+        .ok_or_else(|| anyhow!("--live {addr}: expected HOST:PORT, e.g. 127.0.0.1:8765"))?;
+    let live = logger::LiveServer::start(host, port)?;
+    println!(
+        "live: Foxglove WebSocket server on ws://{host}:{} (Foxglove: Open connection, Foxglove WebSocket)",
+        live.port()
+    );
+    let _ = std::io::stdout().flush();
+    Ok(live)
+}
+
 /// Feeds the scorer and the logger at `now`; the reason when logging failed.
 fn record(
     now: Time,
@@ -464,11 +496,18 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let builder = crate::system::build_system(loaded, &twin, seed, log_messages)?;
     let base = Duration::from_secs_f64(s.run.base_period_s);
     let mut ex = LockstepExecutor::new(builder, base)?;
-    let logger = Arc::new(Mutex::new(if opts.write_logs && (s.logging.rrd || s.logging.mcap) {
-        Some(RunLogger::create(&opts.out, logging::header(loaded, &twin, ex.core(), seed), &s.logging)?)
-    } else {
-        None
-    }));
+    let live = opts.live.as_deref().map(start_live).transpose()?;
+    let logger =
+        Arc::new(Mutex::new(if live.is_some() || (opts.write_logs && (s.logging.rrd || s.logging.mcap)) {
+            let mut settings = s.logging.clone();
+            if !opts.write_logs {
+                (settings.rrd, settings.mcap) = (false, false);
+            }
+            let header = logging::header(loaded, &twin, ex.core(), seed);
+            Some(RunLogger::create(&opts.out, header, &settings, live)?)
+        } else {
+            None
+        }));
     // Under lockstep a hung module blocks the simulation: finalize the logs and leave, naming why.
     let end = ending::Ending::new();
     let abort_now = end.abort_handler(logger.clone(), opts.out.clone(), ex.core().clone(), {
@@ -533,6 +572,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             abort = Some(e);
             break;
         }
+        keep_pace(now, opts.pace, wall0);
         #[allow(clippy::disallowed_methods)]
         let wall_now = std::time::Instant::now();
         if !opts.quiet && (wall_now - last_progress).as_secs_f64() >= 0.5 {
@@ -595,6 +635,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
                 abort = Some(e);
                 break;
             }
+            keep_pace(now, opts.pace, wall0);
         }
     }
     // The loops are over: finalizing below is not a stuck simulation.

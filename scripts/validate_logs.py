@@ -1,13 +1,35 @@
 """Validates a run's logs with the official readers: the mcap package (Python) iterates the MCAP
 with CRC checks, every message whose schema is a Foxglove one (foxglove.Log, foxglove.FrameTransform,
-...) is validated against Foxglove's published JSON schema of that name, and rerun-sdk loads the
-.rrd. Usage: validate_logs.py RUN_DIR FOXGLOVE_SCHEMA_DIR"""
+...) is validated against Foxglove's published JSON schema of that name, every message of our own
+(rover_twin.*) against the schema its channel gives, which must be one that Foxglove's viewers can
+read, and rerun-sdk loads the .rrd. Usage: validate_logs.py RUN_DIR FOXGLOVE_SCHEMA_DIR"""
 import json
 import sys
 from pathlib import Path
 
 import jsonschema
 from mcap.reader import make_reader
+
+
+
+def foxglove_reads(s, path="message"):
+    """Foxglove Studio's and Lichtblick's parseJsonSchema turn a JSON schema into message
+    definitions only if every property has one type among these, objects list their properties
+    and arrays their items (no arrays of arrays); any other property makes them refuse the topic."""
+    t = s.get("type")
+    if t in ("boolean", "string", "number", "integer"):
+        return
+    if t == "object":
+        assert isinstance(s.get("properties"), dict), f"{path}: an object without properties"
+        for k, v in s["properties"].items():
+            foxglove_reads(v, f"{path}.{k}")
+        return
+    if t == "array":
+        assert isinstance(s.get("items"), dict) and s["items"].get("type") != "array", f"{path}: array items {s.get('items')}"
+        foxglove_reads(s["items"], f"{path}[]")
+        return
+    raise AssertionError(f"{path}: type {t!r} is not one Foxglove reads")
+
 
 run = Path(sys.argv[1])
 official = {}
@@ -26,6 +48,8 @@ with open(run / "run.mcap", "rb") as f:
     frames = {"world"}  # every frame /tf gives a pose
     entity_frames = {}  # scene entity id -> its frame
     images, calibrations = set(), set()
+    own = {}  # our own schemas' validators, by schema id
+    own_checked = 0
     for schema, channel, message in reader.iter_messages(log_time_order=False):
         assert schema.encoding == "jsonschema", schema.encoding
         value = json.loads(message.data)
@@ -46,11 +70,20 @@ with open(run / "run.mcap", "rb") as f:
                 images.add(channel.topic)
             if schema.name == "foxglove.CameraCalibration":
                 calibrations.add(channel.topic)
+        else:
+            assert schema.name.startswith("rover_twin."), f"{channel.topic}: schema {schema.name}"
+            if schema.id not in own:
+                s = json.loads(schema.data)
+                foxglove_reads(s, schema.name)
+                own[schema.id] = jsonschema.Draft202012Validator(s)
+            errors = list(own[schema.id].iter_errors(value))
+            assert not errors, f"{channel.topic}: not a valid {schema.name}: {errors[0].message} at {list(errors[0].absolute_path)}"
+            own_checked += 1
         assert message.log_time >= last, f"log time goes backwards on {channel.topic}"
         last = message.log_time
         counts[channel.topic] = counts.get(channel.topic, 0) + 1
     assert sum(counts.values()) == summary.statistics.message_count
-    for t in ["/tf", "/events", "/messages", "/world/terrain", "/score", "/scene/world", "/scene/robot", "/scene/tracks"]:
+    for t in ["/tf", "/events", "/messages", "/world/terrain", "/score", "/scene/world", "/scene/robot", "/scene/tracks/truth"]:
         assert counts.get(t, 0) > 0, f"no messages on {t}"
     # The 3D scene: the terrain, the robot's links and the canister are entities, each in a frame
     # the transforms define (or the 3D panel could not place it).
@@ -70,6 +103,7 @@ print(f"mcap ok: {sum(counts.values())} messages on {len(counts)} topics, metada
 checked = ", ".join(f"{n} {k}" for k, n in sorted(foxglove.items()))
 print(f"3d scene ok: {len(entity_frames)} entities, all in the {len(frames)} frames of /tf; {len(images)} image topics with their calibrations")
 print(f"foxglove schemas ok: {checked}")
+print(f"own schemas ok: {own_checked} messages valid against the {len(own)} rover_twin schemas, all readable by Foxglove")
 
 # Rerun: the recording loads in rerun-sdk, holds the expected entities and a default blueprint.
 import rerun.experimental as rrx  # noqa: E402

@@ -542,6 +542,9 @@ pub struct ModuleInfo {
     pub name: String,
     /// Kind.
     pub kind: ModuleKind,
+    /// The states of its own machine, in the order declared (its lifecycle states are
+    /// [`Lifecycle::ALL`]).
+    pub states: Vec<String>,
 }
 
 /// The object-safe face of a module cell, driven by the executors.
@@ -652,7 +655,12 @@ impl<M: Module> Cell<M> {
             }
         }
         Ok(Cell {
-            info: ModuleInfo { id, name: name.to_string(), kind: M::KIND },
+            info: ModuleInfo {
+                id,
+                name: name.to_string(),
+                kind: M::KIND,
+                states: fsm.states.iter().map(|s| s.name.clone()).collect(),
+            },
             module,
             fsm,
             lifecycle_fns,

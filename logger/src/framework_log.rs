@@ -2,7 +2,8 @@
 //! every message and acknowledgement, and the scheduler's statistics per module.
 
 use super::Writer;
-use super::mcap_writer::{own_schema, stamp_json};
+use super::json_schema;
+use super::mcap_writer::stamp_json;
 use anyhow::Result;
 use framework::Time;
 
@@ -63,7 +64,25 @@ impl Writer {
                 m.write(
                     "/messages",
                     "rover_twin.Message",
-                    || own_schema("rover_twin.Message", "A message of the message-passing system (command or acknowledgement)", r#""id":{"type":"integer"},"stamp":{"type":"integer"},"from":{"type":"string"},"to":{"type":"string"},"queue":{"type":"string"},"kind":{"type":"string","enum":["command","ack"]},"body":{}"#),
+                    || {
+                        let properties = serde_json::json!({
+                            "id": { "type": "object", "properties": {
+                                "sender": { "type": "integer" }, "seq": { "type": "integer" } } },
+                            "stamp": { "type": "integer" },
+                            "from": { "type": "string" },
+                            "to": { "type": "string" },
+                            "queue": { "type": "string" },
+                            "kind": { "type": "string", "enum": ["command", "ack"] },
+                            // A command's name and arguments, or an acknowledgement's status: the
+                            // shape varies with the command.
+                            "body": json_schema::open_object(),
+                        });
+                        json_schema::object(
+                            "rover_twin.Message",
+                            "A message of the message-passing system (command or acknowledgement)",
+                            properties.as_object().cloned().unwrap_or_default(),
+                        )
+                    },
                     now,
                     &serde_json::json!({ "id": serde_json::to_value(msg.id)?, "stamp": msg.stamp.as_nanos(), "from": from, "to": to, "queue": format!("{:?}", msg.queue).to_lowercase(), "kind": kind, "body": msg.body }),
                 )?;
@@ -92,18 +111,19 @@ impl Writer {
             }
         }
         if let Some(m) = &mut self.mcap {
+            let reports = serde_json::json!({ "modules": reports });
             m.write(
                 "/scheduler/stats",
                 "rover_twin.ModuleReports",
                 || {
-                    own_schema(
+                    json_schema::inferred(
                         "rover_twin.ModuleReports",
                         "Per-module lifecycle, FSM state, context and task statistics",
-                        r#""modules":{"type":"array","items":{"type":"object"}}"#,
+                        &reports,
                     )
                 },
                 now,
-                &serde_json::json!({ "modules": reports }),
+                &reports,
             )?;
         }
         Ok(())

@@ -80,6 +80,9 @@ pub struct CameraInfo {
     pub truth: CameraModel,
     /// The camera as the robot believes it (its calibration), full resolution.
     pub believed: CameraModel,
+    /// Where the camera as built looks from: its true optical frame in the image's frame (the
+    /// URDF's optical link, `truth.frame`).
+    pub offset: Isometry3<f64>,
 }
 
 /// What never changes during a run.
@@ -97,6 +100,8 @@ pub struct RunHeader {
     pub world: Arc<worlds::World>,
     /// The robot's description, for drawing its links.
     pub robot_urdf: PathBuf,
+    /// The canister's description, for drawing it (a plain box without one).
+    pub canister_urdf: Option<PathBuf>,
     /// The modules, with their kind.
     pub modules: Vec<(String, framework::ModuleKind)>,
     /// Cameras with a single image (their overlays go on that image, not a pair's left one).

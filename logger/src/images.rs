@@ -46,6 +46,11 @@ fn raw_image(
     })
 }
 
+/// The frame of camera frame `frame` as built (see [`crate::CameraInfo::offset`]).
+pub(super) fn as_built(frame: &str) -> String {
+    format!("{frame}_as_built")
+}
+
 impl Writer {
     /// A greyscale image, downsampled: Rerun `Image` and MCAP `foxglove.RawImage` (mono8).
     pub(super) fn grey(&mut self, path: &str, img: &Image<u8>) -> Result<()> {
@@ -63,16 +68,17 @@ impl Writer {
     }
 
     /// The calibrations of the image at `path` (in `frame`, stamped `stamp`), beside it in the
-    /// MCAP: `.../calibration` the camera as built (the twin's: what made the image, so the 3D
-    /// scene projected with it lines up with the image), `.../calibration_believed` the camera as
-    /// the robot's software believes it.
+    /// MCAP: `.../calibration` the camera as built (the twin's: what made the image, in frame
+    /// `<frame>_as_built`, which the static transforms put where the camera really looks from, so
+    /// the 3D scene projected with it lines up with the image), `.../calibration_believed` the
+    /// camera's intrinsics as the robot's software believes them, in the image's frame.
     fn calibrations(&mut self, path: &str, frame: &str, stamp: framework::Time) -> Result<()> {
         let (Some(m), Some(cam)) = (&mut self.mcap, self.header.cameras.iter().find(|c| c.image == path))
         else {
             return Ok(());
         };
         let k = self.downsample;
-        let truth = scene::calibration(&cam.truth, k, frame, stamp);
+        let truth = scene::calibration(&cam.truth, k, &as_built(frame), stamp);
         m.foxglove(&format!("/{path}/calibration"), "foxglove.CameraCalibration", stamp, &truth)?;
         let believed = scene::calibration(&cam.believed, k, frame, stamp);
         m.foxglove(&format!("/{path}/calibration_believed"), "foxglove.CameraCalibration", stamp, &believed)

@@ -32,6 +32,7 @@ mod framework_log;
 mod header;
 mod images;
 mod infractions;
+mod json_schema;
 mod known;
 mod live;
 mod maps;
@@ -39,6 +40,7 @@ mod mcap_writer;
 mod rerun_view;
 mod scene;
 mod tracking;
+mod tracks;
 mod world;
 
 pub use header::{
@@ -47,8 +49,8 @@ pub use header::{
 };
 use known::Known;
 pub use live::LiveServer;
-use mcap_writer::{Mcap, own_schema, pose_json, stamp_json, transform_json};
-use rerun_view::{blueprint, draw_track, rr_transform};
+use mcap_writer::{Mcap, pose_json, stamp_json, transform_json};
+use rerun_view::{blueprint, rr_transform};
 use scene::Entity;
 
 /// Colour of the true track, and of estimates' tracks that the header gives no colour.
@@ -110,9 +112,9 @@ struct Writer {
     rrd: Option<rerun::RecordingStream>,
     rrd_path: PathBuf,
     mcap_path: PathBuf,
-    truth_track: Vec<[f32; 3]>,
+    truth_track: tracks::Track,
     /// Each pose estimate's track, by slot.
-    est_track: BTreeMap<String, Vec<[f32; 3]>>,
+    est_track: BTreeMap<String, tracks::Track>,
     next_track: Time,
     last_stats: BTreeMap<String, (u64, i64)>,
     /// A moving target's velocity arrow is drawn (cleared once it is static again).
@@ -125,6 +127,8 @@ struct Writer {
     goal_shown: Option<([f64; 3], String)>,
     /// The canister's entity is in the MCAP's scene.
     canister_drawn: bool,
+    /// The canister's visuals (from its description; empty: drawn as a box).
+    canister_visuals: Vec<world::Visual>,
 }
 
 /// Records one run. The run loop only takes snapshots (link poses, new blackboard records, new
@@ -196,7 +200,13 @@ impl RunLogger {
             rrd,
             rrd_path,
             mcap_path,
-            truth_track: Vec::new(),
+            truth_track: tracks::Track::new(
+                "world/truth/track".into(),
+                "/scene/tracks/truth".into(),
+                "track/truth".into(),
+                "world",
+                TRUTH_TRACK,
+            ),
             est_track: BTreeMap::new(),
             next_track: Time::ZERO,
             last_stats: BTreeMap::new(),
@@ -205,6 +215,7 @@ impl RunLogger {
             infractions_logged: 0,
             goal_shown: None,
             canister_drawn: false,
+            canister_visuals: Vec::new(),
         };
         let failed = std::sync::Arc::new(parking_lot::Mutex::new(None));
         let fail = failed.clone();
@@ -417,13 +428,7 @@ impl Writer {
         if now >= self.next_track {
             self.next_track = now + Duration::from_secs(1);
             let t = b.translation;
-            self.truth_track.push([t.x as f32, t.y as f32, t.z as f32 + 0.05]);
-            if let Some(rec) = &self.rrd {
-                draw_track(rec, "world/truth/track", &self.truth_track, TRUTH_TRACK)?;
-            }
-            if let Some(m) = &mut self.mcap {
-                scene::track_chunk(m, "track/truth", "world", now, &self.truth_track, TRUTH_TRACK)?;
-            }
+            self.truth_track.push([t.x, t.y, t.z], now, self.rrd.as_ref(), self.mcap.as_mut())?;
         }
         if let Some(m) = &mut self.mcap {
             m.time(now);
@@ -441,7 +446,8 @@ impl Writer {
                 if !self.canister_drawn {
                     self.canister_drawn = true;
                     m.latching = true;
-                    scene::update(m, "/scene/robot", now, vec![world::canister_entity(now)], &[])?;
+                    let e = world::canister_entity(&self.canister_visuals, now);
+                    scene::update(m, "/scene/canister", now, vec![e], &[])?;
                     m.latching = false;
                 }
                 m.foxglove(
@@ -538,10 +544,10 @@ impl Writer {
                     &format!("/slots/{}", r.name),
                     &format!("rover_twin.Slot<{type_name}>"),
                     || {
-                        own_schema(
+                        json_schema::inferred(
                             &format!("rover_twin.Slot<{type_name}>"),
                             "A blackboard record: the value with its clock stamp (ns) and sequence number",
-                            r#""value":{},"stamp":{"type":"integer"},"seq":{"type":"integer"}"#,
+                            json,
                         )
                     },
                     now,
@@ -630,26 +636,19 @@ impl Writer {
             )?;
         }
         let p = e.pose.translation;
-        let track = self.est_track.entry(slot.to_string()).or_default();
+        // Each source its own colour: the fused estimate blue, the wheels orange, vision green.
+        let colour =
+            self.header.estimate_colours.iter().find(|(s, _)| s == slot).map_or(ESTIMATE_TRACK, |(_, c)| *c);
+        let track = self.est_track.entry(slot.to_string()).or_insert_with(|| {
+            let entity = format!("world/estimate/{}/track", slot.replace('/', "_"));
+            let topic = format!("/scene/tracks/estimate/{slot}");
+            tracks::Track::new(entity, topic, format!("track/estimate/{slot}"), &e.frame, colour)
+        });
         if track
             .last()
             .is_none_or(|l| ((l[0] - p.x as f32).powi(2) + (l[1] - p.y as f32).powi(2)).sqrt() > 0.25)
         {
-            track.push([p.x as f32, p.y as f32, p.z as f32 + 0.05]);
-            // Each source its own colour: the fused estimate blue, the wheels orange, vision green.
-            let color = self
-                .header
-                .estimate_colours
-                .iter()
-                .find(|(s, _)| s == slot)
-                .map_or(ESTIMATE_TRACK, |(_, c)| *c);
-            if let Some(rec) = &self.rrd {
-                let base = format!("world/estimate/{}", slot.replace('/', "_"));
-                draw_track(rec, &format!("{base}/track"), track, color)?;
-            }
-            if let Some(m) = &mut self.mcap {
-                scene::track_chunk(m, &format!("track/{slot}"), &e.frame, stamp, track, color)?;
-            }
+            track.push([p.x, p.y, p.z], stamp, self.rrd.as_ref(), self.mcap.as_mut())?;
         }
         if let Some(m) = &mut self.mcap {
             m.foxglove(
@@ -665,6 +664,12 @@ impl Writer {
     /// Logs how the run ended (if it got that far) and finalizes both files; returns where they are.
     fn finish(&mut self, summary: Option<&RunSummary>) -> Result<LogFiles> {
         let mut files = LogFiles::default();
+        // The tracks as they ended (what came after their last redraw).
+        let end = Time::from_nanos(self.mcap.as_ref().map_or(0, |m| m.last_log_time()) as i64);
+        self.truth_track.flush(end, self.rrd.as_ref(), self.mcap.as_mut())?;
+        for t in self.est_track.values_mut() {
+            t.flush(end, self.rrd.as_ref(), self.mcap.as_mut())?;
+        }
         if let Some(s) = summary {
             let t = Time::from_secs_f64(s.sim_time_s);
             self.set_time(t);
@@ -696,7 +701,13 @@ impl Writer {
                 pairs.push(("version".into(), self.header.version.clone()));
                 pairs.push(("git_commit".into(), self.header.git_commit.clone()));
                 m.metadata("rover_twin", pairs)?;
-                m.write("/score", "rover_twin.Score", || own_schema("rover_twin.Score", "The run's score (score.json)", r#""scenario":{"type":"string"},"success":{"type":"boolean"},"phases":{"type":"array"},"criteria":{"type":"array"},"metrics":{"type":"object"}"#), t, &s.json)?;
+                m.write(
+                    "/score",
+                    "rover_twin.Score",
+                    || json_schema::inferred("rover_twin.Score", "The run's score (score.json)", &s.json),
+                    t,
+                    &s.json,
+                )?;
             }
         }
         if let Some(m) = self.mcap.take()

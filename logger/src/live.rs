@@ -2,10 +2,10 @@
 //! its WebSocket protocol (the server of the official `foxglove` SDK), with the simulated time as
 //! the server's time.
 //!
-//! What is published once (the terrain, the rocks, the robot's model, the `world` -> `map`
-//! transform) is latched: a client subscribing later gets it first. Everything else is sent as it
-//! happens, so a viewer that connects mid-run sees the scene and everything from then on (the
-//! tracks' earlier chunks excepted).
+//! What is published once (the terrain, the rocks, the robot's model, the canister, the cameras'
+//! as-built frames and the `world` -> `map` transform) is latched: a client subscribing later gets
+//! it first. Everything else is sent as it happens, so a viewer that connects mid-run sees the
+//! scene and everything from then on (a track shows whole at its next redraw).
 
 use anyhow::{Context as _, Result};
 use foxglove::websocket::{Capability, ChannelView, Client, ServerListener};
@@ -110,9 +110,17 @@ impl LiveServer {
 }
 
 impl Drop for LiveServer {
+    /// Stops the server, letting the clients' tasks send what is queued (the score, the last
+    /// transforms) for up to 2 s.
     fn drop(&mut self) {
         if let Some(s) = self.server.take() {
-            drop(s.stop());
+            let shutdown = s.stop();
+            let (done, wait) = std::sync::mpsc::channel();
+            let _ = std::thread::Builder::new().name("live-stop".into()).spawn(move || {
+                shutdown.wait_blocking();
+                let _ = done.send(());
+            });
+            let _ = wait.recv_timeout(std::time::Duration::from_secs(2));
         }
     }
 }

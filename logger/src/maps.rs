@@ -179,13 +179,13 @@ pub(super) fn path(
         let msg = serde_json::json!({ "timestamp": stamp_json(stamp), "frame_id": p.frame, "poses": poses });
         mc.foxglove(&format!("/{topic}"), "foxglove.PosesInFrame", stamp, &msg)?;
         // And as a line in the 3D scene (replacing the path before it; an empty path deletes it).
-        let id = format!("path/{name}");
+        let (id, topic) = (format!("path/{name}"), format!("/scene/paths/{name}"));
         if p.points.len() >= 2 {
             let line: Vec<[f64; 3]> = p.points.iter().zip(z).map(|(q, z)| [q[0], q[1], z + 0.05]).collect();
             let e = Entity::new(&id, &p.frame, stamp).line_strip(&line, 4.0, PATH).meta("points", line.len());
-            scene::update(mc, "/scene/paths", stamp, vec![e], &[])?;
+            scene::update(mc, &topic, stamp, vec![e], &[])?;
         } else {
-            scene::update(mc, "/scene/paths", stamp, vec![], &[&id])?;
+            scene::update(mc, &topic, stamp, vec![], &[&id])?;
         }
     }
     Ok(())

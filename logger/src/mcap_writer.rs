@@ -107,13 +107,6 @@ pub(super) fn foxglove_schema(name: &str) -> String {
     )
 }
 
-/// JSON schema of a message type of ours (documented in `docs/logging.md`).
-pub(super) fn own_schema(name: &str, description: &str, properties: &str) -> String {
-    format!(
-        r#"{{"title":"{name}","description":"{description}","type":"object","properties":{{{properties}}}}}"#
-    )
-}
-
 /// A time as Foxglove's `{sec, nsec}`.
 pub(super) fn stamp_json(t: Time) -> serde_json::Value {
     let ns = t.as_nanos().max(0) as u64;
@@ -247,6 +240,11 @@ impl Mcap {
         msg: &serde_json::Value,
     ) -> Result<()> {
         self.write(topic, name, || foxglove_schema(name), t, msg)
+    }
+
+    /// The newest log time written, ns.
+    pub(super) fn last_log_time(&self) -> u64 {
+        self.last_log_time
     }
 
     /// Tells live viewers the simulated time.

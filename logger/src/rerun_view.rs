@@ -59,18 +59,13 @@ pub(super) fn blueprint() -> rerun::blueprint::Blueprint {
     .with_time_panel(TimePanel::new().with_timeline(TIMELINE))
 }
 
-/// Draws `track` as a line strip at `path` (every 5th point: a long track is redrawn whole).
+/// Draws `track` as a line strip at `path`.
 pub(super) fn draw_track(
     rec: &rerun::RecordingStream,
     path: &str,
     track: &[[f32; 3]],
     color: [u8; 3],
 ) -> Result<()> {
-    if track.len() % 5 == 1 || track.len() < 5 {
-        rec.log(
-            path,
-            &rerun::LineStrips3D::new([track.to_vec()]).with_colors([color]).with_radii([0.02_f32]),
-        )?;
-    }
+    rec.log(path, &rerun::LineStrips3D::new([track.to_vec()]).with_colors([color]).with_radii([0.02_f32]))?;
     Ok(())
 }

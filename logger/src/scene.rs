@@ -1,10 +1,10 @@
 //! Foxglove's 3D scene in the MCAP: `foxglove.SceneUpdate` entities built from primitives
-//! (cubes, spheres, cylinders, lines, triangle lists, text), tracks published in chunks, and
+//! (cubes, spheres, cylinders, lines, triangle lists, text), tracks (each on a topic of its own), and
 //! `foxglove.CameraCalibration` messages for the images.
 //!
-//! An entity replaces the one of the same id published before it; tracks are split into chunks of
-//! [`TRACK_CHUNK`] segments, each its own entity, so that a growing track costs the file a constant
-//! amount per new point instead of the whole track again.
+//! An entity replaces the one of the same id published before it. After a seek, a viewer shows the
+//! newest message of each topic only: so each message holds whole entities, and what is drawn
+//! apart (each track, each path, the canister) has a topic of its own.
 
 use super::mcap_writer::{Mcap, pose_json, stamp_json};
 use anyhow::Result;
@@ -12,9 +12,6 @@ use framework::Time;
 use framework::camera::CameraModel;
 use nalgebra::Isometry3;
 use serde_json::{Value, json};
-
-/// Segments per track entity.
-pub(super) const TRACK_CHUNK: usize = 20;
 
 /// A Foxglove colour from 8-bit RGB and an opacity in [0, 1].
 pub(super) fn colour([r, g, b]: [u8; 3], a: f64) -> Value {
@@ -141,26 +138,22 @@ pub(super) fn update(
     m.foxglove(topic, "foxglove.SceneUpdate", stamp, &json!({ "deletions": deletions, "entities": entities }))
 }
 
-/// Publishes the chunk of `track` holding its newest segment, as entity `{id}/{chunk}` in `frame`.
-pub(super) fn track_chunk(
+/// Publishes `points` as the line of entity `id` on `topic` (its own topic: after a seek a viewer
+/// shows the newest message of each topic, which holds the whole track up to then).
+pub(super) fn track(
     m: &mut Mcap,
+    topic: &str,
     id: &str,
     frame: &str,
     stamp: Time,
-    track: &[[f32; 3]],
+    points: &[[f32; 3]],
     rgb: [u8; 3],
 ) -> Result<()> {
-    let Some((chunk, points)) = newest_chunk(track) else { return Ok(()) };
-    let points: Vec<[f64; 3]> = points.iter().map(|p| [p[0] as f64, p[1] as f64, p[2] as f64]).collect();
-    let e = Entity::new(&format!("{id}/{chunk}"), frame, stamp).line_strip(&points, 3.0, rgb);
-    update(m, "/scene/tracks", stamp, vec![e], &[])
-}
-
-/// The chunk of `track` that holds its newest segment: its index and its points (segment i is in
-/// chunk i / [`TRACK_CHUNK`], so a chunk starts at the point where the one before it ends).
-fn newest_chunk(track: &[[f32; 3]]) -> Option<(usize, &[[f32; 3]])> {
-    let chunk = track.len().checked_sub(2)? / TRACK_CHUNK;
-    Some((chunk, &track[chunk * TRACK_CHUNK..]))
+    // Millimetres are plenty for a track, and keep the messages short.
+    let mm = |v: f32| (v as f64 * 1e3).round() / 1e3;
+    let points: Vec<[f64; 3]> = points.iter().map(|p| [mm(p[0]), mm(p[1]), mm(p[2])]).collect();
+    let e = Entity::new(id, frame, stamp).line_strip(&points, 3.0, rgb).meta("points", points.len());
+    update(m, topic, stamp, vec![e], &[])
 }
 
 /// `foxglove.CameraCalibration` of `cam` for its images downsampled `k` times, in `frame` (the
@@ -201,29 +194,5 @@ mod tests {
         assert!(((u + 0.5) * 2.0 - ours.x).abs() < 1e-9, "{u} vs {}", ours.x);
         assert!(((v + 0.5) * 2.0 - ours.y).abs() < 1e-9, "{v} vs {}", ours.y);
         assert_eq!(c["width"], 320);
-    }
-
-    #[test]
-    fn a_track_is_published_in_chunks_that_join() {
-        let track: Vec<[f32; 3]> = (0..47).map(|i| [i as f32, 0.5 * i as f32, 0.0]).collect();
-        // What a viewer holds at the end: the last version of each chunk published as it grew.
-        let mut shown: std::collections::BTreeMap<usize, Vec<[f32; 3]>> = Default::default();
-        assert!(newest_chunk(&track[..1]).is_none(), "one point is no line");
-        for n in 2..=track.len() {
-            let (chunk, points) = newest_chunk(&track[..n]).unwrap();
-            assert!(points.len() <= TRACK_CHUNK + 1, "at most {TRACK_CHUNK} segments a chunk");
-            shown.insert(chunk, points.to_vec());
-        }
-        assert_eq!(shown.len(), 3);
-        let mut joined: Vec<[f32; 3]> = Vec::new();
-        for points in shown.values() {
-            if let Some(last) = joined.last() {
-                assert_eq!(last, &points[0], "each chunk starts where the one before ends");
-                joined.extend_from_slice(&points[1..]);
-            } else {
-                joined.extend_from_slice(points);
-            }
-        }
-        assert_eq!(joined, track, "the chunks together are the whole track");
     }
 }

@@ -15,7 +15,11 @@ impl Writer {
         let world = self.header.world.clone();
         let hf = &world.terrain;
         let mesh = TerrainMesh::new(hf, 200);
-        let robot = robot_visuals(&self.header.robot_urdf)?;
+        let robot = visuals(&self.header.robot_urdf, "robot", [180, 180, 185])?;
+        self.canister_visuals = match &self.header.canister_urdf {
+            Some(p) => visuals(p, "canister", CANISTER)?,
+            None => Vec::new(),
+        };
         let rock_centers: Vec<[f32; 3]> = world
             .rocks
             .iter()
@@ -41,7 +45,7 @@ impl Writer {
                     .with_fill_mode(rerun::FillMode::Solid)
                     .with_colors([ROCK]),
             )?;
-            robot_geometry(rec, &robot)?;
+            robot_geometry(rec, &robot, &self.canister_visuals)?;
             rec.log_static(
                 "scenario",
                 &rerun::TextDocument::from_markdown(format!(
@@ -73,6 +77,16 @@ impl Writer {
             // `world`; what an estimate got wrong shows as its offset from the truth, not in this
             // transform. Published once, so that Foxglove draws the estimates beside the truth.
             let identity = Isometry3::identity();
+            // Each camera as built, beside its URDF optical frame: what its calibration
+            // (`.../calibration`) is in.
+            let mut seen = std::collections::BTreeSet::new();
+            for c in &self.header.cameras {
+                if seen.insert(c.truth.frame.clone()) {
+                    let child = super::images::as_built(&c.truth.frame);
+                    let tf = transform_json(Time::ZERO, &c.truth.frame, &child, &c.offset);
+                    m.foxglove("/tf", "foxglove.FrameTransform", Time::ZERO, &tf)?;
+                }
+            }
             m.foxglove(
                 "/tf",
                 "foxglove.FrameTransform",
@@ -126,11 +140,7 @@ impl Writer {
             for v in &robot {
                 let e =
                     Entity::new(&format!("robot/{}/{}", v.link, v.index), &v.link, Time::ZERO).frame_locked();
-                links.push(match v.geometry {
-                    Shape::Box(size) => e.cube(&v.pose, size, v.colour, 1.0),
-                    Shape::Cylinder { radius, length } => e.cylinder(&v.pose, radius, length, v.colour, 1.0),
-                    Shape::Sphere(radius) => e.sphere(&v.pose, [2.0 * radius; 3], v.colour, 1.0),
-                });
+                links.push(v.add_to(e));
             }
             scene::update(m, "/scene/robot", Time::ZERO, links, &[])?;
             m.latching = false;
@@ -144,15 +154,15 @@ const CANISTER: [u8; 3] = [230, 230, 235];
 /// The canister drawn as a box of these half sizes, its base on its frame's origin, m.
 const CANISTER_HALF: [f64; 3] = [0.05, 0.05, 0.075];
 
-/// The canister in the 3D scene, locked to its frame `canister` (which /tf moves).
-pub(super) fn canister_entity(stamp: Time) -> Entity {
-    let centre = Isometry3::translation(0.0, 0.0, CANISTER_HALF[2]);
-    Entity::new("canister", "canister", stamp).frame_locked().cube(
-        &centre,
-        CANISTER_HALF.map(|h| 2.0 * h),
-        CANISTER,
-        1.0,
-    )
+/// The canister in the 3D scene: its visuals (its description's, or a plain box), locked to its
+/// frame `canister` (which /tf moves).
+pub(super) fn canister_entity(visuals: &[Visual], stamp: Time) -> Entity {
+    let e = Entity::new("canister", "canister", stamp).frame_locked();
+    if visuals.is_empty() {
+        let centre = Isometry3::translation(0.0, 0.0, CANISTER_HALF[2]);
+        return e.cube(&centre, CANISTER_HALF.map(|h| 2.0 * h), CANISTER, 1.0);
+    }
+    visuals.iter().fold(e, |e, v| v.add_to(e))
 }
 
 /// The terrain as a triangle mesh of at most `max_side` x `max_side` vertices, shaded by height.
@@ -203,7 +213,7 @@ enum Shape {
 }
 
 /// One visual of a robot link: its pose in the link's frame, shape and colour.
-struct Visual {
+pub(super) struct Visual {
     link: String,
     /// Its place among the link's visuals.
     index: usize,
@@ -212,11 +222,22 @@ struct Visual {
     colour: [u8; 3],
 }
 
-/// The visuals of the robot's description (meshes, which the rover's description has none of, are
-/// left out).
-fn robot_visuals(urdf: &std::path::Path) -> Result<Vec<Visual>> {
+impl Visual {
+    /// This visual as primitives of `e`.
+    fn add_to(&self, e: Entity) -> Entity {
+        match self.geometry {
+            Shape::Box(size) => e.cube(&self.pose, size, self.colour, 1.0),
+            Shape::Cylinder { radius, length } => e.cylinder(&self.pose, radius, length, self.colour, 1.0),
+            Shape::Sphere(radius) => e.sphere(&self.pose, [2.0 * radius; 3], self.colour, 1.0),
+        }
+    }
+}
+
+/// The visuals of description `urdf` (the robot's, the canister's: `what`), in their material's
+/// colour or `default` (meshes, which neither description has, are left out).
+pub(super) fn visuals(urdf: &std::path::Path, what: &str, default: [u8; 3]) -> Result<Vec<Visual>> {
     let robot = urdf_rs::read_file(urdf)
-        .with_context(|| format!("reading the robot description {}", urdf.display()))?;
+        .with_context(|| format!("reading the {what} description {}", urdf.display()))?;
     let mut out = Vec::new();
     for link in &robot.links {
         for (index, v) in link.visual.iter().enumerate() {
@@ -225,7 +246,7 @@ fn robot_visuals(urdf: &std::path::Path) -> Result<Vec<Visual>> {
                 .as_ref()
                 .and_then(|m| m.color.as_ref())
                 .map(|c| [(c.rgba[0] * 255.0) as u8, (c.rgba[1] * 255.0) as u8, (c.rgba[2] * 255.0) as u8])
-                .unwrap_or([180, 180, 185]);
+                .unwrap_or(default);
             let geometry = match &v.geometry {
                 urdf_rs::Geometry::Box { size } => Shape::Box([size[0], size[1], size[2]]),
                 urdf_rs::Geometry::Cylinder { radius, length } => {
@@ -242,40 +263,50 @@ fn robot_visuals(urdf: &std::path::Path) -> Result<Vec<Visual>> {
 }
 
 /// The robot in Rerun: each link's visuals, static, under the link's entity (which gets the
-/// link's pose every truth tick), and the canister's body.
-fn robot_geometry(rec: &rerun::RecordingStream, visuals: &[Visual]) -> Result<()> {
-    for v in visuals {
-        let path = format!("world/truth/{}/visual_{}", v.link, v.index);
-        rec.log_static(path.as_str(), &rr_transform(&v.pose))?;
-        match v.geometry {
-            Shape::Box(size) => rec.log_static(
-                path.as_str(),
-                &rerun::Boxes3D::from_half_sizes([size.map(|s| s as f32 / 2.0)])
-                    .with_fill_mode(rerun::FillMode::Solid)
-                    .with_colors([v.colour]),
-            )?,
-            Shape::Cylinder { radius, length } => rec.log_static(
-                path.as_str(),
-                &rerun::Cylinders3D::from_lengths_and_radii([length as f32], [radius as f32])
-                    .with_fill_mode(rerun::FillMode::Solid)
-                    .with_colors([v.colour]),
-            )?,
-            Shape::Sphere(radius) => rec.log_static(
-                path.as_str(),
-                &rerun::Ellipsoids3D::from_radii([radius as f32])
-                    .with_fill_mode(rerun::FillMode::Solid)
-                    .with_colors([v.colour]),
-            )?,
-        }
+/// link's pose every truth tick), and the canister's (its description's, or a plain box).
+fn robot_geometry(rec: &rerun::RecordingStream, robot: &[Visual], canister: &[Visual]) -> Result<()> {
+    for v in robot {
+        draw_visual(rec, &format!("world/truth/{}/visual_{}", v.link, v.index), v)?;
     }
-    rec.log_static(
-        "world/truth/canister/body",
-        &rerun::Boxes3D::from_centers_and_half_sizes(
-            [[0.0f32, 0.0, CANISTER_HALF[2] as f32]],
-            [CANISTER_HALF.map(|h| h as f32)],
-        )
-        .with_fill_mode(rerun::FillMode::Solid)
-        .with_colors([CANISTER]),
-    )?;
+    for (k, v) in canister.iter().enumerate() {
+        draw_visual(rec, &format!("world/truth/canister/visual_{k}"), v)?;
+    }
+    if canister.is_empty() {
+        rec.log_static(
+            "world/truth/canister/body",
+            &rerun::Boxes3D::from_centers_and_half_sizes(
+                [[0.0f32, 0.0, CANISTER_HALF[2] as f32]],
+                [CANISTER_HALF.map(|h| h as f32)],
+            )
+            .with_fill_mode(rerun::FillMode::Solid)
+            .with_colors([CANISTER]),
+        )?;
+    }
+    Ok(())
+}
+
+/// One visual, static, at `path` (its pose, then its shape).
+fn draw_visual(rec: &rerun::RecordingStream, path: &str, v: &Visual) -> Result<()> {
+    rec.log_static(path, &rr_transform(&v.pose))?;
+    match v.geometry {
+        Shape::Box(size) => rec.log_static(
+            path,
+            &rerun::Boxes3D::from_half_sizes([size.map(|s| s as f32 / 2.0)])
+                .with_fill_mode(rerun::FillMode::Solid)
+                .with_colors([v.colour]),
+        )?,
+        Shape::Cylinder { radius, length } => rec.log_static(
+            path,
+            &rerun::Cylinders3D::from_lengths_and_radii([length as f32], [radius as f32])
+                .with_fill_mode(rerun::FillMode::Solid)
+                .with_colors([v.colour]),
+        )?,
+        Shape::Sphere(radius) => rec.log_static(
+            path,
+            &rerun::Ellipsoids3D::from_radii([radius as f32])
+                .with_fill_mode(rerun::FillMode::Solid)
+                .with_colors([v.colour]),
+        )?,
+    }
     Ok(())
 }

@@ -120,12 +120,18 @@ struct RunArgs {
     #[arg(long)]
     no_logs: bool,
     /// Stream the run to Foxglove while it goes: the MCAP's messages from a WebSocket server on
-    /// HOST:PORT (default 127.0.0.1:8765; port 0 picks a free one, printed). The run then keeps to
-    /// real time unless --pace says otherwise.
-    #[arg(long, value_name = "HOST:PORT", num_args = 0..=1, default_missing_value = "127.0.0.1:8765")]
+    /// 127.0.0.1:8765, or --live=HOST:PORT (port 0 picks a free one, printed). The run then keeps
+    /// to real time unless --pace says otherwise.
+    #[arg(
+        long,
+        value_name = "HOST:PORT",
+        num_args = 0..=1,
+        require_equals = true,
+        default_missing_value = "127.0.0.1:8765"
+    )]
     live: Option<String>,
-    /// Simulated seconds per wall-clock second at most (0: as fast as it goes; default 1 with
-    /// --live, else 0).
+    /// Simulated seconds per wall-clock second at most (0: as fast as it goes, else at least 0.01;
+    /// default 1 with --live, else 0).
     #[arg(long, value_name = "X")]
     pace: Option<f64>,
 }
@@ -312,7 +318,9 @@ fn run_main(a: RunArgs) -> Result<i32> {
         write_logs: !a.no_logs,
         interrupt: interrupt_flag(),
         pace: match a.pace {
-            Some(p) if !(p.is_finite() && p >= 0.0) => bail!("--pace {p}: give a number of at least 0"),
+            Some(p) if !(p == 0.0 || (p.is_finite() && p >= runner::MIN_PACE)) => {
+                bail!("--pace {p}: give 0 (as fast as it goes) or at least {}", runner::MIN_PACE)
+            }
             Some(p) => p,
             None if a.live.is_some() => 1.0,
             None => 0.0,

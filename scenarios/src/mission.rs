@@ -277,3 +277,56 @@ impl Events {
         }
     }
 }
+
+/// Checks every `module_state` trigger of the scenario against the system built for it (`core`):
+/// the module is in this configuration, and the state is one of its lifecycle states or one its
+/// own machine declares (a trigger on any other would never fire). Errors name the file and line.
+pub fn check_triggers(
+    loaded: &crate::scenario::Loaded,
+    core: &framework::system::Core,
+) -> anyhow::Result<()> {
+    let lifecycle = |state: &str| framework::Lifecycle::ALL.iter().any(|l| l.name() == state);
+    for (i, e) in loaded.scenario.events.iter().enumerate() {
+        let Some(m) = &e.module_state else { continue };
+        let fail = |key: &str, msg: String| -> anyhow::Result<()> {
+            let parts: Vec<String> =
+                ["event".to_string(), i.to_string(), "module_state".into(), key.into()].into();
+            Err(crate::scenario::locate(&parts, &loaded.files, &loaded.overrides, msg).into())
+        };
+        if m.module == "system" {
+            if !lifecycle(&m.state) {
+                let states: Vec<&str> = framework::Lifecycle::ALL.iter().map(|l| l.name()).collect();
+                fail(
+                    "state",
+                    format!("the system has no state '{}' (it has: {})", m.state, states.join(", ")),
+                )?;
+            }
+            continue;
+        }
+        let Some(info) = core.modules().iter().find(|x| x.name == m.module) else {
+            let names: Vec<&str> = core.modules().iter().map(|x| x.name.as_str()).collect();
+            fail(
+                "module",
+                format!(
+                    "module '{}' is not in this scenario's system (it has: system, {})",
+                    m.module,
+                    names.join(", ")
+                ),
+            )?;
+            continue;
+        };
+        if !lifecycle(&m.state) && !info.states.contains(&m.state) {
+            fail(
+                "state",
+                format!(
+                    "module '{}' has no state '{}' (its own: {}; lifecycle: {})",
+                    m.module,
+                    m.state,
+                    info.states.join(", "),
+                    framework::Lifecycle::ALL.iter().map(|l| l.name()).collect::<Vec<_>>().join(", ")
+                ),
+            )?;
+        }
+    }
+    Ok(())
+}

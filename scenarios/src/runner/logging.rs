@@ -7,6 +7,7 @@ use framework::camera::CameraModel;
 use logger::{CameraInfo, CriterionRow, GroundTruth, PhaseRow, RunHeader, RunSummary};
 use nalgebra::Isometry3;
 use twin::Twin;
+use twin::belief::CameraTruth;
 use twin::devices::{DryRunDeviceMap, SharedTwin};
 
 /// The twin as the logger's source of ground truth.
@@ -37,26 +38,27 @@ fn cameras(loaded: &Loaded, twin: &SharedTwin, seed: u64) -> Vec<CameraInfo> {
         seed,
         crate::system::sensor_config(loaded),
     );
-    let info = |image: String, truth: &CameraModel, believed: &CameraModel| CameraInfo {
+    let info = |image: String, truth: &CameraTruth, believed: &CameraModel| CameraInfo {
         image,
-        truth: truth.clone(),
+        truth: truth.model.clone(),
         believed: believed.clone(),
+        offset: truth.offset,
     };
     let mut out = Vec::new();
     for name in ["head_stereo", "loc_stereo"] {
         if let Ok(b) = map.stereo_belief(name) {
-            out.push(info(format!("sensors/{name}/left"), &b.left.model, &b.calibration.left.model));
-            out.push(info(format!("sensors/{name}/right"), &b.right.model, &b.calibration.right));
+            out.push(info(format!("sensors/{name}/left"), &b.left, &b.calibration.left.model));
+            out.push(info(format!("sensors/{name}/right"), &b.right, &b.calibration.right));
         }
     }
     for name in twin::devices::MONO_CAMERAS {
         if let Ok(b) = map.mono_belief(name) {
-            out.push(info(format!("sensors/{name}/image"), &b.truth.model, &b.calibration.model));
+            out.push(info(format!("sensors/{name}/image"), &b.truth, &b.calibration.model));
         }
     }
     for name in ["tof_left", "tof_right"] {
         if let Ok(b) = map.tof_belief(name) {
-            out.push(info(format!("sensors/{name}/depth"), &b.truth.model, &b.calibration.model));
+            out.push(info(format!("sensors/{name}/depth"), &b.truth, &b.calibration.model));
         }
     }
     out
@@ -78,6 +80,7 @@ pub(super) fn header(
         events: s.events.len(),
         world,
         robot_urdf: twin::rover_urdf(),
+        canister_urdf: Some(twin::assets_dir().join("canister/canister.urdf")).filter(|p| p.exists()),
         modules: core.modules().iter().map(|m| (m.name.clone(), m.kind)).collect(),
         mono_cameras: twin::devices::MONO_CAMERAS.iter().map(|c| c.to_string()).collect(),
         estimate_colours: vec![

@@ -177,8 +177,8 @@ pub fn check(loaded: &Loaded) -> Result<()> {
     let s = &loaded.scenario;
     let twin = twin::devices::share(build_twin(loaded, s.run.fidelity)?);
     let builder = crate::system::build_system(loaded, &twin, s.run.seed, false)?;
-    LockstepExecutor::new(builder, Duration::from_secs_f64(s.run.base_period_s))?;
-    Ok(())
+    let ex = LockstepExecutor::new(builder, Duration::from_secs_f64(s.run.base_period_s))?;
+    crate::mission::check_triggers(loaded, ex.core())
 }
 
 /// An error at a scenario key that holds a position: it must lie on the world's terrain.
@@ -416,15 +416,20 @@ fn step(ex: &mut LockstepExecutor, twin: &SharedTwin) -> Time {
     ex.tick()
 }
 
-/// Waits until the wall clock since `wall0` has caught up with simulated time `now` at `pace`
-/// simulated seconds per second (0: no wait), for a viewer watching live.
-fn keep_pace(now: Time, pace: f64, wall0: std::time::Instant) {
-    if pace > 0.0 {
-        let due = std::time::Duration::from_secs_f64(now.as_secs_f64() / pace);
-        let elapsed = wall0.elapsed();
-        if due > elapsed {
-            std::thread::sleep(due - elapsed);
-        }
+/// Slowest pace `--pace` takes, simulated seconds per second.
+pub const MIN_PACE: f64 = 0.01;
+
+/// Waits until the wall clock since `start` (when the loop began, at simulated `t0`) has caught
+/// up with simulated time `now` at `pace` simulated seconds per second (0: no wait), for a viewer
+/// watching live; in slices, so that an interrupt is seen at once.
+fn keep_pace(now: Time, pace: f64, (start, t0): (std::time::Instant, Time), interrupt: &AtomicBool) {
+    if pace <= 0.0 {
+        return;
+    }
+    let due = std::time::Duration::from_secs_f64(((now - t0).as_secs_f64() / pace.max(MIN_PACE)).max(0.0));
+    while !interrupt.load(Ordering::SeqCst) {
+        let Some(left) = due.checked_sub(start.elapsed()) else { return };
+        std::thread::sleep(left.min(std::time::Duration::from_millis(100)));
     }
 }
 
@@ -433,7 +438,7 @@ fn start_live(addr: &str) -> Result<logger::LiveServer> {
     let (host, port) = addr
         .rsplit_once(':')
         .and_then(|(h, p)| Some((h, p.parse::<u16>().ok()?)))
-        .ok_or_else(|| anyhow!("--live {addr}: expected HOST:PORT, e.g. 127.0.0.1:8765"))?;
+        .ok_or_else(|| anyhow!("--live={addr}: expected HOST:PORT, e.g. --live=127.0.0.1:8765"))?;
     let live = logger::LiveServer::start(host, port)?;
     println!(
         "live: Foxglove WebSocket server on ws://{host}:{} (Foxglove: Open connection, Foxglove WebSocket)",
@@ -492,10 +497,12 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let fidelity = opts.fidelity.unwrap_or(s.run.fidelity);
     std::fs::create_dir_all(&opts.out).with_context(|| format!("creating {}", opts.out.display()))?;
     let twin = twin::devices::share(build_twin(loaded, fidelity)?);
-    let log_messages = opts.write_logs && s.logging.events && (s.logging.rrd || s.logging.mcap);
+    let log_messages =
+        s.logging.events && (opts.live.is_some() || (opts.write_logs && (s.logging.rrd || s.logging.mcap)));
     let builder = crate::system::build_system(loaded, &twin, seed, log_messages)?;
     let base = Duration::from_secs_f64(s.run.base_period_s);
     let mut ex = LockstepExecutor::new(builder, base)?;
+    crate::mission::check_triggers(loaded, ex.core())?;
     let live = opts.live.as_deref().map(start_live).transpose()?;
     let logger =
         Arc::new(Mutex::new(if live.is_some() || (opts.write_logs && (s.logging.rrd || s.logging.mcap)) {
@@ -554,6 +561,8 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let mut timed_out = false;
     #[allow(clippy::disallowed_methods)]
     let mut last_progress = std::time::Instant::now();
+    // `--pace` counts from here: building the system is not simulated time.
+    let pace_clock = (last_progress, ex.now());
     loop {
         if opts.interrupt.load(Ordering::SeqCst) {
             abort = Some("interrupted (SIGINT/SIGTERM)".into());
@@ -572,7 +581,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             abort = Some(e);
             break;
         }
-        keep_pace(now, opts.pace, wall0);
+        keep_pace(now, opts.pace, pace_clock, &opts.interrupt);
         #[allow(clippy::disallowed_methods)]
         let wall_now = std::time::Instant::now();
         if !opts.quiet && (wall_now - last_progress).as_secs_f64() >= 0.5 {
@@ -635,7 +644,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
                 abort = Some(e);
                 break;
             }
-            keep_pace(now, opts.pace, wall0);
+            keep_pace(now, opts.pace, pace_clock, &opts.interrupt);
         }
     }
     // The loops are over: finalizing below is not a stuck simulation.

@@ -21,14 +21,20 @@ fi
 export CHROMIUM="$(command -v "${CHROMIUM:-chromium}")"
 app="$HOME/.cache/rover-twin/foxglove-view"
 mkdir -p "$app"
-if ! cmp -s "$here/foxglove_view/package.json" "$app/package.json" || [ ! -d "$app/node_modules" ]; then
+# The install is marked complete (installed.json) only once npm has succeeded.
+if ! cmp -s "$here/foxglove_view/package.json" "$app/installed.json"; then
   echo "foxglove_screenshot: installing Foxglove Studio 1.48.0 and Playwright from npm into $app" >&2
+  rm -f "$app/installed.json"
   cp "$here/foxglove_view/package.json" "$app/"
   (cd "$app" && npm install --silent --no-audit --no-fund >/dev/null)
+  cp "$here/foxglove_view/package.json" "$app/installed.json"
 fi
 cp "$here/foxglove_view/"{index.html,view.js,serve.mjs,shot.mjs} "$app/"
-port=$((20000 + RANDOM % 20000))
-node "$app/serve.mjs" "$app" "$port" "$run" &
+portfile="$(mktemp)"
+trap 'kill $server 2>/dev/null || true; rm -f "$portfile"' EXIT
+rm -f "$portfile"
+node "$app/serve.mjs" "$app" "$run" "$portfile" &
 server=$!
-trap 'kill $server 2>/dev/null || true' EXIT
-(cd "$app" && node shot.mjs "$port" "$run" "$out")
+for _ in $(seq 100); do [ -s "$portfile" ] && break; sleep 0.1; done
+[ -s "$portfile" ] || { echo "foxglove_screenshot: the file server did not start" >&2; exit 2; }
+(cd "$app" && node shot.mjs "$(cat "$portfile")" "$run" "$out")

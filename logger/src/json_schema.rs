@@ -8,8 +8,11 @@
 //!
 //! A slot's value has one Rust type, but the logger only sees it as JSON: its schema is inferred
 //! from the topic's first message ([`infer`]): fields null there (an `Option` still unset) and
-//! empty arrays are left undescribed, the elements of an array are described by what all of them
-//! share. `scripts/validate_logs.py` validates every message of a run against its topic's schema.
+//! empty arrays are left undescribed, the elements of an array are described by the union of
+//! their fields, each where they agree on its type. A null value stands for an unset one anywhere
+//! (the subset cannot say "nullable"; Foxglove shows a null field as missing).
+//! `scripts/validate_logs.py` validates every message of a run against its topic's schema, nulls
+//! taken as absent.
 
 use serde_json::{Map, Value, json};
 

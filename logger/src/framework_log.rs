@@ -80,7 +80,7 @@ impl Writer {
                         json_schema::object(
                             "rover_twin.Message",
                             "A message of the message-passing system (command or acknowledgement)",
-                            properties.as_object().cloned().unwrap_or_default(),
+                            properties,
                         )
                     },
                     now,

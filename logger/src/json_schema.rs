@@ -16,8 +16,9 @@
 
 use serde_json::{Map, Value, json};
 
-/// The schema of a topic named `title` whose messages are objects with `properties`.
-pub(super) fn object(title: &str, description: &str, properties: Map<String, Value>) -> String {
+/// The schema of a topic named `title` whose messages are objects with `properties` (a JSON
+/// object of field schemas).
+pub(super) fn object(title: &str, description: &str, properties: Value) -> String {
     json!({ "title": title, "description": description, "type": "object", "properties": properties })
         .to_string()
 }
@@ -30,7 +31,7 @@ pub(super) fn inferred(title: &str, description: &str, first: &Value) -> String 
             s.insert("description".into(), json!(description));
             Value::Object(s).to_string()
         }
-        _ => object(title, description, Map::new()),
+        _ => object(title, description, json!({})),
     }
 }
 
@@ -68,8 +69,9 @@ pub(super) fn infer(value: &Value) -> Option<Value> {
     }
 }
 
-/// What two schemas of the elements of one array share: the same type, and for objects each field
-/// in either (described only where both agree on it); `None` when the types differ.
+/// One schema for two elements of an array: their type (a number where one is an integer and the
+/// other fractional), and for objects the union of their fields, a field in both described only
+/// where both agree on its type; `None` when the types differ.
 fn merge(a: Value, b: Value) -> Option<Value> {
     if a["type"] != b["type"] {
         // An integer field that is fractional elsewhere is a number.

@@ -379,7 +379,7 @@ fn watchdog_thread(
             if since >= 0 && !status.is_isolated() && now - since > timeout.as_nanos() {
                 let busy = Duration::from_nanos(now - since);
                 let fault = crate::events::Fault::Hang { busy_s: busy.as_secs_f64() };
-                crate::system::isolate(core, info, status.lifecycle(), fault, core.now());
+                crate::runtime::isolate(core, info, status.lifecycle(), fault, core.now());
                 hung.push(info.id);
                 if let Some(h) = handler.lock().clone() {
                     h(&info.name, busy);

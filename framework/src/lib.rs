@@ -40,6 +40,7 @@ pub mod message;
 pub mod module;
 pub mod objects;
 pub mod resources;
+pub mod runtime;
 pub mod seed;
 pub mod stats;
 pub mod system;

@@ -31,6 +31,19 @@ pub enum Fault {
     },
 }
 
+impl std::fmt::Display for Fault {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Fault::Panic(m) => write!(f, "panicked: {m}"),
+            Fault::Error(m) => write!(f, "error: {m}"),
+            Fault::Overrun { consecutive, budget } => {
+                write!(f, "{consecutive} consecutive overruns, budget {budget}")
+            }
+            Fault::Hang { busy_s } => write!(f, "hung, busy for {busy_s:.3} s"),
+        }
+    }
+}
+
 /// What happened.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "event", rename_all = "snake_case")]

@@ -66,9 +66,11 @@ pub trait Executor {
     }
 }
 
-/// Called by the watchdog thread when it isolates a hung module: the module's name and how long it
-/// had been busy. Under lockstep a module that never returns blocks the simulation, so a runner uses
-/// this to finalize its logs and exit with an error naming the module.
+/// Called by the watchdog thread when a module's step has been busy past its hang timeout: the
+/// module's name and how long it had been busy. The real-time executor has isolated it by then.
+/// Under lockstep nothing in the system changes (the outcome of a simulated run never depends on
+/// wall-clock speed), but a module that never returns blocks the simulation, so a runner uses this
+/// to finalize its logs and exit with an error naming the module.
 pub type HangHandler = Arc<dyn Fn(&str, Duration) + Send + Sync>;
 
 /// Deterministic executor on simulated time.
@@ -92,7 +94,7 @@ impl LockstepExecutor {
         let a = builder.assemble(Arc::new(clock), Some(base))?;
         let mut runners = a.runners;
         runners.sort_by_key(|r| r.info().kind); // stable: registration order within a kind
-        let watchdog = Watchdog::start(a.core.clone(), &runners);
+        let watchdog = Watchdog::start(a.core.clone(), &runners, WatchdogMode::Report);
         let mut ex = LockstepExecutor { core: a.core, driver, base, runners, manager: a.manager, watchdog };
         ex.transition(Lifecycle::Config).map_err(|e| StartupError { problems: vec![e.to_string()] })?;
         Ok(ex)
@@ -222,7 +224,7 @@ impl RealtimeExecutor {
             .map_err(|e| StartupError { problems: vec![e.to_string()] })?;
 
         let stop = Arc::new(AtomicBool::new(false));
-        let watchdog = Watchdog::start(core.clone(), &runners);
+        let watchdog = Watchdog::start(core.clone(), &runners, WatchdogMode::Isolate);
         let mut threads = Vec::new();
         for runner in runners {
             let (core, stop, wall) = (core.clone(), stop.clone(), wall.clone());
@@ -282,17 +284,20 @@ fn module_thread(
 ) -> Box<dyn Runner> {
     let id = runner.info().id;
     let inbox = core.post.inbox(id);
-    match runner.schedule() {
-        Schedule::Periodic(period) => {
-            let mut next = wall.now() + period;
-            while !stop.load(Ordering::Acquire) {
-                // Sleep until the next release, handling emergency messages as they come.
+    // The schedule is read again after every step: a configuration reloaded in Config (period,
+    // periodic or not) takes effect from the next release.
+    let mut next: Option<Time> = None;
+    while !stop.load(Ordering::Acquire) {
+        match runner.schedule() {
+            Schedule::Periodic(period) => {
+                let release = *next.get_or_insert_with(|| wall.now() + period);
+                // Sleep until the release, handling emergency messages as they come.
                 loop {
                     let now = wall.now();
-                    if now >= next || stop.load(Ordering::Acquire) {
+                    if now >= release || stop.load(Ordering::Acquire) {
                         break;
                     }
-                    if inbox.wait_emergency_until(wall.instant_at(next)) {
+                    if inbox.wait_emergency_until(wall.instant_at(release)) {
                         runner.step(core, wall.now(), StepMode::EmergencyOnly, OverrunBasis::Wall);
                     }
                 }
@@ -300,18 +305,21 @@ fn module_thread(
                     break;
                 }
                 let now = wall.now();
-                let late = now - next;
+                let mut release = release;
+                let late = now - release;
                 if late >= period {
                     let skipped = late.as_nanos() / period.as_nanos();
                     runner.add_skipped(skipped as u64);
-                    next += period * skipped;
+                    release += period * skipped;
                 }
                 runner.step(core, now, StepMode::Cycle, OverrunBasis::Wall);
-                next += period;
+                next = Some(match runner.schedule() {
+                    Schedule::Periodic(p) => release + p,
+                    Schedule::Aperiodic => release,
+                });
             }
-        }
-        Schedule::Aperiodic => {
-            while !stop.load(Ordering::Acquire) {
+            Schedule::Aperiodic => {
+                next = None;
                 let wake_by = std::time::Instant::now() + std::time::Duration::from_millis(50);
                 if inbox.wait_until(wake_by) && !stop.load(Ordering::Acquire) {
                     runner.step(core, wall.now(), StepMode::Cycle, OverrunBasis::Wall);
@@ -322,7 +330,19 @@ fn module_thread(
     runner
 }
 
-/// The watchdog thread: isolates modules whose step stays busy past their hang timeout.
+/// What the watchdog does with a module whose step stays busy past its hang timeout.
+#[derive(Copy, Clone, Debug, PartialEq, Eq)]
+enum WatchdogMode {
+    /// Real-time executor: isolates it in Safe (the other threads go on) and calls the handler.
+    Isolate,
+    /// Lockstep executor: calls the handler (a runner ends the run as an error) and changes nothing
+    /// in the system. Wall-clock speed must never decide a simulated outcome: a step that is merely
+    /// slow on a loaded machine, once it returns, goes on exactly as on a fast one.
+    Report,
+}
+
+/// The watchdog thread: watches every module's step against its hang timeout (as currently
+/// configured: a reloaded configuration's timeout takes effect).
 struct Watchdog {
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<Vec<ModuleId>>>,
@@ -330,15 +350,15 @@ struct Watchdog {
 }
 
 impl Watchdog {
-    fn start(core: Arc<Core>, runners: &[Box<dyn Runner>]) -> Self {
-        let modules: Vec<_> = runners.iter().map(|r| (r.info().clone(), r.hang_timeout())).collect();
+    fn start(core: Arc<Core>, runners: &[Box<dyn Runner>], mode: WatchdogMode) -> Self {
+        let modules: Vec<_> = runners.iter().map(|r| r.info().clone()).collect();
         let stop = Arc::new(AtomicBool::new(false));
         let handler: Arc<parking_lot::Mutex<Option<HangHandler>>> = Arc::default();
         let thread = {
             let (stop, handler) = (stop.clone(), handler.clone());
             std::thread::Builder::new()
                 .name("watchdog".into())
-                .spawn(move || watchdog_thread(&core, &stop, &modules, &handler))
+                .spawn(move || watchdog_thread(&core, &stop, &modules, &handler, mode))
                 .expect("spawn watchdog thread")
         };
         Watchdog { stop, thread: Some(thread), handler }
@@ -360,30 +380,45 @@ impl Drop for Watchdog {
 fn watchdog_thread(
     core: &Core,
     stop: &AtomicBool,
-    modules: &[(crate::module::ModuleInfo, Duration)],
+    modules: &[crate::module::ModuleInfo],
     handler: &parking_lot::Mutex<Option<HangHandler>>,
+    mode: WatchdogMode,
 ) -> Vec<ModuleId> {
     let mut hung = Vec::new();
-    let poll = modules
-        .iter()
-        .map(|(_, t)| *t / 4)
-        .min()
-        .unwrap_or(Duration::from_millis(50))
-        .clamp(Duration::from_millis(1), Duration::from_millis(50));
+    // The busy episode already reported, per module (Report mode reports each episode once).
+    let mut reported: std::collections::HashMap<ModuleId, i64> = Default::default();
     while !stop.load(Ordering::Acquire) {
+        let poll = modules
+            .iter()
+            .map(|m| core.status(m.id).hang_timeout() / 4)
+            .min()
+            .unwrap_or(Duration::from_millis(50))
+            .clamp(Duration::from_millis(1), Duration::from_millis(50));
         std::thread::sleep(poll.to_std());
         let now = core.wall_now();
-        for (info, timeout) in modules {
+        for info in modules {
             let status = core.status(info.id);
-            let since = status.busy_since_ns();
-            if since >= 0 && !status.is_isolated() && now - since > timeout.as_nanos() {
-                let busy = Duration::from_nanos(now - since);
-                let fault = crate::events::Fault::Hang { busy_s: busy.as_secs_f64() };
-                crate::runtime::isolate(core, info, status.lifecycle(), fault, core.now());
-                hung.push(info.id);
-                if let Some(h) = handler.lock().clone() {
-                    h(&info.name, busy);
+            let (since, timeout) = (status.busy_since_ns(), status.hang_timeout());
+            if since < 0 || status.is_isolated() || now - since <= timeout.as_nanos() {
+                continue;
+            }
+            if reported.get(&info.id) == Some(&since) {
+                continue;
+            }
+            reported.insert(info.id, since);
+            let busy = Duration::from_nanos(now - since);
+            match mode {
+                WatchdogMode::Isolate => {
+                    let fault = crate::events::Fault::Hang { busy_s: busy.as_secs_f64() };
+                    crate::runtime::isolate(core, info, status.lifecycle(), fault, core.now());
+                    hung.push(info.id);
                 }
+                WatchdogMode::Report => {
+                    tracing::warn!(module = %info.name, %busy, "module busy past its hang timeout (lockstep: waiting)");
+                }
+            }
+            if let Some(h) = handler.lock().clone() {
+                h(&info.name, busy);
             }
         }
     }

@@ -153,6 +153,10 @@ impl MoveStatus {
 }
 
 /// Position-controlled joints moved together: an arm, a pan-tilt unit, a gripper.
+///
+/// Drivers may have a deadman: a group whose software has sent nothing (a command or a
+/// [`JointGroup::keep_alive`]) for the driver's deadman time holds its joints where they are and
+/// ends its move as stopped, so that a module that dies mid-move does not leave the arm moving.
 pub trait JointGroup: Send {
     /// Device name (also its reservation name).
     fn device(&self) -> &str;
@@ -176,6 +180,12 @@ pub trait JointGroup: Send {
     fn stop(&mut self, token: &ReservationToken) -> Result<(), DeviceError>;
     /// Leaves the fault state (through RECOVERING) and servos at the present position.
     fn recover(&mut self, token: &ReservationToken) -> Result<(), DeviceError>;
+    /// Tells the driver that the software commanding the group is alive (call it every cycle while
+    /// holding the group; a driver without a deadman ignores it).
+    fn keep_alive(&mut self, token: &ReservationToken) -> Result<(), DeviceError> {
+        let _ = token;
+        Ok(())
+    }
     /// Measured joint positions.
     fn positions(&self) -> Vec<f64> {
         self.states().iter().map(|s| s.position).collect()
@@ -254,6 +264,10 @@ impl LocomotorModel {
 }
 
 /// Rover locomotion.
+///
+/// Drivers may have a deadman: wheels commanded to turn stop when no fresh command (`drive`,
+/// `set_wheel_rates`, `stop`) comes within the driver's deadman time, so the commanding module
+/// sends one every cycle.
 pub trait Locomotor: Send {
     /// Device name (also its reservation name).
     fn device(&self) -> &str;

@@ -23,6 +23,7 @@ pub struct ModuleStatus {
     lifecycle: AtomicU8,
     isolated: AtomicBool,
     busy_since_ns: AtomicI64,
+    hang_timeout_ns: AtomicI64,
     stats: Mutex<TaskStats>,
     state: Mutex<String>,
     context: Mutex<ExecContext>,
@@ -55,6 +56,13 @@ impl ModuleStatus {
     }
     pub(crate) fn set_busy_since(&self, ns: i64) {
         self.busy_since_ns.store(ns, Ordering::Release);
+    }
+    /// The hang timeout of the module's current configuration (a reloaded one takes effect).
+    pub fn hang_timeout(&self) -> crate::time::Duration {
+        crate::time::Duration::from_nanos(self.hang_timeout_ns.load(Ordering::Acquire))
+    }
+    pub(crate) fn set_hang_timeout(&self, d: crate::time::Duration) {
+        self.hang_timeout_ns.store(d.as_nanos(), Ordering::Release);
     }
     /// Statistics so far.
     pub fn stats(&self) -> TaskStats {

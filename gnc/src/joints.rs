@@ -94,6 +94,10 @@ impl JointGroupModule {
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
+        // The driver's deadman holds the group if this stops coming (a revoked token: not ours).
+        if let Some(token) = &self.token {
+            let _ = self.group.keep_alive(token);
+        }
         if let Some((id, _)) = &self.current {
             let status = self.group.move_status(*id);
             let outcome = match status {
@@ -185,7 +189,7 @@ impl Module for JointGroupModule {
                 let device = self.group.device().to_string();
                 self.token = Some(ctx.acquire(&device).map_err(|e| e.to_string())?);
             }
-            Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown => {
+            Lifecycle::Hold | Lifecycle::Shutdown => {
                 if let Some((_, req)) = self.current.take() {
                     ctx.reply(&req, Outcome::fail(format!("'{}' left Run for {to}", ctx.name())));
                 }
@@ -196,5 +200,14 @@ impl Module for JointGroupModule {
             _ => {}
         }
         Ok(())
+    }
+
+    /// Safe: the joints hold where they are (the framework fails the move in progress); should this
+    /// hook not run (a hang), the group's deadman holds them.
+    fn on_safe(&mut self, _ctx: &mut Ctx<'_>) {
+        self.current = None;
+        if let Some(token) = &self.token {
+            let _ = self.group.stop(token);
+        }
     }
 }

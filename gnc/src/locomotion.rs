@@ -321,6 +321,15 @@ impl Locomotion {
         ctx.goto(state).map_err(|e| ModuleError(e.to_string()))
     }
 
+    /// Ends any manoeuvre and stops the wheels.
+    fn stop_rover(&mut self) {
+        self.manoeuvre = None;
+        if let Some(token) = &self.token {
+            let _ = self.locomotor.stop(token);
+        }
+        self.command = BodyTwist::default();
+    }
+
     /// Fits a twist into the locomotor's limits: yaw rate first (steering wins), then the speed
     /// that leaves every wheel within its rate limit.
     fn saturate(&self, t: BodyTwist) -> BodyTwist {
@@ -683,19 +692,23 @@ impl Module for Locomotion {
                 let device = self.locomotor.device().to_string();
                 self.token = Some(ctx.acquire(&device).map_err(|e| e.to_string())?);
             }
-            Lifecycle::Hold | Lifecycle::Safe | Lifecycle::Shutdown => {
+            Lifecycle::Hold | Lifecycle::Shutdown => {
                 // Leaving Run stops the rover; the manoeuvre in progress fails.
-                self.manoeuvre = None;
                 if let Some(req) = self.pending.take() {
                     ctx.reply(&req, Outcome::fail(format!("locomotion left Run for {to}")));
                 }
-                if let Some(token) = &self.token {
-                    let _ = self.locomotor.stop(token);
-                }
-                self.command = BodyTwist::default();
+                self.stop_rover();
             }
             _ => {}
         }
         Ok(())
+    }
+
+    /// Safe (commanded, or isolated after a panic or an error): the rover stops now; the framework
+    /// answers the manoeuvre in progress Failed. Should this hook not run (a hang), the locomotor's
+    /// deadman stops the wheels.
+    fn on_safe(&mut self, _ctx: &mut Ctx<'_>) {
+        self.pending = None;
+        self.stop_rover();
     }
 }

@@ -74,6 +74,10 @@ pub struct Metrics {
     /// When and between which parts each counted contact began (the first 20).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub contacts: Vec<String>,
+    /// Actuator deadmen that fired (the software fell silent while a device moved): when, which
+    /// device, after how long.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub deadman_trips: Vec<String>,
     /// The latest grasp of the canister: the handle's distance from the tool centre point, m.
     pub grasp_position_error_m: Option<f64>,
     /// The latest grasp: the handle's rotation from the nominal grasp, degrees.

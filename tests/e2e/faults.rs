@@ -62,3 +62,25 @@ fn an_arm_servo_trip_during_the_acquisition_is_recovered_and_the_mission_succeed
         s["criteria"].as_array().unwrap().iter().filter(|c| c["passed"] == false).collect();
     assert!(unmet.len() == 1 && unmet[0]["value"] == "no fault reported", "{unmet:?}");
 }
+
+#[test]
+fn a_locomotion_crash_mid_drive_stops_the_rover_at_once_and_the_system_ends_safe() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = rover_twin()
+        .arg("run")
+        .arg(root().join("scenarios/fault_locomotion_crash.toml"))
+        .arg("--out")
+        .arg(dir.path())
+        .args(["--quiet", "--set", "logging.rrd=false", "--set", "logging.mcap=false"])
+        .output()
+        .unwrap();
+    let s = score(dir.path());
+    assert_eq!(o.status.code(), Some(0), "{}\n{s}", show(&o));
+    assert!(s["metrics"]["isolated_modules"]["locomotion"].is_string(), "{s}");
+    let travel = s["criteria"].as_array().unwrap().iter().find(|c| c["name"] == "travel after 10 s").unwrap();
+    assert_eq!(travel["passed"], true, "{travel}");
+    // Stopped by the safing hook at once, well inside what the deadman would allow (0.3 m/s x 0.25 s).
+    let moved: f64 = travel["value"].as_str().unwrap().trim_end_matches(" m").parse().unwrap();
+    assert!(moved < 0.075, "{moved} m after the crash");
+    assert_eq!(s["phases"][0]["status"], "failed", "{s}");
+}

@@ -124,6 +124,18 @@ pub struct ServoConfig {
     pub state_rate_hz: f64,
     /// Measurement to availability of joint states, s.
     pub state_latency_s: f64,
+    /// Deadman: a group whose commanding software has sent nothing (a move, a stop, a recover or a
+    /// keep-alive) for this long holds its joints where they are and ends its move, s (0: none).
+    #[serde(default = "default_servo_deadman")]
+    pub deadman_s: f64,
+}
+
+fn default_servo_deadman() -> f64 {
+    0.5
+}
+
+fn default_locomotor_deadman() -> f64 {
+    0.25
 }
 
 /// Gripper.
@@ -152,6 +164,9 @@ pub struct LocomotorLimits {
     pub max_slope_deg: f64,
     /// m.
     pub max_step_m: f64,
+    /// Deadman: wheels commanded to turn with no fresh command for this long stop, s (0: none).
+    #[serde(default = "default_locomotor_deadman")]
+    pub deadman_s: f64,
 }
 
 /// IMU noise model.
@@ -329,6 +344,8 @@ impl TwinConfig {
             ("encoders.latency_s", c.encoders.latency_s),
             ("encoders.jitter_s", c.encoders.jitter_s),
             ("servos.state_latency_s", c.servos.state_latency_s),
+            ("servos.deadman_s", c.servos.deadman_s),
+            ("locomotor.deadman_s", c.locomotor.deadman_s),
         ] {
             non_negative(k, v)?;
         }

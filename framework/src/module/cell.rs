@@ -1,13 +1,13 @@
 //! The cell: a module with everything the framework keeps for it, stepped by the executors.
 
-use super::ctx::FsmView;
+use super::ctx::{FsmView, Ledger};
 use super::declare::Fsm;
 use super::*;
 use crate::config::{ConfigError, ConfigSource, FrameworkKeys, Schedule, Source};
 use crate::events::{EventKind, Fault};
 use crate::exec_context::ExecContext;
 use crate::lifecycle::Lifecycle;
-use crate::message::{AckStatus, AckTracker, Body, Message, ModuleId, Outcome, Queue};
+use crate::message::{AckStatus, Body, Message, ModuleId, Outcome, Queue};
 use crate::runtime::Core;
 use crate::stats::TaskStats;
 use crate::time::{Duration, Time};
@@ -62,7 +62,7 @@ pub(crate) struct Cell<M: Module> {
     pub(super) exec: ExecContext,
     pub(super) lifecycle: Lifecycle,
     pub(super) isolated: bool,
-    pub(super) tracker: AckTracker,
+    pub(super) ledger: Ledger,
     pub(super) stats: TaskStats,
     pub(super) consecutive_overruns: u32,
     /// A fault injected through the debug queue, raised at the next cycle.
@@ -160,7 +160,7 @@ impl<M: Module> Cell<M> {
             source,
             lifecycle: Lifecycle::Startup,
             isolated: false,
-            tracker: AckTracker::default(),
+            ledger: Ledger::default(),
             stats: TaskStats::default(),
             consecutive_overruns: 0,
             injected: None,
@@ -171,7 +171,7 @@ impl<M: Module> Cell<M> {
         core: &'c Core,
         info: &'c ModuleInfo,
         fsm: &'c Fsm<M>,
-        tracker: &'c mut AckTracker,
+        ledger: &'c mut Ledger,
         now: Time,
         exec: ExecContext,
         lifecycle: Lifecycle,
@@ -190,17 +190,44 @@ impl<M: Module> Cell<M> {
             },
             current: fsm.current,
             goto: None,
-            tracker,
+            ledger,
             request: None,
             charged: Duration::ZERO,
         }
     }
 
-    /// Puts the module in Safe and isolates it.
+    /// Puts the module in Safe and isolates it: its safing hook runs first (while it still holds its
+    /// devices), the commands it had accepted are answered Failed, then its reservations are freed.
     pub(super) fn isolate(&mut self, core: &Core, now: Time, fault: Fault) {
         let from = std::mem::replace(&mut self.lifecycle, Lifecycle::Safe);
         self.isolated = true;
+        let why = fault.to_string();
+        self.make_safe(core, now, &why);
         crate::runtime::isolate(core, &self.info, from, fault, now);
+    }
+
+    /// Runs the module's safing hook ([`Module::on_safe`]) and answers every command it had accepted
+    /// but not finished Failed, naming `why`. A panic in the hook is reported and goes no further.
+    pub(super) fn make_safe(&mut self, core: &Core, now: Time, why: &str) {
+        let mut ctx =
+            Self::ctx(core, &self.info, &self.fsm, &mut self.ledger, now, self.exec, Lifecycle::Safe);
+        let module = &mut self.module;
+        let r = catch_unwind(AssertUnwindSafe(|| module.on_safe(&mut ctx)));
+        drop(ctx);
+        if let Err(p) = r {
+            let text = format!("safing hook panicked: {}", panic_text(&*p));
+            tracing::error!(module = %self.info.name, "{text}");
+            core.events.raise(now, EventKind::Note { module: self.info.name.clone(), text });
+        }
+        for (_, m) in std::mem::take(&mut self.ledger.accepted) {
+            let command = match &m.body {
+                Body::Command { name, .. } => name.as_str(),
+                Body::Ack(_) => "",
+            };
+            let reason =
+                format!("module '{}' went to Safe ({why}) before finishing '{command}'", self.info.name);
+            core.post.acknowledge(&m, self.info.id, now, AckStatus::Failed(reason));
+        }
     }
 
     pub(super) fn apply_goto(&mut self, core: &Core, now: Time, goto: Option<usize>) {
@@ -240,7 +267,7 @@ impl<M: Module> Cell<M> {
         }
         let (name, args) = match &mut m.body {
             Body::Ack(ack) => {
-                self.tracker.update(ack);
+                self.ledger.sent.update(ack);
                 if let Some(f) = self.on_ack
                     && !self.isolated
                 {
@@ -249,7 +276,7 @@ impl<M: Module> Cell<M> {
                         core,
                         &self.info,
                         &self.fsm,
-                        &mut self.tracker,
+                        &mut self.ledger,
                         now,
                         self.exec,
                         self.lifecycle,
@@ -307,6 +334,12 @@ impl<M: Module> Cell<M> {
         if self.isolated || self.lifecycle == Lifecycle::Safe {
             return Outcome::reject(format!("module '{}' is in Safe", self.info.name));
         }
+        if matches!(self.lifecycle, Lifecycle::Standby | Lifecycle::Shutdown | Lifecycle::Startup) {
+            return Outcome::reject(format!(
+                "module '{}' is in {}: it takes only framework commands there",
+                self.info.name, self.lifecycle
+            ));
+        }
         if !self.commands.contains_key(name) {
             return Outcome::reject(format!(
                 "unknown command '{name}' for module '{}' (it knows: {})",
@@ -324,17 +357,24 @@ impl<M: Module> Cell<M> {
         }
         let handler = &self.commands[name];
         let mut ctx =
-            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
+            Self::ctx(core, &self.info, &self.fsm, &mut self.ledger, now, self.exec, self.lifecycle);
         ctx.request = Some(Request {
             message: Message {
                 body: Body::Command { name: name.into(), args: serde_json::Value::Null },
                 ..m.clone()
             },
         });
+        // Booked as accepted before the handler runs, so that a reply from inside it clears it.
+        let booked =
+            Message { body: Body::Command { name: name.into(), args: serde_json::Value::Null }, ..m.clone() };
+        ctx.ledger.accepted.insert(m.id, booked);
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| handler(module, &mut ctx, args)));
         let goto = ctx.goto;
         drop(ctx);
+        if !matches!(r, Ok(Outcome::Accepted)) {
+            self.ledger.accepted.remove(&m.id);
+        }
         match r {
             Ok(outcome) => {
                 self.apply_goto(core, now, goto);
@@ -359,7 +399,7 @@ impl<M: Module> Cell<M> {
         // An injected fault takes the state function's place and goes the same way to isolation.
         let injected = self.injected.take();
         let mut ctx =
-            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
+            Self::ctx(core, &self.info, &self.fsm, &mut self.ledger, now, self.exec, self.lifecycle);
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| {
             let Some(kind) = injected else { return f(module, &mut ctx) };
@@ -407,6 +447,7 @@ impl<M: Module> Runner for Cell<M> {
         let s = core.status(self.info.id);
         s.set_lifecycle(self.lifecycle);
         s.set_context(self.exec);
+        s.set_hang_timeout(self.hang_timeout());
         s.set_state(self.fsm.states.get(self.fsm.current).map(|s| s.name.as_str()).unwrap_or(""));
     }
 
@@ -414,9 +455,12 @@ impl<M: Module> Runner for Cell<M> {
     fn step(&mut self, core: &Core, now: Time, mode: StepMode, basis: OverrunBasis) {
         let status = core.status(self.info.id);
         if status.is_isolated() && !self.isolated {
-            // The watchdog isolated this module from outside (hang): adopt it.
+            // The watchdog isolated this module from outside (a hang, real-time executor) while its
+            // step was stuck: adopt it, and make it safe now that the step has returned (its
+            // devices' deadmen have stopped them meanwhile).
             self.isolated = true;
             self.lifecycle = Lifecycle::Safe;
+            self.make_safe(core, now, "hung past its hang timeout");
         }
         let started = std::time::Instant::now();
         status.set_busy_since(core.wall_now());
@@ -475,5 +519,7 @@ impl<M: Module> Runner for Cell<M> {
         }
         status.set_busy_since(-1);
         status.store_stats(&self.stats);
+        // A configuration reloaded during this step brings its own hang timeout to the watchdog.
+        status.set_hang_timeout(self.hang_timeout());
     }
 }

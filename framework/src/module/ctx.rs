@@ -10,8 +10,16 @@ use crate::message::{
 use crate::resources::{ReservationError, ReservationToken};
 use crate::runtime::Core;
 use crate::time::{Duration, Time};
-use std::collections::{HashMap, HashSet};
+use std::collections::{BTreeMap, HashMap, HashSet};
 use std::sync::Arc;
+
+/// A module's book of commands: those it sent (with their acknowledgements) and those it accepted
+/// and has not yet answered finally (answered Failed if the module goes to Safe first).
+#[derive(Default)]
+pub(super) struct Ledger {
+    pub(super) sent: AckTracker,
+    pub(super) accepted: BTreeMap<MessageId, Message>,
+}
 
 /// A command being handled, kept by a module that accepted it to reply later with [`Ctx::reply`].
 #[derive(Clone, Debug, PartialEq)]
@@ -82,7 +90,7 @@ pub struct Ctx<'a> {
     pub(super) fsm: FsmView<'a>,
     pub(super) current: usize,
     pub(super) goto: Option<usize>,
-    pub(super) tracker: &'a mut AckTracker,
+    pub(super) ledger: &'a mut Ledger,
     pub(super) request: Option<Request>,
     pub(super) charged: Duration,
 }
@@ -162,17 +170,17 @@ impl<'a> Ctx<'a> {
         let name = cmd.name.clone();
         let m = self.core.post.compose(self.id, self.now, cmd)?;
         let id = m.id;
-        self.tracker.sent(id, &name);
+        self.ledger.sent.sent(id, &name);
         self.core.post.post(m);
         Ok(id)
     }
     /// The latest known status of a command this module sent.
     pub fn ack_status(&self, id: MessageId) -> Option<AckStatus> {
-        self.tracker.status(id)
+        self.ledger.sent.status(id)
     }
     /// Commands sent without a final acknowledgement yet.
     pub fn outstanding_commands(&self) -> usize {
-        self.tracker.outstanding()
+        self.ledger.sent.outstanding()
     }
     /// The command being handled (inside a command handler), to keep and [`Ctx::reply`] to later.
     pub fn request(&self) -> Option<Request> {
@@ -180,6 +188,9 @@ impl<'a> Ctx<'a> {
     }
     /// Reports the completion or failure of a command accepted earlier.
     pub fn reply(&mut self, request: &Request, outcome: Outcome) {
+        if !matches!(outcome, Outcome::Accepted) {
+            self.ledger.accepted.remove(&request.id());
+        }
         self.core.post.acknowledge(&request.message, self.id, self.now, outcome.into_status());
     }
     /// Declares simulated execution time spent in this cycle (the cost on the target computer). The

@@ -214,7 +214,7 @@ impl<M: Module> Cell<M> {
         from.check_transition(to)
             .map_err(|e| Outcome::reject(format!("module '{}': {e}", self.info.name)))?;
         let mut ctx =
-            Self::ctx(core, &self.info, &self.fsm, &mut self.tracker, now, self.exec, self.lifecycle);
+            Self::ctx(core, &self.info, &self.fsm, &mut self.ledger, now, self.exec, self.lifecycle);
         let module = &mut self.module;
         let r = catch_unwind(AssertUnwindSafe(|| module.on_transition(&mut ctx, from, to)));
         drop(ctx);
@@ -233,6 +233,9 @@ impl<M: Module> Cell<M> {
             _ => {}
         }
         self.lifecycle = to;
+        if to == Lifecycle::Safe && from != Lifecycle::Safe {
+            self.make_safe(core, now, "commanded");
+        }
         if from == Lifecycle::Safe {
             self.isolated = false;
             self.consecutive_overruns = 0;

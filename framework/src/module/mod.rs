@@ -91,6 +91,11 @@ pub trait Module: Send + Sized + 'static {
     fn on_transition(&mut self, _ctx: &mut Ctx<'_>, _from: Lifecycle, _to: Lifecycle) -> Result<(), String> {
         Ok(())
     }
+    /// The safing hook: called whenever the module enters Safe, commanded or isolated by the watchdog
+    /// (a panic, an error, overruns; after a hang, once its step returns), before its reservations
+    /// are freed. An actuator module stops what it drives here. Commands it had accepted are
+    /// answered Failed by the framework afterwards.
+    fn on_safe(&mut self, _ctx: &mut Ctx<'_>) {}
 }
 
 /// Names of the commands the framework handles for every module. Modules cannot bind them.

@@ -682,6 +682,11 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
                 format!("{:.2} s {kind}: {} / {}", c.t_s, c.parts[0], c.parts[1])
             })
             .collect(),
+        deadman_trips: t
+            .deadman_trips()
+            .iter()
+            .map(|d| format!("{:.2} s {}: no command for {:.2} s, stopped", d.t_s, d.device, d.silent_s))
+            .collect(),
         grasp_position_error_m: t.grasp_truth().map(|g| g.position_error_m),
         grasp_angle_error_deg: t.grasp_truth().map(|g| g.angle_error_deg),
         max_tilt_deg: scorer.max_tilt,

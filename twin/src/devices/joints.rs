@@ -43,6 +43,7 @@ impl JointGroup for DryRunJointGroup {
         if let Some(f) = t.joint_states(&self.joints).iter().find_map(|s| s.status.fault.clone()) {
             return Err(DeviceError::Fault { device: self.device.clone(), reason: f });
         }
+        t.keep_group_alive(&self.device);
         t.start_move(&self.device, targets, speed).map_err(|e| self.invalid(e))
     }
     fn move_status(&self, id: MoveId) -> MoveStatus {
@@ -50,10 +51,19 @@ impl JointGroup for DryRunJointGroup {
     }
     fn stop(&mut self, token: &ReservationToken) -> Result<(), DeviceError> {
         check_token(&self.resources, &self.device, token)?;
-        self.twin.lock().stop_group(&self.device).map_err(|e| self.invalid(e))
+        let mut t = self.twin.lock();
+        t.keep_group_alive(&self.device);
+        t.stop_group(&self.device).map_err(|e| self.invalid(e))
     }
     fn recover(&mut self, token: &ReservationToken) -> Result<(), DeviceError> {
         check_token(&self.resources, &self.device, token)?;
-        self.twin.lock().recover_group(&self.device).map_err(|e| self.invalid(e))
+        let mut t = self.twin.lock();
+        t.keep_group_alive(&self.device);
+        t.recover_group(&self.device).map_err(|e| self.invalid(e))
+    }
+    fn keep_alive(&mut self, token: &ReservationToken) -> Result<(), DeviceError> {
+        check_token(&self.resources, &self.device, token)?;
+        self.twin.lock().keep_group_alive(&self.device);
+        Ok(())
     }
 }

@@ -29,7 +29,7 @@ impl Locomotor for DryRunLocomotor {
                 cmd.v, cmd.omega, self.model.max_speed, self.model.max_yaw_rate, self.model.max_wheel_rate
             ),
         })?;
-        self.twin.lock().set_wheel_rates(&rates);
+        self.twin.lock().command_wheels(&rates);
         Ok(())
     }
     fn set_wheel_rates(&mut self, token: &ReservationToken, rates: &[f64]) -> Result<(), DeviceError> {
@@ -46,13 +46,13 @@ impl Locomotor for DryRunLocomotor {
                 ),
             });
         }
-        self.twin.lock().set_wheel_rates(rates);
+        self.twin.lock().command_wheels(rates);
         Ok(())
     }
     fn stop(&mut self, token: &ReservationToken) -> Result<(), DeviceError> {
         check_token(&self.resources, LOCOMOTOR, token)?;
         let n = self.model.wheels.len();
-        self.twin.lock().set_wheel_rates(&vec![0.0; n]);
+        self.twin.lock().command_wheels(&vec![0.0; n]);
         Ok(())
     }
 }

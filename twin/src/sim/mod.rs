@@ -36,6 +36,7 @@ use worlds::World;
 use worlds::spec::ObjectKind;
 
 mod build;
+mod deadman;
 mod engines;
 mod grasp;
 mod selfcollision;
@@ -43,6 +44,7 @@ mod servos;
 
 pub use build::CollisionGrid;
 use build::locomotor_model;
+pub use deadman::DeadmanTrip;
 use engines::active_pairs;
 pub use grasp::CanisterMotion;
 use servos::servo_gains;
@@ -258,6 +260,11 @@ pub struct Twin {
     wheels: Vec<usize>,
     rockers: Vec<usize>,
     wheel_cmd: Vec<f64>,
+    /// When the locomotor driver last commanded the wheels (armed deadman), if it did.
+    wheel_cmd_at: Option<Time>,
+    /// When the driver of each joint group last heard from its software (armed deadmen).
+    group_alive_at: BTreeMap<String, Time>,
+    deadman_trips: Vec<DeadmanTrip>,
     /// Injected faults: wheels whose drive is jammed (the wheel holds still whatever is commanded).
     stalled: Vec<bool>,
     /// Injected faults: when each jammed wheel frees itself (a stone caught in it), if it does.
@@ -345,6 +352,9 @@ impl Twin {
             wheels: Vec::new(),
             rockers: Vec::new(),
             wheel_cmd: vec![0.0; WHEELS.len()],
+            wheel_cmd_at: None,
+            group_alive_at: BTreeMap::new(),
+            deadman_trips: Vec::new(),
             stalled: vec![false; WHEELS.len()],
             unjam_at: vec![None; WHEELS.len()],
             slip_grasps: 0,
@@ -437,8 +447,10 @@ impl Twin {
         })
     }
 
-    /// Commands wheel rates (rad/s, [`WHEELS`] order), clamped to the wheel velocity limit.
+    /// Commands wheel rates (rad/s, [`WHEELS`] order), clamped to the wheel velocity limit. No
+    /// deadman watches these (see [`Twin::command_wheels`]).
     pub fn set_wheel_rates(&mut self, rates: &[f64]) {
+        self.wheel_cmd_at = None;
         let max = self.locomotor.max_wheel_rate;
         for (c, r) in self.wheel_cmd.iter_mut().zip(rates) {
             *c = if r.is_finite() { r.clamp(-max, max) } else { 0.0 };
@@ -542,6 +554,7 @@ impl Twin {
     /// Advances the simulation by one step.
     pub fn step(&mut self) {
         let dt = self.config.physics.dt_s;
+        self.update_deadman();
         self.update_servos(dt);
         match &mut self.engine {
             Engine::Dynamic(_) => self.step_dynamic(),

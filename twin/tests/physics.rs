@@ -27,8 +27,17 @@ fn slope(deg: f64, friction: f64) -> World {
     ))
 }
 
+/// The twin configuration of these tests: the defaults without the drivers' deadmen, since each
+/// test commands a device once and watches the physics for seconds (tests/deadman.rs tests them).
+fn config() -> twin::TwinConfig {
+    let mut c = twin::TwinConfig::load(twin::TwinConfig::default_path()).unwrap();
+    c.locomotor.deadman_s = 0.0;
+    c.servos.deadman_s = 0.0;
+    c
+}
+
 fn rover(w: World, x: f64, y: f64, yaw: f64, fidelity: Fidelity) -> Twin {
-    Twin::with_defaults(w, StartPose { x, y, yaw }, fidelity).unwrap()
+    Twin::new(w, config(), &twin::rover_urdf(), StartPose { x, y, yaw }, fidelity).unwrap()
 }
 
 fn devices(t: &SharedTwin) -> (DryRunDeviceMap, Resources) {
@@ -122,7 +131,7 @@ fn a_static_imu_reads_gravity_within_its_noise() {
 /// Yaw rate a point turn commanded at `omega` reaches on `w` at (x, y, yaw_deg), rad/s (over 3 s,
 /// after 1 s of spin-up).
 fn point_turn_rate(w: World, x: f64, y: f64, yaw_deg: f64, omega: f64, tread_edge_m: f64) -> f64 {
-    let mut config = twin::TwinConfig::load(twin::TwinConfig::default_path()).unwrap();
+    let mut config = config();
     config.wheels.tread_edge_radius_m = tread_edge_m;
     let start = StartPose { x, y, yaw: yaw_deg.to_radians() };
     let t = share(Twin::new(w, config, &twin::rover_urdf(), start, Fidelity::Dynamic).unwrap());

@@ -3,7 +3,8 @@
 #   framework depends on no crate of ours; gnc never on twin, rapier, parry or wgpu (it sees the world
 #   only through the framework's HAL); twin and gnc never on each other; worlds on none of ours but
 #   framework; logger on framework and worlds only (no twin, gnc or scenarios: it is told what to
-#   draw through its run header)... and nothing depends on scenarios.
+#   draw through its run header); net on framework only, and no module crate on net (a module does
+#   not know whether it runs local or remote)... and nothing depends on scenarios.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 fail=0
@@ -18,9 +19,10 @@ forbid() { # crate, forbidden dependency names...
     fi
   done
 }
-forbid framework twin gnc worlds logger scenarios
-forbid gnc twin worlds scenarios rapier3d parry3d wgpu
-forbid twin gnc scenarios
+forbid framework twin gnc worlds logger net scenarios
+forbid gnc twin worlds net scenarios rapier3d parry3d wgpu
+forbid twin gnc net scenarios
+forbid net twin gnc worlds logger scenarios rapier3d wgpu
 forbid worlds twin gnc scenarios rapier3d wgpu
 forbid logger twin gnc scenarios rapier3d wgpu
 [ $fail -eq 0 ] && echo "layering: ok"

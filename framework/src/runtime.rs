@@ -27,6 +27,7 @@ pub struct ModuleStatus {
     stats: Mutex<TaskStats>,
     state: Mutex<String>,
     context: Mutex<ExecContext>,
+    meta: Mutex<std::collections::BTreeMap<String, String>>,
 }
 
 impl ModuleStatus {
@@ -79,6 +80,13 @@ impl ModuleStatus {
         let mut g = self.state.lock();
         g.clear();
         g.push_str(s);
+    }
+    /// The active implementation of each meta-state.
+    pub fn meta_states(&self) -> std::collections::BTreeMap<String, String> {
+        self.meta.lock().clone()
+    }
+    pub(crate) fn set_meta(&self, state: &str, implementation: &str) {
+        self.meta.lock().insert(state.to_string(), implementation.to_string());
     }
     /// Current execution context.
     pub fn context(&self) -> ExecContext {

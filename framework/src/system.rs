@@ -403,6 +403,8 @@ pub struct ModuleReport {
     pub context: String,
     /// Isolated by the watchdog.
     pub isolated: bool,
+    /// The active implementation of each meta-state.
+    pub meta_states: BTreeMap<String, String>,
     /// Statistics.
     pub stats: TaskStats,
 }
@@ -420,6 +422,7 @@ pub fn module_reports(core: &Core) -> Vec<ModuleReport> {
                 state: s.state(),
                 context: s.context().to_string(),
                 isolated: s.is_isolated(),
+                meta_states: s.meta_states(),
                 stats: s.stats(),
             }
         })

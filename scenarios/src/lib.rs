@@ -8,6 +8,7 @@
 //! the framework demo ([`demo`]). The `rover-twin` binary is a thin CLI over these.
 
 pub mod check;
+pub mod console_cli;
 pub mod demo;
 pub mod faults;
 pub mod fuzz;

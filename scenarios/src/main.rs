@@ -53,6 +53,11 @@ enum Cmd {
     /// Renders what the rover's cameras see at the canister mission's start as PNG files (head
     /// camera, localization camera, ToF depth): the README's pictures.
     Snapshot(SnapshotArgs),
+    /// Attach to a run started with `run --listen` over NET: list modules with their states,
+    /// contexts, meta-states and statistics, send commands and see their acknowledgements, read
+    /// slots, change lifecycle states, pause, step and resume. One command per invocation
+    /// (`--json` for scripts), or interactive without one.
+    Console(scenarios::console_cli::ConsoleArgs),
 }
 
 #[derive(clap::Args)]
@@ -134,6 +139,16 @@ struct RunArgs {
     /// default 1 with --live, else 0).
     #[arg(long, value_name = "X")]
     pace: Option<f64>,
+    /// Serve consoles over NET (`rover-twin console`): on the endpoint of --net-config (default
+    /// tcp/127.0.0.1:7447), or --listen=ENDPOINT.
+    #[arg(long, value_name = "ENDPOINT", num_args = 0..=1, require_equals = true, default_missing_value = "")]
+    listen: Option<String>,
+    /// The link's configuration file (endpoint, authentication, limits): see scenarios/config/net.toml.
+    #[arg(long, value_name = "FILE")]
+    net_config: Option<PathBuf>,
+    /// With --listen: wait, paused, for a console's `step` or `resume` once the system is in Run.
+    #[arg(long, requires = "listen")]
+    paused: bool,
 }
 
 #[derive(clap::Args)]
@@ -282,6 +297,7 @@ fn main() {
         Cmd::Run(a) => run_main(a),
         Cmd::Sweep(a) => sweep_main(a),
         Cmd::Check(a) => Ok(check_main(&a)),
+        Cmd::Console(a) => scenarios::console_cli::main(&a),
         Cmd::Bench(a) => bench_main(&a),
         Cmd::Snapshot(a) => scenarios::snapshot::run(&a.world, &a.out).map(|files| {
             for f in files {
@@ -326,6 +342,13 @@ fn run_main(a: RunArgs) -> Result<i32> {
             None => 0.0,
         },
         live: a.live.clone(),
+        listen: match &a.listen {
+            Some(endpoint) => {
+                let endpoint = Some(endpoint.as_str()).filter(|e| !e.is_empty());
+                Some((scenarios::console_cli::net_config(a.net_config.as_ref(), endpoint)?, a.paused))
+            }
+            None => None,
+        },
     };
     // A panic of the runner itself (a bug, or an input not yet validated) ends the run with a
     // clear error and exit status 2, never a crash dump alone.
@@ -511,6 +534,7 @@ fn bench_main(a: &BenchArgs) -> Result<i32> {
                 interrupt: interrupt.clone(),
                 live: None,
                 pace: 0.0,
+                listen: None,
             };
             let score = runner::run(&loaded, &opts)?;
             best[k] = best[k].min(score.wall_time_s);

@@ -139,7 +139,7 @@ pub(crate) fn build_system(
             source,
         );
     }
-    b.endpoint("ground").endpoint("events");
+    b.endpoint("ground").endpoint("events").endpoint("console");
     Ok(b)
 }
 

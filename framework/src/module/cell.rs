@@ -449,6 +449,9 @@ impl<M: Module> Runner for Cell<M> {
         s.set_context(self.exec);
         s.set_hang_timeout(self.hang_timeout());
         s.set_state(self.fsm.states.get(self.fsm.current).map(|s| s.name.as_str()).unwrap_or(""));
+        for st in self.fsm.states.iter().filter(|st| st.meta) {
+            s.set_meta(&st.name, &st.impls[st.active].0);
+        }
     }
 
     #[allow(clippy::disallowed_methods)] // the executor measures execution time; modules never see it

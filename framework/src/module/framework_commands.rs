@@ -128,6 +128,7 @@ impl<M: Module> Cell<M> {
                     ))
                 })?;
                 st.active = k;
+                core.status(self.info.id).set_meta(&state, &implementation);
                 core.events.raise(
                     now,
                     EventKind::MetaStateSwitched { module: self.info.name.clone(), state, implementation },

@@ -47,6 +47,9 @@ pub struct RunOptions {
     pub live: Option<String>,
     /// Simulated seconds per wall-clock second at most (0: as fast as it goes).
     pub pace: f64,
+    /// Serve consoles over NET (`--listen`): the link's configuration, and whether the run waits
+    /// paused for a console's `step` or `resume` once the system is in Run.
+    pub listen: Option<(net::NetConfig, bool)>,
 }
 
 /// Radius kept free of rocks around the rover's start, m (its footprint's half-diagonal, 0.7 m,
@@ -535,6 +538,24 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let steps = Arc::new(std::sync::atomic::AtomicU64::new(0));
     let watch = ending::StuckWatch::start(opts.interrupt.clone(), steps.clone(), abort_now, &end)?;
     ex.walk_to(Lifecycle::Run).context("bringing the system to Run")?;
+    let mut console = match &opts.listen {
+        Some((cfg, paused)) => {
+            let mut server = net::ConsoleServer::open(cfg, ex.endpoint("console")?)
+                .with_context(|| format!("--listen on {}", cfg.endpoint))?;
+            if *paused {
+                server.pause();
+            }
+            println!(
+                "console: listening on {} (rover-twin console --connect {} modules){}",
+                cfg.endpoint,
+                cfg.endpoint,
+                if *paused { "; paused until a console steps or resumes the run" } else { "" }
+            );
+            let _ = std::io::stdout().flush();
+            Some(server)
+        }
+        None => None,
+    };
     let ground = ex.endpoint("ground")?;
     let events_ep = ex.endpoint("events")?;
     let mut mission = Mission::new(s, &ex.core().board);
@@ -567,6 +588,13 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
         if opts.interrupt.load(Ordering::SeqCst) {
             abort = Some("interrupted (SIGINT/SIGTERM)".into());
             break;
+        }
+        if let Some(c) = &mut console {
+            // Console requests act between ticks; a paused run waits here.
+            c.serve(&mut ex, &opts.interrupt);
+            if opts.interrupt.load(Ordering::SeqCst) {
+                continue;
+            }
         }
         let now = step(&mut ex, &twin);
         steps.fetch_add(1, Ordering::Relaxed);
@@ -634,6 +662,9 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
                 // Cut short: what the window was to show was not seen.
                 abort = Some("interrupted (SIGINT/SIGTERM) while observing the end".into());
                 break;
+            }
+            if let Some(c) = &mut console {
+                c.serve(&mut ex, &opts.interrupt);
             }
             let now = step(&mut ex, &twin);
             steps.fetch_add(1, Ordering::Relaxed);

@@ -204,9 +204,14 @@ pub struct FrameworkKeys {
     /// Consecutive deadline overruns tolerated before the watchdog isolates the module.
     #[serde(default = "default_overrun_budget")]
     pub overrun_budget: u32,
-    /// Time a step may stay busy before the watchdog declares the module hung, in seconds.
+    /// Time a step may stay busy before the watchdog declares the module hung, in seconds. A remote
+    /// module's host must answer each step within it.
     #[serde(default = "default_hang_timeout")]
     pub hang_timeout_s: f64,
+    /// Runs the module remotely on this host (a `rover-twin module-host` endpoint, e.g.
+    /// `tcp/127.0.0.1:7450`); absent: in this process.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
 }
 
 fn default_overrun_budget() -> u32 {
@@ -225,6 +230,7 @@ impl Default for FrameworkKeys {
             deadline_s: None,
             overrun_budget: default_overrun_budget(),
             hang_timeout_s: default_hang_timeout(),
+            host: None,
         }
     }
 }
@@ -263,6 +269,13 @@ impl FrameworkKeys {
         positive("framework.period_s", self.period_s)?;
         positive("framework.deadline_s", self.deadline_s)?;
         positive("framework.hang_timeout_s", Some(self.hang_timeout_s))?;
+        if let Some(h) = &self.host
+            && (h.is_empty() || h.contains(char::is_whitespace) || !h.contains('/'))
+        {
+            return Err(
+                src.error_at_key("framework.host", format!("'{h}': expected an endpoint like tcp/HOST:PORT"))
+            );
+        }
         if let Some(p) = self.period_s
             && Duration::from_secs_f64(p).as_nanos() == 0
         {

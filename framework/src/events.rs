@@ -29,6 +29,8 @@ pub enum Fault {
         /// How long it had been busy, in seconds.
         busy_s: f64,
     },
+    /// A remote module's host could not be reached, did not answer in time, or refused it.
+    Remote(String),
 }
 
 impl std::fmt::Display for Fault {
@@ -40,6 +42,7 @@ impl std::fmt::Display for Fault {
                 write!(f, "{consecutive} consecutive overruns, budget {budget}")
             }
             Fault::Hang { busy_s } => write!(f, "hung, busy for {busy_s:.3} s"),
+            Fault::Remote(why) => write!(f, "remote: {why}"),
         }
     }
 }

@@ -39,6 +39,7 @@ pub mod mechanism;
 pub mod message;
 pub mod module;
 pub mod objects;
+pub mod remote;
 pub mod resources;
 pub mod runtime;
 pub mod seed;

@@ -73,6 +73,7 @@ pub struct SystemBuilder {
     names: Vec<String>,
     problems: Vec<String>,
     trace_messages: bool,
+    remote_links: Option<crate::remote::LinkFactory>,
 }
 
 /// Name of the system manager's own endpoint.
@@ -94,6 +95,7 @@ impl SystemBuilder {
             names: Vec::new(),
             problems: Vec::new(),
             trace_messages: false,
+            remote_links: None,
         };
         b.endpoint(SYSTEM);
         b
@@ -152,6 +154,14 @@ impl SystemBuilder {
         self
     }
 
+    /// How to reach the hosts of remote modules (those whose configuration names a
+    /// `[framework] host`): a network layer's link factory. Without one, a remote module is a
+    /// start-up problem.
+    pub fn remote_links(&mut self, factory: crate::remote::LinkFactory) -> &mut Self {
+        self.remote_links = Some(factory);
+        self
+    }
+
     /// Records every posted message for inspection (off by default).
     pub fn trace_messages(&mut self, on: bool) -> &mut Self {
         self.trace_messages = on;
@@ -183,7 +193,20 @@ impl SystemBuilder {
         let mut runners = Vec::new();
         for e in self.entries {
             if let Entry::Module(r) = e {
-                runners.push(r);
+                let Some(host) = r.host().map(str::to_string) else {
+                    runners.push(r);
+                    continue;
+                };
+                let name = r.info().name.clone();
+                match &self.remote_links {
+                    Some(f) => {
+                        let link = f(&host, &name);
+                        runners.push(Box::new(crate::remote::RemoteCell::new(r, link, &host, &self.board)));
+                    }
+                    None => problems.push(format!(
+                        "module '{name}' is configured to run on host {host}, but this program has no network layer"
+                    )),
+                }
             }
         }
         // Recipients must exist.

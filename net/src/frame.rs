@@ -111,27 +111,39 @@ pub trait Wire: Serialize + DeserializeOwned {
 }
 
 /// The schema hash of `T`: FNV-1a over its traced serde format and the formats of every type it
-/// contains. Panics only if `T` cannot be traced, which the unit tests of each wire type rule out.
-pub fn schema_of<T: DeserializeOwned>(cache: &OnceLock<u64>) -> u64 {
+/// contains. The tracer meets one variant of an enum nested in `T` per pass, so `nested` traces
+/// each such enum on its own first (the `wire!` macro lists them). Panics only if a type cannot
+/// be traced, which the unit tests of each wire type rule out.
+pub fn schema_of<T: DeserializeOwned>(
+    cache: &OnceLock<u64>,
+    nested: fn(&mut serde_reflection::Tracer) -> serde_reflection::Result<()>,
+) -> u64 {
     *cache.get_or_init(|| {
         let mut tracer = serde_reflection::Tracer::new(serde_reflection::TracerConfig::default());
+        nested(&mut tracer).expect("nested wire enums are traceable");
         let (format, _) = tracer.trace_simple_type::<T>().expect("wire types are traceable");
-        let registry = tracer.registry().expect("wire types trace completely");
+        let registry = tracer.registry().unwrap_or_else(|e| {
+            panic!("{}: list its nested enums in wire!: {e}", std::any::type_name::<T>())
+        });
         let text = serde_json::to_string(&(format, registry)).expect("formats serialize");
         fnv1a(text.as_bytes())
     })
 }
 
-/// Implements [`Wire`] for a type: `wire!(Type, kind)`.
+/// Implements [`Wire`] for a type: `wire!(Type, kind)`, or `wire!(Type, kind; Enum, ...)` naming
+/// the enums nested in it.
 #[macro_export]
 macro_rules! wire {
-    ($t:ty, $kind:expr) => {
+    ($t:ty, $kind:expr $(; $($nested:ty),+)?) => {
         impl $crate::frame::Wire for $t {
             const KIND: u8 = $kind;
             const NAME: &'static str = stringify!($t);
             fn schema() -> u64 {
                 static CACHE: std::sync::OnceLock<u64> = std::sync::OnceLock::new();
-                $crate::frame::schema_of::<$t>(&CACHE)
+                $crate::frame::schema_of::<$t>(&CACHE, |_tracer| {
+                    $($( _tracer.trace_simple_type::<$nested>()?; )+)?
+                    Ok(())
+                })
             }
         }
     };

@@ -10,6 +10,7 @@
 //! | the console protocol | [`protocol`] |
 //! | a running system's console server (served between lockstep ticks: pause, step, resume) | [`server`] |
 //! | the console client | [`client`] |
+//! | remote modules: the core's link to a module's host, and the host's server | [`remote`] |
 //!
 //! It depends on `framework` only; `scenarios` wires it to a run (`rover-twin run --listen`,
 //! `rover-twin console`).
@@ -19,6 +20,7 @@ pub mod config;
 pub mod frame;
 pub mod link;
 pub mod protocol;
+pub mod remote;
 pub mod server;
 
 pub use client::ConsoleClient;

@@ -6,6 +6,12 @@ use crate::NetError;
 use crate::config::NetConfig;
 use zenoh::Wait;
 
+/// Zenoh's error text without the source location it appends.
+fn plain(e: impl std::fmt::Display) -> String {
+    let t = e.to_string();
+    t.split(" at /").next().unwrap_or(&t).trim_end().to_string()
+}
+
 fn base(cfg: &NetConfig, mode: &str) -> Result<zenoh::Config, NetError> {
     let err = |e: Box<dyn std::error::Error + Send + Sync>| NetError::Link(e.to_string());
     let mut c = zenoh::Config::default();
@@ -32,7 +38,9 @@ pub fn listen(cfg: &NetConfig) -> Result<zenoh::Session, NetError> {
     let mut c = base(cfg, "peer")?;
     c.insert_json5("listen/endpoints", &serde_json::json!([cfg.endpoint]).to_string())
         .map_err(|e| NetError::Link(e.to_string()))?;
-    zenoh::open(c).wait().map_err(|e| NetError::Link(format!("cannot listen on {}: {e}", cfg.endpoint)))
+    zenoh::open(c)
+        .wait()
+        .map_err(|e| NetError::Link(format!("cannot listen on {}: {}", cfg.endpoint, plain(e))))
 }
 
 /// Opens a client session connected to the configured endpoint (fails when nothing answers there,
@@ -43,8 +51,9 @@ pub fn connect(cfg: &NetConfig) -> Result<zenoh::Session, NetError> {
         .map_err(|e| NetError::Link(e.to_string()))?;
     zenoh::open(c).wait().map_err(|e| {
         NetError::Link(format!(
-            "cannot connect to {} (nothing listening there, or credentials refused): {e}",
-            cfg.endpoint
+            "cannot connect to {} (nothing listening there, or credentials refused): {}",
+            cfg.endpoint,
+            plain(e)
         ))
     })
 }

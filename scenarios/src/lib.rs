@@ -15,6 +15,7 @@ pub mod fuzz;
 pub mod infractions;
 pub mod localization_score;
 pub mod mission;
+pub mod module_host;
 pub mod module_names;
 pub mod operator;
 pub mod physics_bench;

@@ -58,6 +58,14 @@ enum Cmd {
     /// slots, change lifecycle states, pause, step and resume. One command per invocation
     /// (`--json` for scripts), or interactive without one.
     Console(scenarios::console_cli::ConsoleArgs),
+    /// Run some modules of a system for a core elsewhere (remote modules): a module whose
+    /// configuration names this host (`[framework] host = "tcp/..."`) is stepped here, tick by tick.
+    /// See scenarios/config/demo_remote/host.toml.
+    ModuleHost {
+        /// The host file: the module set, the modules, their configuration folder, the endpoint.
+        #[arg(long)]
+        config: PathBuf,
+    },
 }
 
 #[derive(clap::Args)]
@@ -264,6 +272,13 @@ struct DemoArgs {
     /// Print only the summary.
     #[arg(long)]
     quiet: bool,
+    /// The link's configuration, for modules configured to run on a module host.
+    #[arg(long, value_name = "FILE")]
+    net_config: Option<PathBuf>,
+    /// Write every slot's final record and every framework event to this JSON file (to compare
+    /// runs: a lockstep run gives the same file with modules local or remote).
+    #[arg(long, value_name = "FILE")]
+    record: Option<PathBuf>,
 }
 
 fn default_demo_config() -> PathBuf {
@@ -298,6 +313,7 @@ fn main() {
         Cmd::Sweep(a) => sweep_main(a),
         Cmd::Check(a) => Ok(check_main(&a)),
         Cmd::Console(a) => scenarios::console_cli::main(&a),
+        Cmd::ModuleHost { config } => scenarios::module_host::serve(&config, &interrupt_flag()),
         Cmd::Bench(a) => bench_main(&a),
         Cmd::Snapshot(a) => scenarios::snapshot::run(&a.world, &a.out).map(|files| {
             for f in files {
@@ -621,9 +637,10 @@ fn check_main(a: &CheckArgs) -> i32 {
     if bad > 0 { 2 } else { 0 }
 }
 
-fn demo_system(dir: &Path) -> SystemBuilder {
+fn demo_system(dir: &Path, net: &net::NetConfig) -> SystemBuilder {
     let file = |n: &str| ConfigSource::file(dir.join(format!("{n}.toml")));
     let mut b = SystemBuilder::new();
+    b.remote_links(net::remote::link_factory(net));
     b.add("gyro", demo::Gyro::default(), file("gyro"))
         .add("heading", demo::Heading::default(), file("heading"))
         .add("navigator", demo::Navigator::default(), file("navigator"))
@@ -635,7 +652,8 @@ fn demo_system(dir: &Path) -> SystemBuilder {
 
 /// Runs the demo; Ok(true) when every manoeuvre completed.
 fn demo_main(a: &DemoArgs) -> Result<bool> {
-    let b = demo_system(&a.config_dir);
+    let net = scenarios::console_cli::net_config(a.net_config.as_ref(), None)?;
+    let b = demo_system(&a.config_dir, &net);
     let mut ex: Box<dyn Executor> = if a.realtime {
         Box::new(RealtimeExecutor::new(b)?)
     } else {
@@ -709,6 +727,21 @@ fn demo_main(a: &DemoArgs) -> Result<bool> {
         );
     }
     ex.walk_to(Lifecycle::Shutdown)?;
+    if let Some(path) = &a.record {
+        let core = ex.core();
+        let slots: serde_json::Map<String, serde_json::Value> = core
+            .board
+            .names()
+            .into_iter()
+            .map(|n| {
+                let v = core.board.slot(&n).and_then(|s| s.to_json()).unwrap_or_default();
+                (n, v)
+            })
+            .collect();
+        let record = serde_json::json!({ "slots": slots, "events": core.events.snapshot() });
+        std::fs::write(path, serde_json::to_string_pretty(&record)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
     if !a.quiet {
         let mut console = Console::new(&*ex, "console")?;
         for c in ["stats", "state", "slots"] {

@@ -44,6 +44,12 @@ pub(crate) trait Runner: Send {
     fn publish_status(&self, core: &Core);
     /// Counts cycles skipped because the module was late by whole periods (real-time executor).
     fn add_skipped(&mut self, n: u64);
+    /// The text of its configuration as applied (for remote fingerprints).
+    fn config_text(&self) -> &str;
+    /// The host its configuration says it runs on (`[framework] host`), if remote.
+    fn host(&self) -> Option<&str> {
+        None
+    }
 }
 
 /// A module with everything the framework keeps for it.
@@ -437,6 +443,13 @@ impl<M: Module> Runner for Cell<M> {
     }
     fn declarations(&self) -> &Declarations {
         &self.decl
+    }
+
+    fn config_text(&self) -> &str {
+        &self.params_text
+    }
+    fn host(&self) -> Option<&str> {
+        self.keys.host.as_deref()
     }
 
     fn add_skipped(&mut self, n: u64) {

@@ -74,6 +74,7 @@ pub struct SystemBuilder {
     problems: Vec<String>,
     trace_messages: bool,
     remote_links: Option<crate::remote::LinkFactory>,
+    hosts_ignored: bool,
 }
 
 /// Name of the system manager's own endpoint.
@@ -96,6 +97,7 @@ impl SystemBuilder {
             problems: Vec::new(),
             trace_messages: false,
             remote_links: None,
+            hosts_ignored: false,
         };
         b.endpoint(SYSTEM);
         b
@@ -162,6 +164,13 @@ impl SystemBuilder {
         self
     }
 
+    /// Runs every module here, whatever host its configuration names (a configuration check that
+    /// needs no network).
+    pub fn ignore_hosts(&mut self) -> &mut Self {
+        self.hosts_ignored = true;
+        self
+    }
+
     /// Records every posted message for inspection (off by default).
     pub fn trace_messages(&mut self, on: bool) -> &mut Self {
         self.trace_messages = on;
@@ -193,7 +202,7 @@ impl SystemBuilder {
         let mut runners = Vec::new();
         for e in self.entries {
             if let Entry::Module(r) = e {
-                let Some(host) = r.host().map(str::to_string) else {
+                let Some(host) = r.host().map(str::to_string).filter(|_| !self.hosts_ignored) else {
                     runners.push(r);
                     continue;
                 };

@@ -151,7 +151,8 @@ struct RunArgs {
     /// tcp/127.0.0.1:7447), or --listen=ENDPOINT.
     #[arg(long, value_name = "ENDPOINT", num_args = 0..=1, require_equals = true, default_missing_value = "")]
     listen: Option<String>,
-    /// The link's configuration file (endpoint, authentication, limits): see scenarios/config/net.toml.
+    /// The link's configuration file (endpoint, authentication, limits) for --listen and for remote
+    /// modules' hosts: see scenarios/config/net.toml.
     #[arg(long, value_name = "FILE")]
     net_config: Option<PathBuf>,
     /// With --listen: wait, paused, for a console's `step` or `resume` once the system is in Run.
@@ -365,6 +366,7 @@ fn run_main(a: RunArgs) -> Result<i32> {
             }
             None => None,
         },
+        net: scenarios::console_cli::net_config(a.net_config.as_ref(), None)?,
     };
     // A panic of the runner itself (a bug, or an input not yet validated) ends the run with a
     // clear error and exit status 2, never a crash dump alone.
@@ -551,6 +553,7 @@ fn bench_main(a: &BenchArgs) -> Result<i32> {
                 live: None,
                 pace: 0.0,
                 listen: None,
+                net: net::NetConfig::default(),
             };
             let score = runner::run(&loaded, &opts)?;
             best[k] = best[k].min(score.wall_time_s);

@@ -3,7 +3,9 @@
 //! configuration names this host's endpoint (`[framework] host`) is stepped here, tick by tick.
 //!
 //! ```toml
-//! system = "demo"                 # the module set the modules come from
+//! system = "demo"                 # the module set: "demo", or "scenario" (a scenario's system)
+//! scenario = "../traverse.toml"   # with system = "scenario": the scenario the runner runs
+//! seed = 1                        # ... and its seed, if the run gives one (default: the scenario's)
 //! modules = ["navigator"]         # the modules this host runs
 //! config_dir = "."                # their configuration files, <config_dir>/<module>.toml (relative to this file)
 //! endpoint = "tcp/127.0.0.1:7450" # where to listen (default: net_config's)
@@ -25,8 +27,15 @@ use std::sync::atomic::AtomicBool;
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HostFile {
-    /// The module set: `demo` (the framework demo's four modules).
+    /// The module set: `demo` (the framework demo's four modules) or `scenario` (the system a
+    /// scenario's runner builds: the modules are built from the same scenario, seed and files).
     pub system: String,
+    /// With `system = "scenario"`: the scenario file, relative to the host file.
+    #[serde(default)]
+    pub scenario: Option<PathBuf>,
+    /// With `system = "scenario"`: the run's seed (default: the scenario's `run.seed`).
+    #[serde(default)]
+    pub seed: Option<u64>,
     /// The modules to run.
     pub modules: Vec<String>,
     /// Their configuration files' folder, relative to the host file.
@@ -45,7 +54,8 @@ fn dot() -> PathBuf {
 }
 
 /// The module sets a host can take modules from, with their module names.
-pub const SYSTEMS: &[(&str, &[&str])] = &[("demo", &["gyro", "heading", "navigator", "locomotion"])];
+pub const SYSTEMS: &[(&str, &[&str])] =
+    &[("demo", &["gyro", "heading", "navigator", "locomotion"]), ("scenario", crate::module_names::MODULES)];
 
 /// Reads a host file: the file itself (paths made relative to it) and its link configuration.
 pub fn load(path: &Path) -> Result<(HostFile, NetConfig)> {
@@ -55,6 +65,10 @@ pub fn load(path: &Path) -> Result<(HostFile, NetConfig)> {
     let mut f: HostFile = src.parse()?;
     let base = path.parent().unwrap_or(Path::new("."));
     f.config_dir = base.join(&f.config_dir);
+    f.scenario = f.scenario.as_ref().map(|p| base.join(p));
+    if (f.system == "scenario") != f.scenario.is_some() {
+        bail!(src.error_at_key("scenario", "give a scenario file with system = \"scenario\", and only then"));
+    }
     let Some((_, names)) = SYSTEMS.iter().find(|(s, _)| *s == f.system) else {
         let known: Vec<_> = SYSTEMS.iter().map(|(s, _)| *s).collect();
         bail!(src.error_at_key(
@@ -87,7 +101,16 @@ pub fn load(path: &Path) -> Result<(HostFile, NetConfig)> {
 }
 
 /// What builds the host's modules.
-pub fn factory(f: &HostFile) -> ModuleFactory {
+pub fn factory(f: &HostFile) -> Result<ModuleFactory> {
+    if let Some(path) = &f.scenario {
+        let loaded = crate::scenario::load(path, &[])?;
+        let seed = f.seed.unwrap_or(loaded.scenario.run.seed);
+        return crate::system::host_factory(&loaded, seed, &f.modules);
+    }
+    Ok(demo_factory(f))
+}
+
+fn demo_factory(f: &HostFile) -> ModuleFactory {
     let (modules, dir) = (f.modules.clone(), f.config_dir.clone());
     Box::new(move |name: &str, b: &mut HostBuilder| {
         if !modules.iter().any(|m| m == name) {
@@ -107,7 +130,7 @@ pub fn factory(f: &HostFile) -> ModuleFactory {
 /// Serves the host file's modules until `interrupt`; prints what it did.
 pub fn serve(path: &Path, interrupt: &AtomicBool) -> Result<i32> {
     let (f, net) = load(path)?;
-    let host = ModuleHost::new(factory(&f));
+    let host = ModuleHost::new(factory(&f)?);
     println!(
         "module-host: serving {} of {} on {} (until SIGINT)",
         f.modules.join(", "),

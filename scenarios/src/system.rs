@@ -65,23 +65,62 @@ fn module_config(name: &str, loaded: &Loaded, extra: toml::Table) -> Result<Conf
     Ok(ConfigSource::inline_from(origin, toml::to_string(&doc)?, relocate))
 }
 
-/// Builds the module system of a scenario over `twin`.
-pub(crate) fn build_system(
-    loaded: &Loaded,
-    twin: &SharedTwin,
-    seed: u64,
-    log_messages: bool,
-) -> Result<SystemBuilder> {
-    let s = &loaded.scenario;
-    let mut b = SystemBuilder::new();
-    // Every message and acknowledgement is traced for the logger.
-    b.trace_messages(log_messages);
-    let map = DryRunDeviceMap::with_sensors(twin.clone(), b.resources().clone(), seed, sensor_config(loaded));
-    let model = map.locomotor()?.model().clone();
-    // What the operator knows of the start: base_link's pose as surveyed, off the truth by the
-    // scenario's uncertainty (drawn from the run's seed). Each localization module is told it.
-    let known = known_start(&twin.lock().base_pose(), &s.rover, seed);
-    let start_params = |name: &str| -> toml::Table {
+/// Where a scenario's modules are registered: the runner's system, or a module host running some
+/// of them for it (remote modules).
+pub trait Registrar {
+    /// Registers `module` under `name` with its configuration.
+    fn register<M: framework::Module>(&mut self, name: &str, module: M, config: ConfigSource) -> Result<()>;
+}
+
+impl Registrar for SystemBuilder {
+    fn register<M: framework::Module>(&mut self, name: &str, module: M, config: ConfigSource) -> Result<()> {
+        self.add(name, module, config);
+        Ok(())
+    }
+}
+
+impl Registrar for framework::remote::HostBuilder {
+    fn register<M: framework::Module>(&mut self, name: &str, module: M, config: ConfigSource) -> Result<()> {
+        self.add(name, module, config).map_err(|e| anyhow!(e))
+    }
+}
+
+/// What registering a scenario's modules needs besides the registrar: the devices (with the
+/// robot's believed calibrations and models), what the operator knows of the start, and the wiring.
+struct Parts {
+    map: DryRunDeviceMap,
+    model: framework::hal::LocomotorModel,
+    known: [f64; 4],
+    wiring: Wiring,
+}
+
+impl Parts {
+    fn new(
+        loaded: &Loaded,
+        twin: &SharedTwin,
+        seed: u64,
+        resources: &framework::resources::Resources,
+    ) -> Result<Self> {
+        let s = &loaded.scenario;
+        let map = DryRunDeviceMap::with_sensors(twin.clone(), resources.clone(), seed, sensor_config(loaded));
+        let model = map.locomotor()?.model().clone();
+        // What the operator knows of the start: base_link's pose as surveyed, off the truth by the
+        // scenario's uncertainty (drawn from the run's seed). Each localization module is told it.
+        let known = known_start(&twin.lock().base_pose(), &s.rover, seed);
+        let cameras = cameras_enabled(s);
+        let wiring = Wiring {
+            visual: visual_enabled(s),
+            operator: s.operator.select_target && cameras,
+            navigation: navigation_enabled(s),
+            head_tracking: camera_rate_on(s, "head_stereo_hz"),
+        };
+        Ok(Parts { map, model, known, wiring })
+    }
+
+    /// Module `name`'s configuration as the runner gives it (start knowledge included).
+    fn config(&self, name: &str, loaded: &Loaded) -> Result<ConfigSource> {
+        let s = &loaded.scenario;
+        let known = &self.known;
         let mut params = toml::Table::new();
         let pose = toml::Value::Array(known.iter().map(|v| (*v).into()).collect());
         let sigma = toml::Value::Array(vec![s.rover.known_sigma_m.into(), s.rover.known_sigma_deg.into()]);
@@ -97,31 +136,88 @@ pub(crate) fn build_system(
                 params.insert("initial_yaw_deg".into(), known[3].into());
                 params.insert("initial_yaw_sigma_deg".into(), s.rover.known_sigma_deg.into());
             }
-            _ => return toml::Table::new(),
+            _ => {}
         }
         let mut extra = toml::Table::new();
-        extra.insert("params".into(), toml::Value::Table(params));
-        extra
-    };
+        if !params.is_empty() {
+            extra.insert("params".into(), toml::Value::Table(params));
+        }
+        module_config(name, loaded, extra)
+    }
+}
+
+/// Whether the scenario's system runs module `name`.
+fn runs(name: &str, s: &Scenario) -> bool {
     let cameras = cameras_enabled(s);
+    !((name == "cameras" && !cameras)
+        || (NAVIGATION.contains(&name) && !navigation_enabled(s))
+        || (name == "localization_visual" && !visual_enabled(s))
+        || (HEAD_TRACKING.contains(&name) && !camera_rate_on(s, "head_stereo_hz"))
+        || (MANIPULATION.contains(&name) && !cameras))
+}
+
+/// What a module host needs to run modules `names` of a scenario's system for its runner: the
+/// scenario's twin (for the robot's believed calibrations and models, drawn from the same seed), and
+/// each module built with the runner's configuration and wiring. Modules that reserve devices
+/// cannot run remotely (their devices are the runner's).
+pub fn host_factory(
+    loaded: &Loaded,
+    seed: u64,
+    names: &[String],
+) -> Result<framework::remote::ModuleFactory> {
+    let s = &loaded.scenario;
+    for n in names {
+        if !MODULES.contains(&n.as_str()) || !runs(n, s) {
+            return Err(anyhow!("the system of {} does not run module '{n}'", loaded.path.display()));
+        }
+        if matches!(n.as_str(), "locomotion" | "arm" | "ptu" | "gripper" | "cameras" | faults::NAME) {
+            return Err(anyhow!(
+                "module '{n}' drives the rover's devices: it runs where they are, not remotely"
+            ));
+        }
+    }
+    let fidelity = s.run.fidelity;
+    let twin = twin::devices::share(crate::runner::build_twin(loaded, fidelity)?);
+    let parts = Parts::new(loaded, &twin, seed, &framework::resources::Resources::new())?;
+    let (loaded, names) = (loaded.clone(), names.to_vec());
+    Ok(Box::new(move |name: &str, b: &mut framework::remote::HostBuilder| {
+        if !names.iter().any(|n| n == name) {
+            return Err(format!("this host runs {} only, not '{name}'", names.join(", ")));
+        }
+        let config = parts.config(name, &loaded).map_err(|e| format!("{e:#}"))?;
+        add_module(b, name, &parts.map, &twin, parts.model.clone(), config, parts.wiring)
+            .map_err(|e| format!("{e:#}"))
+    }))
+}
+
+/// Builds the module system of a scenario over `twin`.
+/// Modules whose configuration names a host run there through `net`'s links with its
+/// configuration; without one they run here (a check).
+pub(crate) fn build_system(
+    loaded: &Loaded,
+    twin: &SharedTwin,
+    seed: u64,
+    log_messages: bool,
+    net: Option<&net::NetConfig>,
+) -> Result<SystemBuilder> {
+    let s = &loaded.scenario;
+    let mut b = SystemBuilder::new();
+    match net {
+        Some(cfg) => b.remote_links(net::remote::link_factory(cfg)),
+        None => b.ignore_hosts(),
+    };
+    // Every message and acknowledgement is traced for the logger.
+    b.trace_messages(log_messages);
+    let parts = Parts::new(loaded, twin, seed, b.resources())?;
+    let map = &parts.map;
     for name in MODULES {
-        if (*name == "cameras" && !cameras)
-            || (NAVIGATION.contains(name) && !navigation_enabled(s))
-            || (*name == "localization_visual" && !visual_enabled(s))
-            || (HEAD_TRACKING.contains(name) && !camera_rate_on(s, "head_stereo_hz"))
-            || (MANIPULATION.contains(name) && !cameras)
-        {
+        if !runs(name, s) {
             continue;
         }
-        let config = module_config(name, loaded, start_params(name))?;
-        let wiring = Wiring {
-            visual: visual_enabled(s),
-            operator: s.operator.select_target && cameras,
-            navigation: navigation_enabled(s),
-            head_tracking: camera_rate_on(s, "head_stereo_hz"),
-        };
-        add_module(&mut b, name, &map, twin, model.clone(), config, wiring)?;
+        let config = parts.config(name, loaded)?;
+        add_module(&mut b, name, map, twin, parts.model.clone(), config, parts.wiring)?;
     }
+    let cameras = cameras_enabled(s);
     if s.operator.select_target && cameras {
         let truth = map.stereo_belief("head_stereo")?.left;
         let source = ConfigSource::inline(
@@ -224,8 +320,8 @@ struct Wiring {
 }
 
 /// Registers module `name` of the runner's system, with its devices from `map`.
-fn add_module(
-    b: &mut SystemBuilder,
+fn add_module<R: Registrar>(
+    b: &mut R,
     name: &str,
     map: &DryRunDeviceMap,
     twin: &SharedTwin,
@@ -234,17 +330,17 @@ fn add_module(
     wiring: Wiring,
 ) -> Result<()> {
     match name {
-        "localization_mechanical" => b.add(
+        "localization_mechanical" => b.register(
             name,
             gnc::localization_mechanical::LocalizationMechanical::new(map.encoders()?, model),
             config,
         ),
-        "localization_inertial" => b.add(
+        "localization_inertial" => b.register(
             name,
             gnc::localization_inertial::LocalizationInertial::new(map.imu()?, map.encoders()?),
             config,
         ),
-        "localization_visual" => b.add(
+        "localization_visual" => b.register(
             name,
             gnc::localization_visual::LocalizationVisual::new(
                 map.stereo_camera("loc_stereo")?.calibration().clone(),
@@ -257,14 +353,14 @@ fn add_module(
         ),
         "localization_fusion" => {
             let visual = wiring.visual.then_some(gnc::localization_visual::SLOT);
-            b.add(name, gnc::localization_fusion::LocalizationDataFusion::new(visual), config)
+            b.register(name, gnc::localization_fusion::LocalizationDataFusion::new(visual), config)
         }
-        "locomotion" => b.add(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
-        "arm" | "ptu" | "gripper" => b.add(name, JointGroupModule::new(map.joint_group(name)?), config),
-        faults::NAME => b.add(name, TwinFaults::new(twin.clone()), config),
-        "autonomy" => b.add(name, gnc::autonomy::Autonomy::new(), config),
-        framework::debugger::NAME => b.add(name, framework::debugger::Debugger::new(), config),
-        "cameras" => b.add(
+        "locomotion" => b.register(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
+        "arm" | "ptu" | "gripper" => b.register(name, JointGroupModule::new(map.joint_group(name)?), config),
+        faults::NAME => b.register(name, TwinFaults::new(twin.clone()), config),
+        "autonomy" => b.register(name, gnc::autonomy::Autonomy::new(), config),
+        framework::debugger::NAME => b.register(name, framework::debugger::Debugger::new(), config),
+        "cameras" => b.register(
             name,
             gnc::cameras::Cameras::new(
                 vec![map.stereo_camera("head_stereo")?, map.stereo_camera("loc_stereo")?],
@@ -287,7 +383,7 @@ fn add_module(
                 let calibration = map.mono_camera("wrist_camera")?.calibration().clone();
                 (MarkerCamera::Single("wrist_camera".into()), WRIST_PREFIX, calibration, None)
             };
-            b.add(
+            b.register(
                 name,
                 gnc::tracking_marker::TrackingMarker::new(
                     camera,
@@ -302,7 +398,7 @@ fn add_module(
                 config,
             )
         }
-        "tracking_target" => b.add(
+        "tracking_target" => b.register(
             name,
             gnc::tracking_target::TrackingTarget::new(
                 "head_stereo",
@@ -319,7 +415,7 @@ fn add_module(
             for device in ["tof_left", "tof_right"] {
                 cams.push((device.to_string(), map.tof_camera(device)?.calibration().clone()));
             }
-            b.add(
+            b.register(
                 name,
                 gnc::perception_tof::PerceptionToF::new(
                     cams,
@@ -331,11 +427,11 @@ fn add_module(
             )
         }
         "perception_fusion" => {
-            b.add(name, gnc::perception_fusion::PerceptionDataFusion::new(POSE_SLOT, "ptu"), config)
+            b.register(name, gnc::perception_fusion::PerceptionDataFusion::new(POSE_SLOT, "ptu"), config)
         }
-        "traversability" => b.add(name, gnc::traversability::Traversability::new(POSE_SLOT), config),
-        "path_planning" => b.add(name, gnc::path_planning::PathPlanning::new(POSE_SLOT), config),
-        "navigator" => b.add(
+        "traversability" => b.register(name, gnc::traversability::Traversability::new(POSE_SLOT), config),
+        "path_planning" => b.register(name, gnc::path_planning::PathPlanning::new(POSE_SLOT), config),
+        "navigator" => b.register(
             name,
             gnc::navigator::CoordinatorNavigator::new(
                 gnc::navigator::NavigatorPeers {
@@ -357,7 +453,7 @@ fn add_module(
                 "ptu_tilt_joint",
             )
             .map_err(|e| anyhow!("the head camera on the pan-tilt unit: {e}"))?;
-            b.add(
+            b.register(
                 name,
                 gnc::visual_tracking::CoordinatorVisualTracking::new(
                     gnc::visual_tracking::VisualTrackingPeers {
@@ -372,7 +468,7 @@ fn add_module(
                 config,
             )
         }
-        "manipulator_control" => b.add(
+        "manipulator_control" => b.register(
             name,
             gnc::manipulator_control::ManipulatorControl::new(
                 gnc::manipulator_control::ManipulatorPeers {
@@ -387,7 +483,7 @@ fn add_module(
             .map_err(|e| anyhow!("the manipulator: {e}"))?,
             config,
         ),
-        "manipulation" => b.add(
+        "manipulation" => b.register(
             name,
             gnc::coordinator_manipulation::CoordinatorManipulation::new(
                 gnc::coordinator_manipulation::ManipulationPeers {
@@ -402,9 +498,8 @@ fn add_module(
             ),
             config,
         ),
-        other => return Err(anyhow!("no module '{other}' in the runner's system")),
-    };
-    Ok(())
+        other => Err(anyhow!("no module '{other}' in the runner's system")),
+    }
 }
 
 /// Checks a module configuration file by registering its module (named by the file) against a

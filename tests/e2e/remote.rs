@@ -82,3 +82,77 @@ fn a_demo_whose_remote_module_has_no_host_fails_to_start_naming_it() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("navigator") && err.contains(&endpoint), "{err}");
 }
+
+/// A scenario file in `dir` including `tests/e2e/data/cameras.toml` (visual odometry and the head
+/// camera's target tracker run), with those two modules on `host` if given.
+fn cameras_scenario(dir: &std::path::Path, file: &str, host: Option<&str>) -> std::path::PathBuf {
+    let mut text =
+        format!("include = [{:?}]\nname = \"cameras_remote\"\n", data("cameras.toml").display().to_string());
+    if let Some(h) = host {
+        for m in ["localization_visual", "tracking_target"] {
+            text += &format!("[modules.{m}.framework]\nhost = \"{h}\"\nhang_timeout_s = 30.0\n");
+        }
+    }
+    let path = dir.join(file);
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+/// What a run's score says, wall-clock fields and file names aside.
+fn verdict(out: &std::path::Path) -> serde_json::Value {
+    let mut s = score(out);
+    for k in ["wall_time_s", "speed", "logs", "scenario_file"] {
+        s.as_object_mut().unwrap().remove(k);
+    }
+    // Measured on the wall clock: each module's CPU time.
+    s["metrics"].as_object_mut().unwrap().remove("module_cpu_s");
+    s
+}
+
+#[test]
+fn visual_odometry_and_target_tracking_on_a_module_host_give_the_local_run_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let remote = cameras_scenario(dir.path(), "remote.toml", Some(&endpoint));
+    std::fs::write(
+        dir.path().join("host.toml"),
+        format!(
+            "system = \"scenario\"\nscenario = \"remote.toml\"\nmodules = [\"localization_visual\", \"tracking_target\"]\nendpoint = \"{endpoint}\"\n"
+        ),
+    )
+    .unwrap();
+    let mut child = rover_twin()
+        .args(["module-host", "--config"])
+        .arg(dir.path().join("host.toml"))
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    assert!(line.starts_with("module-host: serving localization_visual, tracking_target"), "{line}");
+    let _host = Host(child);
+
+    let run = |scenario: &std::path::Path, out: &str| {
+        let out = dir.path().join(out);
+        let o = rover_twin()
+            .arg("run")
+            .arg(scenario)
+            .arg("--out")
+            .arg(&out)
+            .args(["--quiet", "--no-logs"])
+            .output()
+            .unwrap();
+        assert!(o.status.code().is_some_and(|c| c <= 1), "{}", show(&o));
+        out
+    };
+    let local = run(&cameras_scenario(dir.path(), "local.toml", None), "local");
+    let remote = run(&remote, "remote");
+    let (l, r) = (verdict(&local), verdict(&remote));
+    assert_eq!(l, r, "the scores");
+    assert!(l["metrics"]["localization"]["visual_frames"].as_u64().unwrap_or(0) > 5, "{l}");
+    assert_eq!(
+        std::fs::read_to_string(local.join("track.csv")).unwrap(),
+        std::fs::read_to_string(remote.join("track.csv")).unwrap(),
+        "the tracks"
+    );
+}

@@ -50,6 +50,8 @@ pub struct RunOptions {
     /// Serve consoles over NET (`--listen`): the link's configuration, and whether the run waits
     /// paused for a console's `step` or `resume` once the system is in Run.
     pub listen: Option<(net::NetConfig, bool)>,
+    /// The link configuration of remote modules (credentials, limits, the key prefix).
+    pub net: net::NetConfig,
 }
 
 /// Radius kept free of rocks around the rover's start, m (its footprint's half-diagonal, 0.7 m,
@@ -179,7 +181,7 @@ pub fn build_twin(loaded: &Loaded, fidelity: FidelityName) -> Result<Twin> {
 pub fn check(loaded: &Loaded) -> Result<()> {
     let s = &loaded.scenario;
     let twin = twin::devices::share(build_twin(loaded, s.run.fidelity)?);
-    let builder = crate::system::build_system(loaded, &twin, s.run.seed, false)?;
+    let builder = crate::system::build_system(loaded, &twin, s.run.seed, false, None)?;
     let ex = LockstepExecutor::new(builder, Duration::from_secs_f64(s.run.base_period_s))?;
     crate::mission::check_triggers(loaded, ex.core())
 }
@@ -502,7 +504,7 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     let twin = twin::devices::share(build_twin(loaded, fidelity)?);
     let log_messages =
         s.logging.events && (opts.live.is_some() || (opts.write_logs && (s.logging.rrd || s.logging.mcap)));
-    let builder = crate::system::build_system(loaded, &twin, seed, log_messages)?;
+    let builder = crate::system::build_system(loaded, &twin, seed, log_messages, Some(&opts.net))?;
     let base = Duration::from_secs_f64(s.run.base_period_s);
     let mut ex = LockstepExecutor::new(builder, base)?;
     crate::mission::check_triggers(loaded, ex.core())?;

@@ -327,6 +327,16 @@ impl Inbox {
         self.signal.notify_all();
     }
 
+    /// The sequence number of the participant's latest message (0 before its first).
+    pub(crate) fn seq(&self) -> u64 {
+        self.next_seq.load(Ordering::Acquire)
+    }
+    /// Makes the participant's next message number follow `seq` (messages it sent elsewhere: a
+    /// remote module's, numbered by its host).
+    pub(crate) fn advance_seq_to(&self, seq: u64) {
+        self.next_seq.fetch_max(seq, Ordering::AcqRel);
+    }
+
     fn next_id(&self, sender: ModuleId) -> MessageId {
         MessageId { sender, seq: self.next_seq.fetch_add(1, Ordering::Relaxed) + 1 }
     }
@@ -382,6 +392,17 @@ impl PostOffice {
             queue: cmd.queue,
             body: Body::Command { name: cmd.name, args: cmd.args },
         })
+    }
+
+    /// Whether every participant a message names (sender, recipient, route, path) exists here.
+    pub fn knows_all(&self, m: &Message) -> bool {
+        let n = self.names.len();
+        let ok = |id: &ModuleId| (id.0 as usize) < n;
+        let ack_ok = match &m.body {
+            Body::Ack(a) => ok(&a.by) && ok(&a.of.sender),
+            Body::Command { .. } => true,
+        };
+        ok(&m.sender) && ok(&m.recipient) && m.route.iter().all(ok) && m.path.iter().all(ok) && ack_ok
     }
 
     /// Delivers a message to its next hop.

@@ -108,6 +108,11 @@ pub struct Hello {
     /// The lifecycle state the core believes the module is in (a reconnect rebuilds it to there,
     /// as far as Config: Startup and Config are where a rebuilt module can be).
     pub lifecycle: Lifecycle,
+    /// The core's run: a host meeting another run starts afresh (clock, slots, messages).
+    pub session: u64,
+    /// The sequence number of the module's latest message as the core has seen it (the host
+    /// numbers the module's messages on from there, so ids never repeat across a reconnect).
+    pub last_seq: u64,
 }
 
 /// Which part of a cycle a remote step performs.
@@ -205,6 +210,14 @@ pub trait RemoteLink: Send {
 /// Makes the link of a remote module: `(host from its configuration, module name)`.
 pub type LinkFactory = Arc<dyn Fn(&str, &str) -> Box<dyn RemoteLink> + Send + Sync>;
 
+/// A number naming one run of a core to its hosts (a host meeting another one starts afresh).
+/// Drawn from the wall clock and the process id: it names the run, it never enters its results.
+#[allow(clippy::disallowed_methods)] // an identity, not a time the run uses
+pub(crate) fn new_session() -> u64 {
+    let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64);
+    fnv(&format!("{}-{}", t.unwrap_or(0), std::process::id()))
+}
+
 /// 64-bit FNV-1a of a text (the configuration digest of a fingerprint).
 fn fnv(text: &str) -> u64 {
     text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3))
@@ -221,10 +234,17 @@ pub(crate) struct RemoteCell {
     sent: BTreeMap<String, u64>,
     reads: Vec<String>,
     introduced: bool,
-    /// The link failed: the module is isolated until a command reconnects it.
+    /// The link failed: the module is isolated until a `lifecycle` command reconnects it.
     down: bool,
     schedule: Schedule,
     hang_timeout: Duration,
+    /// The core's run, for the host.
+    session: u64,
+    /// Commands handed to the module and not finally answered yet (answered Failed if its host
+    /// is lost).
+    forwarded: BTreeMap<crate::message::MessageId, Message>,
+    /// The slots the module declared it writes: the only ones its host may fill.
+    writes: Vec<String>,
 }
 
 impl RemoteCell {
@@ -233,14 +253,14 @@ impl RemoteCell {
         link: Box<dyn RemoteLink>,
         host: &str,
         board: &BlackBoard,
+        session: u64,
     ) -> Self {
         let id = local.info().id;
-        let reads = board
-            .declarations()
-            .into_iter()
-            .filter(|(_, d)| d.readers.contains(&id))
-            .map(|(slot, _)| slot)
-            .collect();
+        let decl = board.declarations();
+        let reads =
+            decl.iter().filter(|(_, d)| d.readers.contains(&id)).map(|(slot, _)| slot.clone()).collect();
+        let writes =
+            decl.iter().filter(|(_, d)| d.writers.contains(&id)).map(|(slot, _)| slot.clone()).collect();
         let (schedule, hang_timeout) = (local.schedule(), local.hang_timeout());
         RemoteCell {
             local,
@@ -252,6 +272,9 @@ impl RemoteCell {
             down: false,
             schedule,
             hang_timeout,
+            session,
+            forwarded: BTreeMap::new(),
+            writes,
         }
     }
 
@@ -262,16 +285,25 @@ impl RemoteCell {
             names: core.post.names().to_vec(),
             fingerprint: ModuleFingerprint::of(info, self.local.config_text(), &core.board),
             lifecycle: core.status(info.id).lifecycle(),
+            session: self.session,
+            last_seq: core.post.inbox(info.id).seq(),
         }
     }
 
     /// Fails every command among `messages` (a step that never happened) and isolates the module.
     fn lose(&mut self, core: &Core, now: Time, messages: Vec<Message>, why: &RemoteError) {
         let info = self.local.info().clone();
-        for m in messages {
-            if matches!(m.body, Body::Command { .. }) {
+        let forwarded = std::mem::take(&mut self.forwarded).into_values();
+        let mut failed = std::collections::BTreeSet::new();
+        for m in forwarded.chain(messages) {
+            if matches!(m.body, Body::Command { .. }) && failed.insert(m.id) {
                 let reason = format!("remote module '{}' on {}: {why}", info.name, self.host);
-                core.post.acknowledge(&m, info.id, now, AckStatus::Failed(reason));
+                if m.recipient == info.id {
+                    core.post.acknowledge(&m, info.id, now, AckStatus::Failed(reason));
+                } else {
+                    // A command it was to relay: refused here, as an isolated relay refuses.
+                    core.post.acknowledge(&m, info.id, now, AckStatus::Rejected(reason));
+                }
             }
         }
         if !self.down {
@@ -328,8 +360,18 @@ impl Runner for RemoteCell {
             }
         }
         if self.down {
-            // Only a command reconnects: a module left alone stays in Safe.
-            if messages.is_empty() {
+            // Only a `lifecycle` command (out of Safe, to Standby or Shutdown) reconnects: other
+            // commands fail at once, a module left alone stays in Safe.
+            let reconnect = messages.iter().any(|m| {
+                m.recipient == id && matches!(&m.body, Body::Command { name, .. } if name == "lifecycle")
+            });
+            if !reconnect {
+                if !messages.is_empty() {
+                    let why = RemoteError::Unreachable(
+                        "down since its host was lost; take it out of Safe to reconnect".into(),
+                    );
+                    self.lose(core, now, messages, &why);
+                }
                 return;
             }
             self.introduced = false;
@@ -382,17 +424,22 @@ impl Runner for RemoteCell {
                 .map(|m| serde_json::to_string(m).expect("messages serialize"))
                 .collect(),
         };
-        let status = core.status(id);
-        status.set_busy_since(core.wall_now());
+        // The link's own timeout bounds the step (the watchdog does not watch it: under lockstep
+        // that would end the run instead of putting this module in Safe).
         let reply = self.link.tick(&req, timeout);
-        status.set_busy_since(-1);
-        let reply = match reply {
+        let reply = match reply.and_then(|r| check_status(&r.status).map(|()| r)) {
             Ok(r) => r,
             Err(e) => return self.lose(core, now, messages, &e),
         };
-        if let Err(e) = apply(core, &reply) {
+        for m in messages {
+            if m.recipient == id && matches!(m.body, Body::Command { .. }) {
+                self.forwarded.insert(m.id, m);
+            }
+        }
+        if let Err(e) = apply(core, id, &self.writes, &reply, &mut self.forwarded) {
             return self.lose(core, now, Vec::new(), &e);
         }
+        let status = core.status(id);
         let s = &reply.status;
         self.schedule = match s.period_ns {
             Some(p) => Schedule::Periodic(Duration::from_nanos(p)),
@@ -411,25 +458,67 @@ impl Runner for RemoteCell {
     }
 }
 
+/// A status from a host that makes sense (a period or timeout of zero would stall the executors).
+fn check_status(s: &RemoteStatus) -> Result<(), RemoteError> {
+    if s.period_ns.is_some_and(|p| p <= 0) || s.hang_timeout_ns <= 0 {
+        return Err(RemoteError::Protocol(format!(
+            "status with period {:?} ns and hang timeout {} ns",
+            s.period_ns, s.hang_timeout_ns
+        )));
+    }
+    Ok(())
+}
+
 /// Applies a step's results to the core: slots, events, then messages (as a local module's step
-/// leaves them).
-fn apply(core: &Core, reply: &TickReply) -> Result<(), RemoteError> {
+/// leaves them). Only the module's declared slots are written, and only messages naming known
+/// participants are posted; the module's final answers clear `forwarded`.
+fn apply(
+    core: &Core,
+    id: ModuleId,
+    writes: &[String],
+    reply: &TickReply,
+    forwarded: &mut BTreeMap<crate::message::MessageId, Message>,
+) -> Result<(), RemoteError> {
+    let mut messages = Vec::with_capacity(reply.messages.len());
+    for m in &reply.messages {
+        let m: Message =
+            serde_json::from_str(m).map_err(|e| RemoteError::Protocol(format!("message: {e}")))?;
+        if !core.post.knows_all(&m) {
+            return Err(RemoteError::Protocol(format!("message {} names an unknown participant", m.id)));
+        }
+        messages.push(m);
+    }
+    let mut events = Vec::with_capacity(reply.events.len());
+    for e in &reply.events {
+        events.push(
+            serde_json::from_str::<Event>(e).map_err(|e| RemoteError::Protocol(format!("event: {e}")))?,
+        );
+    }
     for r in &reply.slots {
+        if !writes.contains(&r.slot) {
+            return Err(RemoteError::Protocol(format!(
+                "the host wrote slot '{}', which the module does not write",
+                r.slot
+            )));
+        }
         let slot = core
             .board
             .slot(&r.slot)
             .ok_or_else(|| RemoteError::Protocol(format!("the host wrote unknown slot '{}'", r.slot)))?;
         slot.import(&r.bytes).map_err(|e| RemoteError::Protocol(e.to_string()))?;
     }
-    for e in &reply.events {
-        let e: Event = serde_json::from_str(e).map_err(|e| RemoteError::Protocol(format!("event: {e}")))?;
+    for e in events {
         core.events.raise(e.stamp, e.kind);
     }
-    for m in &reply.messages {
-        let m: Message =
-            serde_json::from_str(m).map_err(|e| RemoteError::Protocol(format!("message: {e}")))?;
-        if m.next_hop().0 as usize >= core.post.names().len() {
-            return Err(RemoteError::Protocol(format!("message to unknown participant #{}", m.next_hop().0)));
+    for m in messages {
+        if m.sender == id {
+            core.post.inbox(id).advance_seq_to(m.id.seq);
+        }
+        if let Body::Ack(a) = &m.body
+            && a.by == id
+            && a.status.is_final()
+        {
+            forwarded.remove(&a.of);
         }
         core.post.post(m);
     }
@@ -469,6 +558,8 @@ pub struct ModuleHost {
     /// Sequence numbers of each hosted module's written slots as last returned.
     returned: BTreeMap<String, u64>,
     factory: ModuleFactory,
+    /// The core run being served.
+    session: Option<u64>,
 }
 
 impl ModuleHost {
@@ -485,7 +576,14 @@ impl ModuleHost {
             wall: WallClock::new(),
             modules: Vec::new(),
         });
-        ModuleHost { core, driver, runners: BTreeMap::new(), returned: BTreeMap::new(), factory }
+        ModuleHost {
+            core,
+            driver,
+            runners: BTreeMap::new(),
+            returned: BTreeMap::new(),
+            factory,
+            session: None,
+        }
     }
 
     /// The names of the modules it runs now.
@@ -497,12 +595,14 @@ impl ModuleHost {
     /// configuration, brought to Config when the core has it past Startup) and checks that it is
     /// the core's. Other modules already hosted are kept when the core's participants are the same.
     pub fn hello(&mut self, hello: &Hello) -> Result<(), RemoteError> {
-        if self.core.post.names() != hello.names.as_slice() {
-            // Another system: start afresh with its participants.
+        if self.session != Some(hello.session) || self.core.post.names() != hello.names.as_slice() {
+            // Another run (or system): start afresh with its participants, its clock at zero.
+            self.session = Some(hello.session);
             let (clock, driver) = SimClock::new();
             self.core = Arc::new(Core {
                 clock: Arc::new(clock),
-                post: PostOffice::new(hello.names.clone(), false),
+                // Traced: a step's messages go back in the order they were posted.
+                post: PostOffice::new(hello.names.clone(), true),
                 board: BlackBoard::new(),
                 resources: Resources::new(),
                 events: EventLog::default(),
@@ -534,6 +634,13 @@ impl ModuleHost {
                 hello.module
             )));
         }
+        // A rebuilt module starts clean: not isolated, in Startup, numbering its messages on from
+        // the last one the core saw.
+        let id = runner.info().id;
+        let status = self.core.status(id);
+        status.set_isolated(false);
+        status.set_lifecycle(Lifecycle::Startup);
+        self.core.post.inbox(id).advance_seq_to(hello.last_seq);
         runner.publish_status(&self.core);
         self.runners.insert(hello.module.clone(), runner);
         // A rebuilt module starts in Startup; the core's `lifecycle` commands take it on from
@@ -577,30 +684,35 @@ impl ModuleHost {
             return Err(RemoteError::Protocol(format!("time went back from {} to {t}", core.now())));
         }
         self.driver.advance_to(t);
+        let id = runner.info().id;
+        let decl = core.board.declarations();
         for r in &req.slots {
-            let slot = core.board.slot(&r.slot).ok_or_else(|| {
+            let reads = decl.iter().any(|(slot, d)| *slot == r.slot && d.readers.contains(&id));
+            let slot = core.board.slot(&r.slot).filter(|_| reads).ok_or_else(|| {
                 RemoteError::Protocol(format!("module '{}' reads no slot '{}'", req.module, r.slot))
             })?;
             slot.import(&r.bytes).map_err(|e| RemoteError::Protocol(e.to_string()))?;
         }
+        let mut incoming = Vec::with_capacity(req.messages.len());
         for m in &req.messages {
             let m: Message =
                 serde_json::from_str(m).map_err(|e| RemoteError::Protocol(format!("message: {e}")))?;
-            if m.next_hop().0 as usize >= core.post.names().len() {
-                return Err(RemoteError::Protocol(format!(
-                    "message to unknown participant #{}",
-                    m.next_hop().0
-                )));
+            if !core.post.knows_all(&m) {
+                return Err(RemoteError::Protocol(format!("message {} names an unknown participant", m.id)));
             }
+            incoming.push(m);
+        }
+        for m in incoming {
             core.post.post(m);
         }
+        // What was posted before the step is not the step's.
+        core.post.take_trace();
         let mode = match req.step {
             RemoteStep::Cycle => StepMode::Cycle,
             RemoteStep::EmergencyOnly => StepMode::EmergencyOnly,
         };
         let basis = if req.charged { OverrunBasis::Charged } else { OverrunBasis::Wall };
         runner.step(&core, t, mode, basis);
-        let id = runner.info().id;
         let mut slots = Vec::new();
         for (slot, d) in core.board.declarations() {
             if d.writers.contains(&id)
@@ -616,12 +728,17 @@ impl ModuleHost {
                 }
             }
         }
-        let mut messages = Vec::new();
+        // Every message the step posted, in posting order; the host's inboxes are emptied (the
+        // core delivers them, to its modules or back here at the recipient's next step).
+        let messages = core
+            .post
+            .take_trace()
+            .iter()
+            .map(|m| serde_json::to_string(m).expect("messages serialize"))
+            .collect();
         for i in 0..core.post.names().len() {
             let inbox = core.post.inbox(ModuleId(i as u32));
-            while let Some(m) = inbox.pop() {
-                messages.push(serde_json::to_string(&m).expect("messages serialize"));
-            }
+            while inbox.pop().is_some() {}
         }
         let events =
             core.events.drain().iter().map(|e| serde_json::to_string(e).expect("events serialize")).collect();

@@ -40,7 +40,10 @@ impl TaskStats {
         if self.cycles == 0 {
             Duration::ZERO
         } else {
-            Duration::from_nanos(self.exec_total_ns / self.cycles as i64)
+            // Checked: statistics may come from another host.
+            Duration::from_nanos(
+                self.exec_total_ns.checked_div(self.cycles.min(i64::MAX as u64) as i64).unwrap_or(0),
+            )
         }
     }
     /// Shortest cycle execution time.

@@ -200,6 +200,7 @@ impl SystemBuilder {
     ) -> Result<Assembled, StartupError> {
         let mut problems = self.problems;
         let mut runners = Vec::new();
+        let session = crate::remote::new_session();
         for e in self.entries {
             if let Entry::Module(r) = e {
                 let Some(host) = r.host().map(str::to_string).filter(|_| !self.hosts_ignored) else {
@@ -210,7 +211,8 @@ impl SystemBuilder {
                 match &self.remote_links {
                     Some(f) => {
                         let link = f(&host, &name);
-                        runners.push(Box::new(crate::remote::RemoteCell::new(r, link, &host, &self.board)));
+                        let cell = crate::remote::RemoteCell::new(r, link, &host, &self.board, session);
+                        runners.push(Box::new(cell));
                     }
                     None => problems.push(format!(
                         "module '{name}' is configured to run on host {host}, but this program has no network layer"

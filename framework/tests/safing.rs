@@ -59,6 +59,7 @@ impl Module for Driver {
 
 fn system(driver: Driver, context: &str) -> LockstepExecutor {
     let mut b = SystemBuilder::new();
+    b.trace_messages(true);
     b.add_inline("driver", driver, &format!("[framework]\nperiod_s = 0.01\n{context}"));
     b.endpoint("ground");
     LockstepExecutor::new(b, Duration::from_millis(10)).unwrap()
@@ -93,6 +94,23 @@ fn a_module_that_panics_mid_drive_runs_its_safing_hook_and_fails_what_it_had_acc
     ex.run_for(Duration::from_millis(20));
     assert!(matches!(g.status(again), Some(AckStatus::Rejected(_))));
     assert!(matches!(g.status(ping), Some(AckStatus::Completed(_))));
+    // Restored, the module still holds the request it had accepted; its late answer is dropped:
+    // the command stays answered once, Failed.
+    for to in [Lifecycle::Standby, Lifecycle::Hold, Lifecycle::Run] {
+        ex.module_transition("driver", to).unwrap();
+    }
+    let arrive = g.send(Command::new("driver", "arrive")).unwrap();
+    ex.run_for(Duration::from_millis(20));
+    assert!(matches!(g.status(arrive), Some(AckStatus::Completed(_))));
+    assert!(matches!(g.status(go), Some(AckStatus::Failed(_))), "{:?}", g.status(go));
+    let answers = ex
+        .core()
+        .post
+        .take_trace()
+        .into_iter()
+        .filter(|m| matches!(&m.body, framework::message::Body::Ack(a) if a.of == go && a.status.is_final()))
+        .count();
+    assert_eq!(answers, 1, "one final answer to 'go'");
 }
 
 #[test]

@@ -29,7 +29,15 @@ impl ConsoleClient {
 
     /// Sends one request and waits for its answer.
     pub fn request(&self, req: &ConsoleRequest) -> Result<ConsoleReply, NetError> {
-        let bytes = self.request_raw(frame::encode(req))?;
+        // Requests the server answers late (a command's final acknowledgement, a step) get the
+        // time they need on top of the configured timeout.
+        let extra = match req {
+            ConsoleRequest::Send { wait_s, .. } if wait_s.is_finite() => wait_s.clamp(0.0, 3600.0),
+            ConsoleRequest::Step { .. } => 3600.0,
+            _ => 0.0,
+        };
+        let timeout = self.timeout + std::time::Duration::from_secs_f64(extra);
+        let bytes = self.request_with(frame::encode(req), timeout)?;
         frame::decode::<ConsoleReply>(&bytes, self.max_frame).map_err(|e| match e {
             FrameError::Refused(why) => NetError::Refused(why),
             e => NetError::Frame(e),
@@ -38,14 +46,18 @@ impl ConsoleClient {
 
     /// Sends raw bytes as a request and returns the raw answer (hostile-peer tests, benches).
     pub fn request_raw(&self, bytes: Vec<u8>) -> Result<Vec<u8>, NetError> {
+        self.request_with(bytes, self.timeout)
+    }
+
+    fn request_with(&self, bytes: Vec<u8>, wait: std::time::Duration) -> Result<Vec<u8>, NetError> {
         let replies = self
             .session
             .get(&self.key)
             .payload(bytes)
-            .timeout(self.timeout)
+            .timeout(wait)
             .wait()
             .map_err(|e| NetError::Link(e.to_string()))?;
-        let timeout = || NetError::Timeout(self.endpoint.clone(), self.timeout.as_secs_f64());
+        let timeout = || NetError::Timeout(self.endpoint.clone(), wait.as_secs_f64());
         let reply = replies.recv().map_err(|_| timeout())?;
         match reply.result() {
             Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),

@@ -122,7 +122,8 @@ impl NetConfig {
             return Err(("endpoint", format!("'{}': only tcp is built in", self.endpoint)));
         }
         let host = addr.rsplit_once(':').map(|(h, _)| h).unwrap_or(addr);
-        let loopback = matches!(host, "localhost" | "[::1]") || host.starts_with("127.");
+        let ip = host.trim_start_matches('[').trim_end_matches(']').parse::<std::net::IpAddr>();
+        let loopback = host == "localhost" || ip.is_ok_and(|ip| ip.is_loopback());
         if !loopback && self.auth.is_none() {
             return Err((
                 "endpoint",

@@ -31,8 +31,9 @@ pub const HEADER_BYTES: usize = 20;
 /// The kind of a refusal frame: its body is the reason as UTF-8 text, with no schema, so that a
 /// peer of any version can read why it was refused.
 pub const REFUSAL: u8 = 0xff;
-/// Frame size limit when none is configured, bytes.
-pub const DEFAULT_MAX_FRAME_BYTES: usize = 1 << 20;
+/// Frame size limit when none is configured, bytes (a remote module's step carries the slots it
+/// reads: a stereo pair's images are about 0.6 MB).
+pub const DEFAULT_MAX_FRAME_BYTES: usize = 16 << 20;
 
 /// Why a frame was not accepted.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]

@@ -35,6 +35,11 @@ fn base(cfg: &NetConfig, mode: &str) -> Result<zenoh::Config, NetError> {
 
 /// Opens the listening session of a system on the configured endpoint.
 pub fn listen(cfg: &NetConfig) -> Result<zenoh::Session, NetError> {
+    if cfg.auth.as_ref().is_some_and(|a| a.users_file.is_none()) {
+        return Err(NetError::Config(
+            "auth: a listening side needs users_file (the user:password lines it accepts)".into(),
+        ));
+    }
     let mut c = base(cfg, "peer")?;
     c.insert_json5("listen/endpoints", &serde_json::json!([cfg.endpoint]).to_string())
         .map_err(|e| NetError::Link(e.to_string()))?;
@@ -47,6 +52,10 @@ pub fn listen(cfg: &NetConfig) -> Result<zenoh::Session, NetError> {
 /// or the peer refuses this side's credentials).
 pub fn connect(cfg: &NetConfig) -> Result<zenoh::Session, NetError> {
     let mut c = base(cfg, "client")?;
+    // A host that does not answer is given up after the configured timeout, not zenoh's 10 s.
+    let open_ms = (cfg.timeout_s * 1000.0).clamp(100.0, 3_600_000.0) as u64;
+    c.insert_json5("transport/unicast/open_timeout", &open_ms.to_string())
+        .map_err(|e| NetError::Link(e.to_string()))?;
     c.insert_json5("connect/endpoints", &serde_json::json!([cfg.endpoint]).to_string())
         .map_err(|e| NetError::Link(e.to_string()))?;
     zenoh::open(c).wait().map_err(|e| {

@@ -107,7 +107,17 @@ impl RemoteLink for ZenohLink {
         decode::<Welcome>(&bytes, self.cfg.max_frame_bytes).map(|_| ())
     }
     fn tick(&mut self, req: &TickRequest, timeout: std::time::Duration) -> Result<TickReply, RemoteError> {
-        let bytes = self.query("tick", frame::encode(req), timeout)?;
+        let frame = frame::encode(req);
+        if frame.len() > self.cfg.max_frame_bytes {
+            let biggest = req.slots.iter().max_by_key(|s| s.bytes.len());
+            return Err(RemoteError::Protocol(format!(
+                "a step of {} bytes exceeds max_frame_bytes = {}{}",
+                frame.len(),
+                self.cfg.max_frame_bytes,
+                biggest.map(|s| format!(" (slot '{}': {} bytes)", s.slot, s.bytes.len())).unwrap_or_default()
+            )));
+        }
+        let bytes = self.query("tick", frame, timeout)?;
         decode::<TickReply>(&bytes, self.cfg.max_frame_bytes)
     }
 }
@@ -144,7 +154,11 @@ pub fn serve_host(cfg: &NetConfig, mut host: ModuleHost, stop: &AtomicBool) -> R
         .map_err(|e| NetError::Link(format!("cannot serve {key}: {e}")))?;
     let stats = Mutex::new(HostStats::default());
     while !stop.load(Ordering::SeqCst) {
-        let Ok(Some(q)) = queryable.recv_timeout(std::time::Duration::from_millis(50)) else { continue };
+        let q = match queryable.recv_timeout(std::time::Duration::from_millis(50)) {
+            Ok(Some(q)) => q,
+            Ok(None) => continue,
+            Err(e) => return Err(NetError::Link(format!("the host's queryable closed: {e}"))),
+        };
         let reply = answer(&q, &mut host, cfg.max_frame_bytes, &stats);
         if let Some(bytes) = reply
             && let Err(e) = q.reply(q.key_expr().clone(), bytes).wait()
@@ -176,7 +190,10 @@ fn answer(
     };
     let what = q.key_expr().as_str().rsplit('/').next().unwrap_or("").to_string();
     let decoded = |e: FrameError, stats: &mut HostStats| match e {
-        e @ (FrameError::Version { .. } | FrameError::Schema { .. }) => refuse(stats, e.to_string()),
+        // Refused, not dropped: the core then says why its module went to Safe.
+        e @ (FrameError::Version { .. } | FrameError::Schema { .. } | FrameError::TooLarge { .. }) => {
+            refuse(stats, e.to_string())
+        }
         e => {
             stats.dropped += 1;
             tracing::warn!("module host: dropped a malformed frame: {e}");

@@ -84,8 +84,10 @@ impl ConsoleServer {
     }
 
     /// Call before each tick: answers every waiting request; while paused, waits for requests
-    /// until a `resume`, a `step` or `interrupt`. Returns once the executor may tick.
-    pub fn serve(&mut self, exec: &mut dyn Executor, interrupt: &AtomicBool) {
+    /// until a `resume`, a `step` or `interrupt`. Returns once the executor may tick: whether it
+    /// waited (a paced run then counts its pace from now).
+    pub fn serve(&mut self, exec: &mut dyn Executor, interrupt: &AtomicBool) -> bool {
+        let mut waited = false;
         loop {
             if self.steps_left == 0
                 && let Some((q, n)) = self.stepping.take()
@@ -101,12 +103,41 @@ impl ConsoleServer {
             if !self.paused || self.steps_left > 0 || interrupt.load(Ordering::SeqCst) {
                 break;
             }
-            if let Ok(Some(q)) = self.queryable.recv_timeout(std::time::Duration::from_millis(100)) {
-                self.answer(q, exec);
+            waited = true;
+            match self.queryable.recv_timeout(std::time::Duration::from_millis(100)) {
+                Ok(Some(q)) => self.answer(q, exec),
+                Ok(None) => {}
+                Err(e) => {
+                    // The session is gone: nobody can resume the run from here.
+                    tracing::error!("console: the listener closed ({e}); resuming the run");
+                    self.paused = false;
+                }
             }
         }
         if self.paused && self.steps_left > 0 {
             self.steps_left -= 1;
+        }
+        waited
+    }
+
+    /// The run is over: answers the requests still waiting (a step, commands awaiting their final
+    /// acknowledgement) with what happened, so that no console is left without an answer.
+    pub fn close(&mut self, exec: &mut dyn Executor) {
+        if let Some((q, n)) = self.stepping.take() {
+            let ran = n - self.steps_left;
+            let r = ConsoleReply::error(format!(
+                "the run ended at {} after {ran} of the {n} ticks asked for",
+                exec.now()
+            ));
+            self.reply(&q, &frame::encode(&r));
+        }
+        for (q, id, _) in std::mem::take(&mut self.waiting) {
+            let r = ack_reply(id, self.endpoint.status(id));
+            self.reply(&q, &frame::encode(&r));
+        }
+        while let Ok(Some(q)) = self.queryable.try_recv() {
+            let r = ConsoleReply::error(format!("the run ended at {}", exec.now()));
+            self.reply(&q, &frame::encode(&r));
         }
     }
 
@@ -164,6 +195,9 @@ impl ConsoleServer {
                 self.reply(&q, &frame::encode(&r));
             } else if ticks == 0 {
                 let r = ConsoleReply::error("step needs at least one tick");
+                self.reply(&q, &frame::encode(&r));
+            } else if self.stepping.is_some() {
+                let r = ConsoleReply::error("a step is under way: wait for its answer");
                 self.reply(&q, &frame::encode(&r));
             } else {
                 self.steps_left = ticks;
@@ -319,6 +353,14 @@ impl ConsoleServer {
             }
             ConsoleRequest::Resume => {
                 self.paused = false;
+                if let Some((q, n)) = self.stepping.take() {
+                    let ran = n - self.steps_left;
+                    let r = ConsoleReply::ok(
+                        format!("stepped {ran} of {n} ticks, then resumed; time is {}", exec.now()),
+                        serde_json::json!({ "ticks": ran, "time_s": exec.now().as_secs_f64() }),
+                    );
+                    self.reply(&q, &frame::encode(&r));
+                }
                 self.steps_left = 0;
                 ConsoleReply::ok(
                     format!("resumed at {}", exec.now()),

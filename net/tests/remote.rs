@@ -204,14 +204,18 @@ fn a_remote_module_gives_the_all_local_results_bit_for_bit() {
     let (rs, re) = outputs(&remote);
     assert_eq!(ls, rs, "slots");
     assert_eq!(le, re, "events");
+    // The same host serves a second run of the core: it starts afresh, with the same results.
+    let mut again = system(Some(&endpoint));
+    run(&mut again);
+    assert_eq!(outputs(&again), (ls.clone(), le.clone()), "a second run on the same host");
     let sum = &ls.iter().find(|s| s.starts_with("consumer/sum")).unwrap();
     assert!(!sum.contains("None"), "{sum}");
     let consumer = remote.reports().into_iter().find(|r| r.name == "consumer").unwrap();
     assert_eq!(consumer.meta_states["summing"], "double");
     assert_eq!(consumer.lifecycle, Lifecycle::Hold);
     let stats = host.kill();
-    assert_eq!(stats.hellos, 1);
-    assert!(stats.ticks > 30, "{stats:?}");
+    assert_eq!(stats.hellos, 2);
+    assert!(stats.ticks > 60, "{stats:?}");
 }
 
 #[test]
@@ -242,8 +246,16 @@ fn a_dead_host_puts_its_module_in_safe_the_rest_goes_on_and_a_restarted_host_bri
     assert_eq!(read_u64(&ex, "producer/count"), 50);
     let acks = ex.core().board.reader::<(u64, u64)>("producer/acks").unwrap().unwrap().read().unwrap().value;
     assert!(acks.1 > 0, "failed commands counted: {acks:?}");
-    // The host comes back; the operator takes the module out of Safe and back to Run.
+    // The host comes back. A command other than a lifecycle one does not reconnect the module: it
+    // fails, naming why, and the module stays in Safe.
     let host = Host::start(&endpoint);
+    let g = ex.endpoint("ground").unwrap();
+    let add = g.send(Command::new("consumer", "add").json(serde_json::json!({ "n": 1 }))).unwrap();
+    ex.run_for(Duration::from_millis(50));
+    let Some(AckStatus::Failed(why)) = g.status(add) else { panic!("{:?}", g.status(add)) };
+    assert!(why.contains("take it out of Safe"), "{why}");
+    assert_eq!(ex.reports().into_iter().find(|r| r.name == "consumer").unwrap().lifecycle, Lifecycle::Safe);
+    // The operator takes it out of Safe and back to Run: it reconnects.
     ex.module_transition("consumer", Lifecycle::Standby).unwrap();
     ex.module_transition("consumer", Lifecycle::Hold).unwrap();
     ex.module_transition("consumer", Lifecycle::Run).unwrap();

@@ -12,8 +12,18 @@ fn free_port() -> u16 {
     std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
-/// The host process, stopped when the test ends.
+/// The host process, stopped when the test ends (with its output, read on as it comes, so that
+/// it never writes into a closed pipe).
 struct Host(Child);
+
+/// Reads the first line of a child's output, and the rest in the background.
+fn first_line(child: &mut Child) -> String {
+    let mut out = BufReader::new(child.stdout.take().unwrap());
+    let mut line = String::new();
+    out.read_line(&mut line).unwrap();
+    std::thread::spawn(move || std::io::copy(&mut out, &mut std::io::sink()));
+    line
+}
 
 impl Drop for Host {
     fn drop(&mut self) {
@@ -154,5 +164,78 @@ fn visual_odometry_and_target_tracking_on_a_module_host_give_the_local_run_bit_f
         std::fs::read_to_string(local.join("track.csv")).unwrap(),
         std::fs::read_to_string(remote.join("track.csv")).unwrap(),
         "the tracks"
+    );
+}
+
+fn console(endpoint: &str, args: &[&str]) -> serde_json::Value {
+    let o = rover_twin().args(["console", "--json", "--connect", endpoint]).args(args).output().unwrap();
+    assert!(o.status.success(), "{}", show(&o));
+    serde_json::from_str(String::from_utf8_lossy(&o.stdout).lines().last().unwrap()).unwrap()
+}
+
+fn start_host(dir: &std::path::Path) -> Host {
+    let mut child = rover_twin()
+        .args(["module-host", "--config"])
+        .arg(dir.join("host.toml"))
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let line = first_line(&mut child);
+    assert!(line.starts_with("module-host: serving"), "{line}");
+    Host(child)
+}
+
+fn module<'a>(modules: &'a serde_json::Value, name: &str) -> &'a serde_json::Value {
+    modules["result"].as_array().unwrap().iter().find(|m| m["name"] == name).unwrap()
+}
+
+#[test]
+fn a_killed_module_host_puts_its_module_in_safe_and_autonomy_ends_the_mission_safe_naming_the_host() {
+    let dir = tempfile::tempdir().unwrap();
+    let host_endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let console_endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let scenario = cameras_scenario(dir.path(), "remote.toml", Some(&host_endpoint));
+    std::fs::write(
+        dir.path().join("host.toml"),
+        format!(
+            "system = \"scenario\"\nscenario = \"remote.toml\"\nmodules = [\"localization_visual\", \"tracking_target\"]\nendpoint = \"{host_endpoint}\"\n"
+        ),
+    )
+    .unwrap();
+    let host = start_host(dir.path());
+    let mut run = rover_twin()
+        .arg("run")
+        .arg(&scenario)
+        .arg("--out")
+        .arg(dir.path().join("out"))
+        .args(["--quiet", "--no-logs", "--paused", &format!("--listen={console_endpoint}")])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let line = first_line(&mut run);
+    assert!(line.starts_with("console: listening"), "{line}");
+    let mut run = Host(run);
+
+    console(&console_endpoint, &["step", "300"]);
+    let modules = console(&console_endpoint, &["modules"]);
+    assert_eq!(module(&modules, "localization_visual")["lifecycle"], "Run");
+    drop(host); // killed mid-run
+    // Autonomy restarts the module, which cannot reach its host, and puts the system in Safe: the
+    // run ends, and the console's step is answered saying so.
+    let o = rover_twin()
+        .args(["console", "--json", "--connect", &console_endpoint, "step", "300"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("the run ended"), "{}", show(&o));
+    assert_eq!(run.0.wait().unwrap().code(), Some(1), "a mission failure");
+    let s = score(&dir.path().join("out"));
+    assert_eq!(s["metrics"]["final_state"], "Safe", "{s}");
+    let isolated = s["metrics"]["isolated_modules"]["localization_visual"].as_str().unwrap();
+    assert!(isolated.contains("remote") && isolated.contains(&host_endpoint), "{isolated}");
+    let faults = s["faults"].to_string();
+    assert!(
+        faults.contains("restart 'localization_visual'") && faults.contains("cannot connect"),
+        "{faults}"
     );
 }

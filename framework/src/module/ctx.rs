@@ -187,7 +187,18 @@ impl<'a> Ctx<'a> {
         self.request.clone()
     }
     /// Reports the completion or failure of a command accepted earlier.
+    ///
+    /// A command that was already answered finally (its module went to Safe meanwhile, which
+    /// answers what it had accepted Failed) is not answered again: the reply is dropped.
     pub fn reply(&mut self, request: &Request, outcome: Outcome) {
+        if !self.ledger.accepted.contains_key(&request.id()) {
+            tracing::debug!(
+                module = self.name,
+                command = request.command(),
+                "reply to a command already answered: dropped"
+            );
+            return;
+        }
         if !matches!(outcome, Outcome::Accepted) {
             self.ledger.accepted.remove(&request.id());
         }

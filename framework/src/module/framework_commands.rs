@@ -236,6 +236,8 @@ impl<M: Module> Cell<M> {
         self.lifecycle = to;
         if to == Lifecycle::Safe && from != Lifecycle::Safe {
             self.make_safe(core, now, "commanded");
+            // As after an isolation: the module gives its devices back (it takes them again in Run).
+            core.resources.release_all_of(self.info.id);
         }
         if from == Lifecycle::Safe {
             self.isolated = false;

@@ -585,15 +585,20 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
     #[allow(clippy::disallowed_methods)]
     let mut last_progress = std::time::Instant::now();
     // `--pace` counts from here: building the system is not simulated time.
-    let pace_clock = (last_progress, ex.now());
+    let mut pace_clock = (last_progress, ex.now());
     loop {
         if opts.interrupt.load(Ordering::SeqCst) {
             abort = Some("interrupted (SIGINT/SIGTERM)".into());
             break;
         }
         if let Some(c) = &mut console {
-            // Console requests act between ticks; a paused run waits here.
-            c.serve(&mut ex, &opts.interrupt);
+            // Console requests act between ticks; a paused run waits here, and its pace counts on
+            // from when it goes again.
+            if c.serve(&mut ex, &opts.interrupt) {
+                #[allow(clippy::disallowed_methods)] // pacing is wall time, like keep_pace
+                let now = std::time::Instant::now();
+                pace_clock = (now, ex.now());
+            }
             if opts.interrupt.load(Ordering::SeqCst) {
                 continue;
             }
@@ -680,8 +685,12 @@ pub fn run(loaded: &Loaded, opts: &RunOptions) -> Result<Score> {
             keep_pace(now, opts.pace, pace_clock, &opts.interrupt);
         }
     }
-    // The loops are over: finalizing below is not a stuck simulation.
+    // The loops are over: finalizing below is not a stuck simulation; consoles still waiting get
+    // their answers.
     drop(watch);
+    if let Some(c) = &mut console {
+        c.close(&mut ex);
+    }
     let now = ex.now();
     let final_state = ex.system_state();
     let phases = mission.results();

@@ -17,9 +17,11 @@
 //! slots and their types, configuration) differ from the core's with a clear error. The transport
 //! is a [`RemoteLink`]; the `net` crate provides one over Zenoh. A link error or a host that does
 //! not answer within the module's hang timeout puts the module in Safe (isolated, with an event);
-//! the rest of the system goes on. A command sent to it later (e.g. the `lifecycle` one that takes
-//! it out of Safe) first reconnects: a host that is back gets the module rebuilt from its
-//! configuration, brought to Config, then handed the command.
+//! the commands it had accepted are answered Failed, and the rest of the system goes on. Only a
+//! `lifecycle` command (the one that takes it out of Safe) reconnects it: a host that is back gets
+//! the module rebuilt from its configuration, brought to Config, then handed the command; any
+//! other command fails at once, saying why. A host meeting another run of the core (its hello
+//! carries a session number) starts afresh, so one host serves run after run.
 
 use crate::blackboard::BlackBoard;
 use crate::clock::{ClockDriver, SimClock, WallClock};

@@ -43,16 +43,7 @@ fn the_demo_with_its_navigator_on_a_module_host_equals_the_all_local_demo() {
         let text = text.replace("tcp/127.0.0.1:7450", &endpoint);
         std::fs::write(dir.path().join(format!("{f}.toml")), text).unwrap();
     }
-    let mut child = rover_twin()
-        .args(["module-host", "--config"])
-        .arg(dir.path().join("host.toml"))
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-    assert!(line.starts_with("module-host: serving navigator of demo"), "{line}");
-    let _host = Host(child);
+    let _host = start_host(dir.path());
 
     let demo = |config_dir: &std::path::Path, record: &str| {
         let o = rover_twin()
@@ -131,16 +122,7 @@ fn visual_odometry_and_target_tracking_on_a_module_host_give_the_local_run_bit_f
         ),
     )
     .unwrap();
-    let mut child = rover_twin()
-        .args(["module-host", "--config"])
-        .arg(dir.path().join("host.toml"))
-        .stdout(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
-    assert!(line.starts_with("module-host: serving localization_visual, tracking_target"), "{line}");
-    let _host = Host(child);
+    let _host = start_host(dir.path());
 
     let run = |scenario: &std::path::Path, out: &str| {
         let out = dir.path().join(out);

@@ -104,7 +104,7 @@ fn system(bytes: usize, remote: bool) -> Served {
         }));
         let s = stop.clone();
         let h = std::thread::spawn(move || {
-            net::remote::serve_host(&cfg, host, &s).unwrap();
+            net::remote::serve_host(&cfg, host, &s, || ()).unwrap();
         });
         for _ in 0..100 {
             if std::net::TcpStream::connect(("127.0.0.1", port)).is_ok() {

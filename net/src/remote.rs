@@ -144,14 +144,21 @@ pub struct HostStats {
     pub dropped: u64,
 }
 
-/// Serves a [`ModuleHost`] on the configured endpoint until `stop`.
-pub fn serve_host(cfg: &NetConfig, mut host: ModuleHost, stop: &AtomicBool) -> Result<HostStats, NetError> {
+/// Serves a [`ModuleHost`] on the configured endpoint until `stop`; `ready` is called once it
+/// listens.
+pub fn serve_host(
+    cfg: &NetConfig,
+    mut host: ModuleHost,
+    stop: &AtomicBool,
+    ready: impl FnOnce(),
+) -> Result<HostStats, NetError> {
     let session = crate::link::listen(cfg)?;
     let key = format!("rover_twin/{}/module/*/*", cfg.system);
     let queryable = session
         .declare_queryable(&key)
         .wait()
         .map_err(|e| NetError::Link(format!("cannot serve {key}: {e}")))?;
+    ready();
     let stats = Mutex::new(HostStats::default());
     while !stop.load(Ordering::SeqCst) {
         let q = match queryable.recv_timeout(std::time::Duration::from_millis(50)) {

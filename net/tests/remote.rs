@@ -149,7 +149,7 @@ impl Host {
         }));
         let stop = Arc::new(AtomicBool::new(false));
         let s = stop.clone();
-        let thread = std::thread::spawn(move || net::remote::serve_host(&cfg, host, &s).unwrap());
+        let thread = std::thread::spawn(move || net::remote::serve_host(&cfg, host, &s, || ()).unwrap());
         // The listener is up once a connection succeeds.
         for _ in 0..100 {
             if std::net::TcpStream::connect(endpoint.trim_start_matches("tcp/")).is_ok() {

@@ -131,15 +131,17 @@ fn demo_factory(f: &HostFile) -> ModuleFactory {
 pub fn serve(path: &Path, interrupt: &AtomicBool) -> Result<i32> {
     let (f, net) = load(path)?;
     let host = ModuleHost::new(factory(&f)?);
-    println!(
-        "module-host: serving {} of {} on {} (until SIGINT)",
-        f.modules.join(", "),
-        f.system,
-        net.endpoint
-    );
-    use std::io::Write as _;
-    let _ = std::io::stdout().flush();
-    let stats = net::remote::serve_host(&net, host, interrupt)?;
+    let stats = net::remote::serve_host(&net, host, interrupt, || {
+        // Said once it listens: a core may connect from then on.
+        println!(
+            "module-host: serving {} of {} on {} (until SIGINT)",
+            f.modules.join(", "),
+            f.system,
+            net.endpoint
+        );
+        use std::io::Write as _;
+        let _ = std::io::stdout().flush();
+    })?;
     println!(
         "module-host: {} hellos, {} steps, {} refused, {} dropped",
         stats.hellos, stats.ticks, stats.refused, stats.dropped

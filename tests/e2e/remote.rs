@@ -2,7 +2,7 @@
 //! configuration change only (`[framework] host` in its file), gives the all-local lockstep run's
 //! results bit for bit: the same acknowledgements, slots and framework events.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::process::{Child, Stdio};
 
 mod common;
@@ -220,4 +220,82 @@ fn a_killed_module_host_puts_its_module_in_safe_and_autonomy_ends_the_mission_sa
         faults.contains("restart 'localization_visual'") && faults.contains("cannot connect"),
         "{faults}"
     );
+}
+
+/// Lines of a child's output, as they come.
+fn lines_of(child: &mut Child) -> std::sync::mpsc::Receiver<String> {
+    let out = BufReader::new(child.stdout.take().unwrap());
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for line in out.lines() {
+            let Ok(line) = line else { break };
+            if tx.send(line).is_err() {
+                break;
+            }
+        }
+    });
+    rx
+}
+
+/// Reads lines until one starts with `prefix`, within 60 s.
+fn expect(rx: &std::sync::mpsc::Receiver<String>, prefix: &str) -> String {
+    let until = std::time::Duration::from_secs(60);
+    loop {
+        match rx.recv_timeout(until) {
+            Ok(l) if l.trim_start().starts_with(prefix) => return l,
+            Ok(_) => {}
+            Err(e) => panic!("no line starting with '{prefix}': {e}"),
+        }
+    }
+}
+
+#[test]
+fn a_killed_module_host_process_restarted_takes_its_module_back_by_lifecycle_commands() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let shipped = root().join("scenarios/config/demo_remote");
+    for f in ["gyro", "heading", "navigator", "locomotion", "host"] {
+        let text = std::fs::read_to_string(shipped.join(format!("{f}.toml"))).unwrap();
+        std::fs::write(dir.path().join(format!("{f}.toml")), text.replace("tcp/127.0.0.1:7450", &endpoint))
+            .unwrap();
+    }
+    let host = start_host(dir.path());
+    // The demo's system driven by its console, one line at a time.
+    let mut demo = rover_twin()
+        .args(["demo", "--console", "--config-dir"])
+        .arg(dir.path())
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let rx = lines_of(&mut demo);
+    let mut stdin = demo.stdin.take().unwrap();
+    let mut say = |line: &str| writeln!(stdin, "{line}").unwrap();
+    // (`say` borrows stdin until its last use below.)
+    let demo = Host(demo);
+    say("walk run");
+    expect(&rx, "system is Run");
+    say("advance 1");
+    expect(&rx, "time is");
+    drop(host); // killed
+    say("advance 1");
+    expect(&rx, "time is");
+    say("state");
+    let nav = expect(&rx, "navigator");
+    assert!(nav.contains("Safe") && nav.contains("ISOLATED"), "{nav}");
+    // The host is back: lifecycle commands reconnect the module and take it back to Run.
+    let _host = start_host(dir.path());
+    for state in ["standby", "hold", "run"] {
+        say(&format!("module navigator {state}"));
+        expect(&rx, "module navigator is");
+    }
+    say("advance 1");
+    expect(&rx, "time is");
+    say("state");
+    let nav = expect(&rx, "navigator");
+    assert!(nav.contains("Run") && !nav.contains("ISOLATED"), "{nav}");
+    // End of input: the console ends, and the demo with it.
+    drop(stdin);
+    let mut demo = demo;
+    assert!(demo.0.wait().unwrap().success());
 }

@@ -57,22 +57,23 @@ pub struct ModuleFingerprint {
 impl ModuleFingerprint {
     /// The fingerprint of a registered module.
     pub fn of(info: &ModuleInfo, config_text: &str, board: &BlackBoard) -> Self {
-        let (mut reads, mut writes) = (Vec::new(), Vec::new());
-        for (slot, d) in board.declarations() {
-            let ty = board.slot(&slot).map(|s| s.type_name().to_string()).unwrap_or_default();
-            if d.readers.contains(&info.id) {
-                reads.push((slot.clone(), ty.clone()));
-            }
-            if d.writers.contains(&info.id) {
-                writes.push((slot, ty));
-            }
-        }
+        let typed = |slots: Vec<String>| -> Vec<(String, String)> {
+            slots
+                .into_iter()
+                .map(|s| {
+                    let ty = board.slot(&s).map(|e| e.type_name().to_string()).unwrap_or_default();
+                    (s, ty)
+                })
+                .collect()
+        };
+        let (reads, writes) = declared_slots(board, info.id);
+        let (reads, writes) = (typed(reads), typed(writes));
         ModuleFingerprint {
             kind: format!("{:?}", info.kind),
             states: info.states.clone(),
             reads,
             writes,
-            config_digest: fnv(config_text),
+            config_digest: fnv1a(config_text.as_bytes()),
         }
     }
 
@@ -217,12 +218,49 @@ pub type LinkFactory = Arc<dyn Fn(&str, &str) -> Box<dyn RemoteLink> + Send + Sy
 #[allow(clippy::disallowed_methods)] // an identity, not a time the run uses
 pub(crate) fn new_session() -> u64 {
     let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_nanos() as u64);
-    fnv(&format!("{}-{}", t.unwrap_or(0), std::process::id()))
+    fnv1a(format!("{}-{}", t.unwrap_or(0), std::process::id()).as_bytes())
 }
 
-/// 64-bit FNV-1a of a text (the configuration digest of a fingerprint).
-fn fnv(text: &str) -> u64 {
-    text.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3))
+/// 64-bit FNV-1a (configuration digests, session numbers; `net` hashes its wire schemas with it).
+pub fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3))
+}
+
+/// The slots module `id` declared it reads and writes, by name.
+fn declared_slots(board: &BlackBoard, id: ModuleId) -> (Vec<String>, Vec<String>) {
+    let (mut reads, mut writes) = (Vec::new(), Vec::new());
+    for (slot, d) in board.declarations() {
+        if d.readers.contains(&id) {
+            reads.push(slot.clone());
+        }
+        if d.writers.contains(&id) {
+            writes.push(slot);
+        }
+    }
+    (reads, writes)
+}
+
+/// The records of `slots` written since `last` saw them (their sequence numbers there), encoded
+/// for the other side; `last` is brought up to date.
+fn changed_records(
+    board: &BlackBoard,
+    slots: &[String],
+    last: &mut BTreeMap<String, u64>,
+) -> Vec<SlotRecord> {
+    let mut out = Vec::new();
+    for name in slots {
+        if let Some(slot) = board.slot(name) {
+            let seq = slot.seq();
+            if seq > 0
+                && last.get(name) != Some(&seq)
+                && let Some(bytes) = slot.encode()
+            {
+                last.insert(name.clone(), seq);
+                out.push(SlotRecord { slot: name.clone(), bytes });
+            }
+        }
+    }
+    out
 }
 
 /// The core's proxy of a remote module: stepped by the executors like a local cell.
@@ -258,11 +296,7 @@ impl RemoteCell {
         session: u64,
     ) -> Self {
         let id = local.info().id;
-        let decl = board.declarations();
-        let reads =
-            decl.iter().filter(|(_, d)| d.readers.contains(&id)).map(|(slot, _)| slot.clone()).collect();
-        let writes =
-            decl.iter().filter(|(_, d)| d.writers.contains(&id)).map(|(slot, _)| slot.clone()).collect();
+        let (reads, writes) = declared_slots(board, id);
         let (schedule, hang_timeout) = (local.schedule(), local.hang_timeout());
         RemoteCell {
             local,
@@ -399,19 +433,7 @@ impl Runner for RemoteCell {
                 Err(e) => return self.lose(core, now, messages, &e),
             }
         }
-        let mut slots = Vec::new();
-        for name in &self.reads {
-            if let Some(slot) = core.board.slot(name) {
-                let seq = slot.seq();
-                if seq > 0
-                    && self.sent.get(name) != Some(&seq)
-                    && let Some(bytes) = slot.encode()
-                {
-                    self.sent.insert(name.clone(), seq);
-                    slots.push(SlotRecord { slot: name.clone(), bytes });
-                }
-            }
-        }
+        let slots = changed_records(&core.board, &self.reads, &mut self.sent);
         let req = TickRequest {
             module: self.local.info().name.clone(),
             time_ns: now.as_nanos(),
@@ -559,6 +581,8 @@ pub struct ModuleHost {
     runners: BTreeMap<String, Box<dyn Runner>>,
     /// Sequence numbers of each hosted module's written slots as last returned.
     returned: BTreeMap<String, u64>,
+    /// The slots each hosted module reads and writes (declared once, at its hello).
+    slots: BTreeMap<String, (Vec<String>, Vec<String>)>,
     factory: ModuleFactory,
     /// The core run being served.
     session: Option<u64>,
@@ -583,6 +607,7 @@ impl ModuleHost {
             driver,
             runners: BTreeMap::new(),
             returned: BTreeMap::new(),
+            slots: BTreeMap::new(),
             factory,
             session: None,
         }
@@ -615,6 +640,7 @@ impl ModuleHost {
             self.driver = driver;
             self.runners.clear();
             self.returned.clear();
+            self.slots.clear();
         }
         // Always a fresh cell: the core reconnects after the host lost the module's state.
         let mut b = HostBuilder {
@@ -643,6 +669,7 @@ impl ModuleHost {
         status.set_isolated(false);
         status.set_lifecycle(Lifecycle::Startup);
         self.core.post.inbox(id).advance_seq_to(hello.last_seq);
+        self.slots.insert(hello.module.clone(), declared_slots(&self.core.board, id));
         runner.publish_status(&self.core);
         self.runners.insert(hello.module.clone(), runner);
         // A rebuilt module starts in Startup; the core's `lifecycle` commands take it on from
@@ -687,10 +714,14 @@ impl ModuleHost {
         }
         self.driver.advance_to(t);
         let id = runner.info().id;
-        let decl = core.board.declarations();
+        let Some((reads, writes)) = self.slots.get(&req.module) else {
+            return Err(RemoteError::Refused(format!(
+                "module '{}' was not introduced (hello first)",
+                req.module
+            )));
+        };
         for r in &req.slots {
-            let reads = decl.iter().any(|(slot, d)| *slot == r.slot && d.readers.contains(&id));
-            let slot = core.board.slot(&r.slot).filter(|_| reads).ok_or_else(|| {
+            let slot = core.board.slot(&r.slot).filter(|_| reads.contains(&r.slot)).ok_or_else(|| {
                 RemoteError::Protocol(format!("module '{}' reads no slot '{}'", req.module, r.slot))
             })?;
             slot.import(&r.bytes).map_err(|e| RemoteError::Protocol(e.to_string()))?;
@@ -715,21 +746,7 @@ impl ModuleHost {
         };
         let basis = if req.charged { OverrunBasis::Charged } else { OverrunBasis::Wall };
         runner.step(&core, t, mode, basis);
-        let mut slots = Vec::new();
-        for (slot, d) in core.board.declarations() {
-            if d.writers.contains(&id)
-                && let Some(s) = core.board.slot(&slot)
-            {
-                let seq = s.seq();
-                if seq > 0
-                    && self.returned.get(&slot) != Some(&seq)
-                    && let Some(bytes) = s.encode()
-                {
-                    self.returned.insert(slot.clone(), seq);
-                    slots.push(SlotRecord { slot, bytes });
-                }
-            }
-        }
+        let slots = changed_records(&core.board, writes, &mut self.returned);
         // Every message the step posted, in posting order; the host's inboxes are emptied (the
         // core delivers them, to its modules or back here at the recipient's next step).
         let messages = core

@@ -127,7 +127,7 @@ pub fn schema_of<T: DeserializeOwned>(
             panic!("{}: list its nested enums in wire!: {e}", std::any::type_name::<T>())
         });
         let text = serde_json::to_string(&(format, registry)).expect("formats serialize");
-        fnv1a(text.as_bytes())
+        framework::remote::fnv1a(text.as_bytes())
     })
 }
 
@@ -148,11 +148,6 @@ macro_rules! wire {
             }
         }
     };
-}
-
-/// 64-bit FNV-1a.
-pub fn fnv1a(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| (h ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3))
 }
 
 fn header(kind: u8, schema: u64, body_len: usize) -> Vec<u8> {

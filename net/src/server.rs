@@ -205,23 +205,48 @@ impl ConsoleServer {
             }
             return;
         }
-        let wait_s = match &req {
-            ConsoleRequest::Send { wait_s, .. } if wait_s.is_finite() && *wait_s > 0.0 => {
-                Some(wait_s.min(3600.0))
+        let r = match req {
+            ConsoleRequest::Send { module, command, args_json, queue, via, wait_s } => {
+                match self.send(&module, &command, &args_json, &queue, via) {
+                    // Answered once the command has its final acknowledgement, or the wait is over.
+                    Ok(id) if wait_s.is_finite() && wait_s > 0.0 => {
+                        #[allow(clippy::disallowed_methods)] // a console's wait is wall time
+                        let until = std::time::Instant::now()
+                            + std::time::Duration::from_secs_f64(wait_s.min(3600.0));
+                        self.waiting.push((q, id, until));
+                        return;
+                    }
+                    Ok(id) => ConsoleReply::ok(
+                        format!("sent {command} to {module} as {id}"),
+                        serde_json::json!({ "id": { "sender": id.sender.0, "seq": id.seq } }),
+                    ),
+                    Err(why) => ConsoleReply::error(why),
+                }
             }
-            _ => None,
+            req => self.handle(req, exec),
         };
-        let r = self.handle(req, exec);
-        if let Some(w) = wait_s
-            && r.ok
-            && let Some(id) = sent_id(&r)
-        {
-            #[allow(clippy::disallowed_methods)] // a console's wait is wall time
-            let until = std::time::Instant::now() + std::time::Duration::from_secs_f64(w);
-            self.waiting.push((q, id, until));
-            return;
-        }
         self.reply(&q, &frame::encode(&r));
+    }
+
+    /// Sends a console's command from its endpoint; the command's id.
+    fn send(
+        &mut self,
+        module: &str,
+        command: &str,
+        args_json: &str,
+        queue: &str,
+        via: Vec<String>,
+    ) -> Result<MessageId, String> {
+        let queue = match queue {
+            "nominal" => Queue::Nominal,
+            "emergency" => Queue::Emergency,
+            "debug" => Queue::Debug,
+            q => return Err(format!("unknown queue '{q}' (nominal, emergency, debug)")),
+        };
+        let args: serde_json::Value =
+            serde_json::from_str(args_json).map_err(|e| format!("arguments are not valid JSON: {e}"))?;
+        let cmd = Command::new(module, command).json(args).on(queue).via(via);
+        self.endpoint.send(cmd).map_err(|e| e.to_string())
     }
 
     fn handle(&mut self, req: ConsoleRequest, exec: &mut dyn Executor) -> ConsoleReply {
@@ -266,29 +291,9 @@ impl ConsoleServer {
                 }
                 ConsoleReply::ok(text.trim_end(), serde_json::to_value(&reports).unwrap_or_default())
             }
-            ConsoleRequest::Send { module, command, args_json, queue, via, .. } => {
-                let queue = match queue.as_str() {
-                    "nominal" => Queue::Nominal,
-                    "emergency" => Queue::Emergency,
-                    "debug" => Queue::Debug,
-                    q => {
-                        return ConsoleReply::error(format!(
-                            "unknown queue '{q}' (nominal, emergency, debug)"
-                        ));
-                    }
-                };
-                let args: serde_json::Value = match serde_json::from_str(&args_json) {
-                    Ok(v) => v,
-                    Err(e) => return ConsoleReply::error(format!("arguments are not valid JSON: {e}")),
-                };
-                let cmd = Command::new(module.clone(), command.clone()).json(args).on(queue).via(via);
-                match self.endpoint.send(cmd) {
-                    Ok(id) => ConsoleReply::ok(
-                        format!("sent {command} to {module} as {id}"),
-                        serde_json::json!({ "id": { "sender": id.sender.0, "seq": id.seq } }),
-                    ),
-                    Err(e) => ConsoleReply::error(e.to_string()),
-                }
+            // Sent in `answer`, which may hold the answer until the acknowledgement.
+            ConsoleRequest::Send { .. } => {
+                ConsoleReply::error("send is answered by the server's answer path")
             }
             ConsoleRequest::Ack { sender, seq } => {
                 let id = MessageId { sender: ModuleId(sender), seq };
@@ -386,10 +391,4 @@ fn ack_reply(id: MessageId, status: Option<framework::AckStatus>) -> ConsoleRepl
             serde_json::json!({ "id": json_id, "final": false, "status": null }),
         ),
     }
-}
-
-/// The id a `send` answer names.
-fn sent_id(r: &ConsoleReply) -> Option<MessageId> {
-    let v: serde_json::Value = serde_json::from_str(&r.json).ok()?;
-    Some(MessageId { sender: ModuleId(v["id"]["sender"].as_u64()? as u32), seq: v["id"]["seq"].as_u64()? })
 }

@@ -85,7 +85,8 @@ fn a_demo_whose_remote_module_has_no_host_fails_to_start_naming_it() {
 }
 
 /// A scenario file in `dir` including `tests/e2e/data/cameras.toml` (visual odometry and the head
-/// camera's target tracker run), with those two modules on `host` if given.
+/// camera's target tracker run), with those two modules on `host` if given, and then the host's
+/// file `host.toml` beside it.
 fn cameras_scenario(dir: &std::path::Path, file: &str, host: Option<&str>) -> std::path::PathBuf {
     let mut text =
         format!("include = [{:?}]\nname = \"cameras_remote\"\n", data("cameras.toml").display().to_string());
@@ -96,6 +97,12 @@ fn cameras_scenario(dir: &std::path::Path, file: &str, host: Option<&str>) -> st
     }
     let path = dir.join(file);
     std::fs::write(&path, text).unwrap();
+    if let Some(h) = host {
+        let modules = r#"["localization_visual", "tracking_target"]"#;
+        let host_file =
+            format!("system = \"scenario\"\nscenario = {file:?}\nmodules = {modules}\nendpoint = \"{h}\"\n");
+        std::fs::write(dir.join("host.toml"), host_file).unwrap();
+    }
     path
 }
 
@@ -115,13 +122,6 @@ fn visual_odometry_and_target_tracking_on_a_module_host_give_the_local_run_bit_f
     let dir = tempfile::tempdir().unwrap();
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let remote = cameras_scenario(dir.path(), "remote.toml", Some(&endpoint));
-    std::fs::write(
-        dir.path().join("host.toml"),
-        format!(
-            "system = \"scenario\"\nscenario = \"remote.toml\"\nmodules = [\"localization_visual\", \"tracking_target\"]\nendpoint = \"{endpoint}\"\n"
-        ),
-    )
-    .unwrap();
     let _host = start_host(dir.path());
 
     let run = |scenario: &std::path::Path, out: &str| {
@@ -177,13 +177,6 @@ fn a_killed_module_host_puts_its_module_in_safe_and_autonomy_ends_the_mission_sa
     let host_endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let console_endpoint = format!("tcp/127.0.0.1:{}", free_port());
     let scenario = cameras_scenario(dir.path(), "remote.toml", Some(&host_endpoint));
-    std::fs::write(
-        dir.path().join("host.toml"),
-        format!(
-            "system = \"scenario\"\nscenario = \"remote.toml\"\nmodules = [\"localization_visual\", \"tracking_target\"]\nendpoint = \"{host_endpoint}\"\n"
-        ),
-    )
-    .unwrap();
     let host = start_host(dir.path());
     let mut run = rover_twin()
         .arg("run")

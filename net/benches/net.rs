@@ -8,6 +8,9 @@
 //!   loopback TCP (Zenoh), one request and one reply.
 //! - `console_command_ack_round_trip`: a command sent through the console to a module, answered
 //!   with its final acknowledgement, the lockstep system ticking as fast as it can meanwhile.
+//! - `zenoh_query_floor`, `zenoh_put_ping_pong_floor`: Zenoh's own round trips on the same
+//!   loopback sessions, answered in a callback with nothing of ours in between: the floor the two
+//!   console figures stand on. Compare the console figures with these, measured in the same run.
 //!
 //! Target: command and acknowledgement round trip under 200 us on loopback.
 
@@ -186,5 +189,54 @@ fn console_command_ack_round_trip(b: Bencher<'_, '_>) {
     b.bench_local(|| {
         let r: ConsoleReply = c.request(&ping).unwrap();
         assert!(r.json.contains("\"final\":true"), "{r:?}");
+    });
+}
+
+/// Zenoh's own floor under the console: a query over loopback answered in the queryable's callback
+/// (no system, no frame decoding), with the same sessions as the console's.
+#[divan::bench(sample_count = 200)]
+fn zenoh_query_floor(b: Bencher<'_, '_>) {
+    use zenoh::Wait;
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let cfg = NetConfig { endpoint: format!("tcp/127.0.0.1:{port}"), ..NetConfig::default() };
+    let server = net::link::listen(&cfg).unwrap();
+    let key = cfg.console_key();
+    let _q = server
+        .declare_queryable(&key)
+        .callback(|q| {
+            let _ = q.reply(q.key_expr().clone(), vec![0u8; 32]).wait();
+        })
+        .wait()
+        .unwrap();
+    let client = net::link::connect(&cfg).unwrap();
+    b.bench_local(|| {
+        let r = client.get(&key).payload(vec![0u8; 32]).wait().unwrap();
+        r.recv().unwrap()
+    });
+}
+
+/// Zenoh's floor for a put answered by a put: the request published to a subscriber whose callback
+/// publishes the answer to the requester's subscriber.
+#[divan::bench(sample_count = 200)]
+fn zenoh_put_ping_pong_floor(b: Bencher<'_, '_>) {
+    use zenoh::Wait;
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let cfg = NetConfig { endpoint: format!("tcp/127.0.0.1:{port}"), ..NetConfig::default() };
+    let server = net::link::listen(&cfg).unwrap();
+    let answer = server.declare_publisher("bench/answer").express(true).wait().unwrap();
+    let _s = server
+        .declare_subscriber("bench/request")
+        .callback(move |s| {
+            let _ = answer.put(s.payload().to_bytes().into_owned()).wait();
+        })
+        .wait()
+        .unwrap();
+    let client = net::link::connect(&cfg).unwrap();
+    let answers = client.declare_subscriber("bench/answer").wait().unwrap();
+    let request = client.declare_publisher("bench/request").express(true).wait().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    b.bench_local(|| {
+        request.put(vec![0u8; 32]).wait().unwrap();
+        answers.recv().unwrap()
     });
 }

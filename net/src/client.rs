@@ -54,6 +54,7 @@ impl ConsoleClient {
             .session
             .get(&self.key)
             .payload(bytes)
+            .express(true)
             .timeout(wait)
             .wait()
             .map_err(|e| NetError::Link(e.to_string()))?;

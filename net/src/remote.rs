@@ -73,6 +73,7 @@ impl ZenohLink {
         let replies = session
             .get(&key)
             .payload(payload)
+            .express(true)
             .timeout(timeout)
             .wait()
             .map_err(|e| RemoteError::Unreachable(e.to_string()))?;
@@ -168,7 +169,7 @@ pub fn serve_host(
         };
         let reply = answer(&q, &mut host, cfg.max_frame_bytes, &stats);
         if let Some(bytes) = reply
-            && let Err(e) = q.reply(q.key_expr().clone(), bytes).wait()
+            && let Err(e) = q.reply(q.key_expr().clone(), bytes).express(true).wait()
         {
             tracing::warn!("module host: could not answer: {e}");
         }

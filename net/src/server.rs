@@ -162,7 +162,7 @@ impl ConsoleServer {
     }
 
     fn reply(&mut self, q: &Query, bytes: &[u8]) {
-        if let Err(e) = q.reply(q.key_expr().clone(), bytes.to_vec()).wait() {
+        if let Err(e) = q.reply(q.key_expr().clone(), bytes.to_vec()).express(true).wait() {
             tracing::warn!("console: could not answer a request: {e}");
         }
     }

@@ -12,6 +12,9 @@
 //!   lens (without a black border) and photometric model applied. `loc_stereo_pair_640x480`: the
 //!   same for the body's localization pair (wider, looking down: more terrain near the camera).
 //!   Compare with an older renderer in one run (machines here differ by up to 2x between runs).
+//!   Both with the shipped pixel samples (4: each pixel integrates the light over its area);
+//!   `stereo_pair_640x480_one_sample`: the head pair with one sample a pixel, what the samples
+//!   cost measured in the same run.
 //!
 //! The sensor benches stand the rover on the Mars-like yard with its pan-tilt looking at the ground
 //! ahead (full terrain, rocks, the arm and the canister in view) and print the adapter in use.
@@ -93,10 +96,15 @@ fn stereo_pair(
     b: Bencher<'_, '_>,
     name: &str,
     which: fn(&twin::render::SensorConfig) -> &twin::render::sensors::StereoConfig,
+    pixel_samples: Option<u32>,
 ) {
     use rand::SeedableRng;
     let (t, mut r, cfg) = sensing();
     let s = which(&cfg);
+    let photometry = twin::render::sensors::Photometry {
+        pixel_samples: pixel_samples.unwrap_or(s.photometry.pixel_samples),
+        ..s.photometry
+    };
     let c = t.config();
     let pair = twin::belief::StereoBelief::draw(name, s, t.mechanism(), &c.camera_build, &c.calibration, 1)
         .expect("stereo pair");
@@ -104,17 +112,23 @@ fn stereo_pair(
     let cams = [(&pair.left.model, pose(&pair.left)), (&pair.right.model, pose(&pair.right))];
     let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1);
     let exposure = twin::render::sensors::Exposure::NOMINAL;
-    b.bench_local(|| black_box(r.grey_views(&t, &cams, &s.photometry, exposure, &mut rng).expect("pair")));
+    b.bench_local(|| black_box(r.grey_views(&t, &cams, &photometry, exposure, &mut rng).expect("pair")));
 }
 
 /// The head stereo pair on the pan-tilt (640 x 480 each, 70 degrees).
 #[divan::bench(sample_count = 30, sample_size = 5)]
 fn stereo_pair_640x480(b: Bencher<'_, '_>) {
-    stereo_pair(b, "head_stereo", |c| &c.head_stereo);
+    stereo_pair(b, "head_stereo", |c| &c.head_stereo, None);
+}
+
+/// The head stereo pair with one sample a pixel (aliased; what the samples cost).
+#[divan::bench(sample_count = 30, sample_size = 5)]
+fn stereo_pair_640x480_one_sample(b: Bencher<'_, '_>) {
+    stereo_pair(b, "head_stereo", |c| &c.head_stereo, Some(1));
 }
 
 /// The localization stereo pair on the body (640 x 480 each, 80 degrees, looking ahead and down).
 #[divan::bench(sample_count = 30, sample_size = 5)]
 fn loc_stereo_pair_640x480(b: Bencher<'_, '_>) {
-    stereo_pair(b, "loc_stereo", |c| &c.loc_stereo);
+    stereo_pair(b, "loc_stereo", |c| &c.loc_stereo, None);
 }

@@ -485,10 +485,10 @@ fn image_noise_follows_the_shot_and_read_noise_model() {
     let t = twin("");
     let mut r = SensorRenderer::new(&t).unwrap();
     let cam = CameraModel::from_hfov(320, 240, 60f64.to_radians(), "virtual");
-    let photo = Photometry { full_well_e: 4000.0, read_noise_e: 20.0, vignetting: 0.0 };
+    let photo = Photometry { full_well_e: 4000.0, read_noise_e: 20.0, vignetting: 0.0, ..Photometry::IDEAL };
     let exposure = Exposure { relative: 1.5, gain: 2.0 };
     let mut rng = Pcg64Mcg::seed_from_u64(8);
-    let ideal = Photometry { full_well_e: f64::INFINITY, read_noise_e: 0.0, vignetting: 0.0 };
+    let ideal = Photometry::IDEAL;
     let mean = r.grey(&t, &cam, &down_at(2.0), &ideal, exposure, &mut rng).unwrap();
     let a = r.grey(&t, &cam, &down_at(2.0), &photo, exposure, &mut rng).unwrap();
     let b = r.grey(&t, &cam, &down_at(2.0), &photo, exposure, &mut rng).unwrap();

@@ -48,6 +48,15 @@ pub struct LocateParams {
     pub disparity_floor_px: f64,
     /// Fewer foreground points than this: the whole box's match stands for the target.
     pub min_points: usize,
+    /// A whole box's match that no pixel of the box supports stands only with at least this
+    /// correlation...
+    pub min_box_correlation: f64,
+    /// ...with no other local maximum more than two pixels away above this fraction of it...
+    pub box_uniqueness: f64,
+    /// ...and matched back from the right image within `lr_tolerance_px`. The disparity error
+    /// of a whole box's match from the depths its window mixes (the ground around a far target),
+    /// at least, pixels (1 sigma, a bias: every image from about here repeats it).
+    pub box_mix_sigma_px: f64,
     /// The foreground keeps the disparities within this many `disparity_sigma_px` (or the
     /// target's own depth, if more) of the median of its points near the box's centre.
     pub trim_sigma: f64,
@@ -71,6 +80,9 @@ impl Default for LocateParams {
             disparity_sigma_px: 0.3,
             disparity_floor_px: 0.4,
             min_points: 8,
+            min_box_correlation: 0.5,
+            box_uniqueness: 0.75,
+            box_mix_sigma_px: 0.3,
             trim_sigma: 4.0,
             target_radius_m: 0.05,
             pointing_sigma_deg: 0.5,
@@ -291,49 +303,91 @@ fn match_right(l: &GreyImage, r: &GreyImage, u: usize, v: usize, p: &LocateParam
     (0..=max).map(|d| (d, zsad(l, r, u + d, v, d, h))).min_by(|a, b| a.1.total_cmp(&b.1)).map(|(d, _)| d)
 }
 
-/// The disparity of the whole box (integer pixel bounds) matched as one window by zero-mean
-/// normalized correlation along the row, sub-pixel: the dominant structure in the box, which for a
-/// box drawn around a target is the target however few pixels it covers.
-fn box_disparity(
+/// The whole box matched as one window along the row by zero-mean normalized correlation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BoxMatch {
+    /// Disparity, sub-pixel, pixels.
+    pub disparity: f64,
+    /// The correlation at the best integer disparity.
+    pub correlation: f64,
+    /// The best other local maximum of the correlation more than two pixels from it (-1: none).
+    pub runner_up: f64,
+    /// The disparity the right image's box at the match finds matched back into the left image,
+    /// integer pixels.
+    pub back: Option<usize>,
+}
+
+/// The correlations of the left image's box `u` x `v` (integer pixel bounds) with the right
+/// image's box shifted by 0..=max pixels (`sign` 1: the right box at u - d, left to right; -1:
+/// the left box at u + d, right to left).
+fn correlations(
+    a: &GreyImage,
+    b: &GreyImage,
+    u: (usize, usize),
+    v: (usize, usize),
+    max: usize,
+    sign: i64,
+) -> Vec<f64> {
+    let w = a.width as usize;
+    let max = if sign > 0 { max.min(u.0) } else { max.min(w - u.1) };
+    let pixels = |img: &GreyImage, shift: i64| -> Vec<f64> {
+        (v.0..v.1)
+            .flat_map(|j| (u.0..u.1).map(move |i| (j, i)))
+            .map(|(j, i)| f64::from(img.data[j * w + (i as i64 - shift) as usize]))
+            .collect()
+    };
+    let stats = |x: &[f64]| {
+        let m = x.iter().sum::<f64>() / x.len() as f64;
+        (m, x.iter().map(|g| (g - m).powi(2)).sum::<f64>().sqrt())
+    };
+    let fixed = pixels(a, 0);
+    let (ma, sa) = stats(&fixed);
+    if sa < 1e-6 {
+        return Vec::new();
+    }
+    (0..=max)
+        .map(|d| {
+            let moved = pixels(b, sign * d as i64);
+            let (mb, sb) = stats(&moved);
+            if sb < 1e-6 {
+                return -1.0;
+            }
+            fixed.iter().zip(&moved).map(|(x, y)| (x - ma) * (y - mb)).sum::<f64>() / (sa * sb)
+        })
+        .collect()
+}
+
+/// The whole box (integer pixel bounds) matched as one window by zero-mean normalized
+/// correlation along the row, sub-pixel: the dominant structure in the box, which for a box drawn
+/// around a target is the target however few pixels it covers.
+pub fn box_match(
     l: &GreyImage,
     r: &GreyImage,
     u: (usize, usize),
     v: (usize, usize),
     max: usize,
-) -> Option<f64> {
-    let w = l.width as usize;
-    let max = max.min(u.0);
-    let left: Vec<f64> = (v.0..v.1)
-        .flat_map(|j| (u.0..u.1).map(move |i| (j, i)))
-        .map(|(j, i)| f64::from(l.data[j * w + i]))
-        .collect();
-    let n = left.len() as f64;
-    let ml = left.iter().sum::<f64>() / n;
-    let sl = left.iter().map(|x| (x - ml).powi(2)).sum::<f64>().sqrt();
-    if sl < 1e-6 {
-        return None;
-    }
-    let scores: Vec<f64> = (0..=max)
-        .map(|d| {
-            let right: Vec<f64> = (v.0..v.1)
-                .flat_map(|j| (u.0..u.1).map(move |i| (j, i)))
-                .map(|(j, i)| f64::from(r.data[j * w + i - d]))
-                .collect();
-            let mr = right.iter().sum::<f64>() / n;
-            let sr = right.iter().map(|x| (x - mr).powi(2)).sum::<f64>().sqrt();
-            if sr < 1e-6 {
-                return -1.0;
-            }
-            left.iter().zip(&right).map(|(a, b)| (a - ml) * (b - mr)).sum::<f64>() / (sl * sr)
-        })
-        .collect();
+) -> Option<BoxMatch> {
+    let scores = correlations(l, r, u, v, max, 1);
     let (best, &c) = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
-    if best == 0 || best == max {
-        return Some(best as f64);
-    }
-    let (m, p) = (scores[best - 1], scores[best + 1]);
-    let den = m - 2.0 * c + p;
-    Some(best as f64 + if den < 0.0 { 0.5 * (m - p) / den } else { 0.0 })
+    let runner_up = (1..scores.len().saturating_sub(1))
+        .filter(|&d| d.abs_diff(best) > 2 && scores[d] >= scores[d - 1] && scores[d] >= scores[d + 1])
+        .map(|d| scores[d])
+        .fold(-1.0, f64::max);
+    let back = if best <= u.0 {
+        let shifted = (u.0 - best, u.1 - best);
+        let back = correlations(r, l, shifted, v, max, -1);
+        back.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).map(|(d, _)| d)
+    } else {
+        None
+    };
+    let disparity = if best == 0 || best + 1 == scores.len() {
+        best as f64
+    } else {
+        let (m, p) = (scores[best - 1], scores[best + 1]);
+        let den = m - 2.0 * c + p;
+        best as f64 + if den < 0.0 { 0.5 * (m - p) / den } else { 0.0 }
+    };
+    Some(BoxMatch { disparity, correlation: c, runner_up, back })
 }
 
 fn median(v: &mut [f64]) -> Option<f64> {
@@ -412,7 +466,8 @@ pub fn locate(
         (a.saturating_sub(short).max(h + 1), (b + short).min(hi - h - 2))
     };
     let (bu, bv) = (grow(u0, u1, w), grow(v0, v1, ht));
-    let whole = box_disparity(left, right, bu, bv, p.max_disparity_px).filter(|d| *d > 0.0);
+    let whole_match = box_match(left, right, bu, bv, p.max_disparity_px);
+    let whole = whole_match.map(|m| m.disparity).filter(|d| *d > 0.0);
     // Two clusters of disparity, seeded from the whole box's match (else the centre's median) and
     // the border's median.
     let mut centre: Vec<f64> = samples.iter().filter(|s| s.3 < 0.5).map(|s| s.2).collect();
@@ -456,14 +511,22 @@ pub fn locate(
         }
     };
     // Too few pixels for k-means (a target of a few pixels): the whole box's match, as one
-    // measurement at the box's centre.
-    // The whole box's match stands only where pixels of the box match near it: a window of a
-    // few pixels matched alone can lock onto anything along the row.
+    // measurement at the box's centre. It stands where pixels of the box match near it, or where
+    // it is distinct on its own: a window of a few pixels matched alone can lock onto anything
+    // along the row (a horizon, an edge), which shows as a runner-up nearly as good, a poor
+    // correlation, or a match back from the right image elsewhere. A target of two pixels with
+    // half a pixel of phase between the images (the canister at 25 m) has no window of its own
+    // that matches: the whole box is all there is.
     let support = whole.map_or(0, |d| samples.iter().filter(|s| (s.2 - d).abs() <= 1.0).count());
+    let distinct = whole_match.filter(|_| whole.is_some()).is_some_and(|m| {
+        m.correlation >= p.min_box_correlation
+            && m.runner_up < p.box_uniqueness * m.correlation
+            && m.back.is_some_and(|b| (b as f64 - m.disparity).abs() <= p.lr_tolerance_px)
+    });
     let (fore, fallback) = if fore.len() >= p.min_points {
         (fore, false)
     } else if let Some(d) = whole
-        && support >= MIN_SUPPORT
+        && (support >= MIN_SUPPORT || distinct)
     {
         (vec![(cu, cv, d, 0.0)], true)
     } else {
@@ -471,9 +534,12 @@ pub fn locate(
             "only {} foreground points of {} matched, and {}",
             fore.len(),
             samples.len(),
-            match whole {
-                Some(d) => format!("{support} pixels support the whole box's match at {d:.1} px"),
-                None => "no match of the whole box".to_string(),
+            match (whole, whole_match) {
+                (Some(d), Some(m)) => format!(
+                    "{support} pixels support the whole box's match at {d:.1} px (correlation {:.2}, runner-up {:.2}, matched back at {:?} px)",
+                    m.correlation, m.runner_up, m.back
+                ),
+                _ => "no match of the whole box".to_string(),
             }
         ));
     };
@@ -493,8 +559,14 @@ pub fn locate(
     // scene's, not the image noise's: every image from about here repeats it (a bias).
     let (var_d, var_mix) = if fallback {
         let all: Vec<f64> = samples.iter().map(|s| s.2).collect();
-        let m = all.iter().sum::<f64>() / all.len() as f64;
-        let spread = all.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (all.len() - 1) as f64;
+        let m = all.iter().sum::<f64>() / all.len().max(1) as f64;
+        // Without matches of its own, the box's mixing of depths is not seen: the configured
+        // share stands for it.
+        let spread = if all.len() >= MIN_SUPPORT {
+            all.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (all.len() - 1) as f64
+        } else {
+            p.box_mix_sigma_px.powi(2)
+        };
         (p.disparity_sigma_px.powi(2), spread)
     } else {
         (p.disparity_sigma_px.powi(2) / n, 0.0)

@@ -41,6 +41,15 @@ const GREY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+/// Samples a passive camera's pixel takes of the scene by default, averaged (multisampling): a
+/// sensor pixel integrates the light over its area. With one sample at its centre, a feature
+/// narrower than a pixel (a lit or shadowed side of a canister 25 m away, 2 px wide) is all there
+/// in one camera of a pair and missing from the other, which no real pair sees and which stereo
+/// cannot match. ToF cameras keep one sample: a range averaged across a depth edge is no surface's.
+pub const DEFAULT_PIXEL_SAMPLES: u32 = 4;
+
+/// The sample counts a passive camera's pixel may take (those every adapter supports).
+pub const PIXEL_SAMPLES: [u32; 2] = [1, 4];
 /// Stride between per-object uniforms; 256 = the default `min_uniform_buffer_offset_alignment`.
 const OBJECT_STRIDE: u64 = 256;
 const MAX_OBJECTS: u64 = 4096;
@@ -155,6 +164,9 @@ pub struct View<'a> {
     pub height: u32,
     /// Fragment program and outputs.
     pub shading: Shading,
+    /// Samples each pixel takes of the scene, averaged: one of [`PIXEL_SAMPLES`] (ToF shading
+    /// takes one whatever this says).
+    pub pixel_samples: u32,
     /// Camera and light.
     pub globals: Globals,
     /// What to draw.
@@ -188,6 +200,8 @@ struct Targets {
     range_offset: u64,
     color: wgpu::Texture,
     color_view: wgpu::TextureView,
+    /// Passive cameras: the multisampled colour target, resolved into `color`.
+    samples_view: Option<wgpu::TextureView>,
     /// Tof only.
     range: Option<(wgpu::Texture, wgpu::TextureView)>,
     depth_view: wgpu::TextureView,
@@ -200,8 +214,9 @@ pub struct Renderer {
     queue: wgpu::Queue,
     /// Adapter that was picked (log it: name, backend, driver).
     pub adapter_info: wgpu::AdapterInfo,
-    /// Passive cameras: one program per kind of surface (plain, terrain, rock, sky).
-    grey_pipelines: [wgpu::RenderPipeline; 4],
+    /// Passive cameras: one program per kind of surface (plain, terrain, rock, sky), for each of
+    /// [`PIXEL_SAMPLES`].
+    grey_pipelines: [[wgpu::RenderPipeline; 4]; 2],
     tof_pipeline: wgpu::RenderPipeline,
     shadow_pipeline: wgpu::RenderPipeline,
     shadow_bgl: wgpu::BindGroupLayout,
@@ -214,8 +229,8 @@ pub struct Renderer {
     objects_bg: wgpu::BindGroup,
     texture_bgl: wgpu::BindGroupLayout,
     sampler: wgpu::Sampler,
-    /// Per (width, height, ToF shading, index among the batch's views of that kind).
-    targets: std::collections::BTreeMap<(u32, u32, bool, usize), Targets>,
+    /// Per (width, height, ToF shading, pixel samples, index among the batch's views of that kind).
+    targets: std::collections::BTreeMap<(u32, u32, bool, u32, usize), Targets>,
 }
 
 impl Renderer {
@@ -292,7 +307,7 @@ impl Renderer {
             immediate_size: 0,
         });
 
-        let make_pipeline = |vs: &str, fs: &str, targets: &[Option<wgpu::ColorTargetState>]| {
+        let make_pipeline = |vs: &str, fs: &str, targets: &[Option<wgpu::ColorTargetState>], samples: u32| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some("scene"),
                 layout: Some(&layout),
@@ -322,7 +337,7 @@ impl Renderer {
                     stencil: wgpu::StencilState::default(),
                     bias: wgpu::DepthBiasState::default(),
                 }),
-                multisample: wgpu::MultisampleState::default(),
+                multisample: wgpu::MultisampleState { count: samples, ..Default::default() },
                 fragment: Some(wgpu::FragmentState {
                     module: &shader,
                     entry_point: Some(fs),
@@ -336,14 +351,17 @@ impl Renderer {
         let target =
             |format| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL });
         let grey = [target(GREY_FORMAT)];
-        let grey_pipelines = [
-            make_pipeline("vs_grey", "fs_grey", &grey),
-            make_pipeline("vs_terrain", "fs_terrain", &grey),
-            make_pipeline("vs_rock", "fs_grey", &grey),
-            make_pipeline("vs_sky", "fs_sky", &grey),
-        ];
+        let grey_pipelines = PIXEL_SAMPLES.map(|samples| {
+            [
+                make_pipeline("vs_grey", "fs_grey", &grey, samples),
+                make_pipeline("vs_terrain", "fs_terrain", &grey, samples),
+                make_pipeline("vs_rock", "fs_grey", &grey, samples),
+                make_pipeline("vs_sky", "fs_sky", &grey, samples),
+            ]
+        });
         // Same blend/write_mask on both targets: no INDEPENDENT_BLEND needed on GL.
-        let tof_pipeline = make_pipeline("vs_main", "fs_tof", &[target(COLOR_FORMAT), target(RANGE_FORMAT)]);
+        let tof_pipeline =
+            make_pipeline("vs_main", "fs_tof", &[target(COLOR_FORMAT), target(RANGE_FORMAT)], 1);
 
         // The shadow casters seen from the sun: depth only, both faces (thin parts), biased by
         // slope against self-shadowing.
@@ -565,12 +583,22 @@ impl Renderer {
         let mut keys = Vec::with_capacity(views.len());
         for v in views {
             let tof = matches!(v.shading, Shading::Tof);
+            let samples = if tof { 1 } else { v.pixel_samples };
+            if !PIXEL_SAMPLES.contains(&samples) {
+                return Err(RenderError::Gpu(format!(
+                    "pixel samples must be one of {PIXEL_SAMPLES:?}, got {samples}"
+                )));
+            }
             let n = keys
                 .iter()
-                .filter(|k: &&(u32, u32, bool, usize)| (k.0, k.1, k.2) == (v.width, v.height, tof))
+                .filter(|k: &&(u32, u32, bool, u32, usize)| {
+                    (k.0, k.1, k.2, k.3) == (v.width, v.height, tof, samples)
+                })
                 .count();
-            let key = (v.width, v.height, tof, n);
-            self.targets.entry(key).or_insert_with(|| create_targets(&self.device, v.width, v.height, tof));
+            let key = (v.width, v.height, tof, samples, n);
+            self.targets
+                .entry(key)
+                .or_insert_with(|| create_targets(&self.device, v.width, v.height, tof, samples));
             keys.push(key);
         }
         // One upload for all per-view and per-draw uniforms (a write each costs a staging
@@ -646,7 +674,15 @@ impl Renderer {
                         },
                     })
                 };
-                let mut color_attachments = vec![attachment(&t.color_view)];
+                let mut color_attachments = match &t.samples_view {
+                    // The samples are averaged into `color`; they need not be kept.
+                    Some(samples) => vec![attachment(samples).map(|a| wgpu::RenderPassColorAttachment {
+                        resolve_target: Some(&t.color_view),
+                        ops: wgpu::Operations { store: wgpu::StoreOp::Discard, ..a.ops },
+                        ..a
+                    })],
+                    None => vec![attachment(&t.color_view)],
+                };
                 if let Some((_, view)) = &t.range {
                     color_attachments.push(attachment(view));
                 }
@@ -673,6 +709,7 @@ impl Renderer {
                     _ => 0,
                 };
                 let mut current = None;
+                let grey_pipelines = &self.grey_pipelines[usize::from(key.3 > 1)];
                 if key.2 {
                     pass.set_pipeline(&self.tof_pipeline);
                 }
@@ -682,7 +719,7 @@ impl Renderer {
                 for (d, &offset) in v.draws.iter().zip(&slots[k]) {
                     let p = program(&d.object.tint);
                     if !key.2 && current != Some(p) {
-                        pass.set_pipeline(&self.grey_pipelines[p]);
+                        pass.set_pipeline(&grey_pipelines[p]);
                         current = Some(p);
                     }
                     binder.draw(&mut pass, &self.objects_bg, (2, Some(1)), d, offset);
@@ -924,14 +961,14 @@ fn uniform_entry(size: usize, dynamic: bool) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-fn create_targets(device: &wgpu::Device, width: u32, height: u32, tof: bool) -> Targets {
+fn create_targets(device: &wgpu::Device, width: u32, height: u32, tof: bool, samples: u32) -> Targets {
     let size = wgpu::Extent3d { width, height, depth_or_array_layers: 1 };
-    let make = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages| {
+    let make = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages, sample_count: u32| {
         device.create_texture(&wgpu::TextureDescriptor {
             label: Some(label),
             size,
             mip_level_count: 1,
-            sample_count: 1,
+            sample_count,
             dimension: wgpu::TextureDimension::D2,
             format,
             usage,
@@ -940,13 +977,17 @@ fn create_targets(device: &wgpu::Device, width: u32, height: u32, tof: bool) -> 
     };
     let copy_target = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
     let (color_format, channels) = if tof { (COLOR_FORMAT, 4) } else { (GREY_FORMAT, 1) };
-    let color = make("color", color_format, copy_target);
+    let color = make("color", color_format, copy_target, 1);
+    let samples_view = (samples > 1).then(|| {
+        make("samples", color_format, wgpu::TextureUsages::RENDER_ATTACHMENT, samples)
+            .create_view(&wgpu::TextureViewDescriptor::default())
+    });
     let range = tof.then(|| {
-        let range = make("range", RANGE_FORMAT, copy_target);
+        let range = make("range", RANGE_FORMAT, copy_target, 1);
         let view = range.create_view(&wgpu::TextureViewDescriptor::default());
         (range, view)
     });
-    let depth = make("depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT);
+    let depth = make("depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, samples);
 
     // Rows of a texture-to-buffer copy are padded to 256 bytes; each plane then is a multiple of 256.
     let align = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
@@ -968,6 +1009,7 @@ fn create_targets(device: &wgpu::Device, width: u32, height: u32, tof: bool) -> 
         range_bpr,
         range_offset,
         color_view: color.create_view(&wgpu::TextureViewDescriptor::default()),
+        samples_view,
         depth_view: depth.create_view(&wgpu::TextureViewDescriptor::default()),
         color,
         range,

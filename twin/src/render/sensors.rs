@@ -110,12 +110,24 @@ pub struct Photometry {
     pub read_noise_e: f64,
     /// Relative loss of light in the image corners (quadratic in the radius).
     pub vignetting: f64,
+    /// Samples each pixel takes of the scene, averaged (1 or 4): a sensor's pixel integrates the
+    /// light over its area, which 4 approximate; 1 samples its centre (faster, aliased).
+    #[serde(default = "default_pixel_samples")]
+    pub pixel_samples: u32,
+}
+
+fn default_pixel_samples() -> u32 {
+    super::gpu::DEFAULT_PIXEL_SAMPLES
 }
 
 impl Photometry {
     /// A noiseless camera without vignetting (for tests that compare geometry).
-    pub const IDEAL: Photometry =
-        Photometry { full_well_e: f64::INFINITY, read_noise_e: 0.0, vignetting: 0.0 };
+    pub const IDEAL: Photometry = Photometry {
+        full_well_e: f64::INFINITY,
+        read_noise_e: 0.0,
+        vignetting: 0.0,
+        pixel_samples: super::gpu::DEFAULT_PIXEL_SAMPLES,
+    };
 }
 
 /// Exposure control of a camera.
@@ -273,10 +285,17 @@ impl SensorConfig {
             }
             timing(k, s.latency_s, s.jitter_s)?;
             let p = &s.photometry;
-            if !(p.full_well_e > 0.0 && p.read_noise_e >= 0.0 && (0.0..1.0).contains(&p.vignetting)) {
+            if !(p.full_well_e > 0.0
+                && p.read_noise_e >= 0.0
+                && (0.0..1.0).contains(&p.vignetting)
+                && super::gpu::PIXEL_SAMPLES.contains(&p.pixel_samples))
+            {
                 return Err(src.error_at_key(
                     &format!("{k}.photometry"),
-                    "needs full_well_e > 0, read_noise_e >= 0 and vignetting in [0, 1)",
+                    format!(
+                        "needs full_well_e > 0, read_noise_e >= 0, vignetting in [0, 1) and pixel_samples one of {:?}",
+                        super::gpu::PIXEL_SAMPLES
+                    ),
                 ));
             }
             let e = &s.exposure;
@@ -637,8 +656,9 @@ impl SensorRenderer {
         let views: Vec<View<'_>> = rendered
             .iter()
             .zip(cams)
-            .map(|(cam, (_, pose))| {
-                view(&self.scene, self.lod_error_px, twin, cam, pose, Shading::Sun, f64::INFINITY, &light)
+            .map(|(cam, (_, pose))| View {
+                pixel_samples: photometry.pixel_samples,
+                ..view(&self.scene, self.lod_error_px, twin, cam, pose, Shading::Sun, f64::INFINITY, &light)
             })
             .collect();
         let shadow = (light.half > 0.0).then(|| ShadowPass {
@@ -857,7 +877,14 @@ fn view<'s>(
         // Last: everything nearer hides it from the shading.
         draws.push(scene.sky_draw(&p));
     }
-    View { width: cam.pinhole.width, height: cam.pinhole.height, shading, globals, draws }
+    View {
+        width: cam.pinhole.width,
+        height: cam.pinhole.height,
+        shading,
+        pixel_samples: super::gpu::DEFAULT_PIXEL_SAMPLES,
+        globals,
+        draws,
+    }
 }
 
 /// A renderer shared by the camera devices of one twin.

@@ -473,7 +473,11 @@ fn beyond_15_m_a_located_canister_is_within_three_sigmas_or_not_located_at_all()
             Ok(found) => {
                 located += 1;
                 let err = found.position.coords.norm() - truth;
-                let sigma = found.covariance[(2, 2)].sqrt();
+                // The sigma at the true depth: at its own, a location that noise put farther
+                // would claim a sigma that grows with the error (as the depth's square).
+                let z = found.position.z * truth / found.position.coords.norm();
+                let sigma =
+                    found.at_depth(&rect.model, &LocateParams::default(), z).covariance[(2, 2)].sqrt();
                 println!(
                     "{range} m from {dir} deg: {:+.2} m ({:+.1} %), sigma {sigma:.2} m, disparity {:.2} px",
                     err,
@@ -709,6 +713,201 @@ fn the_tracker_stays_on_a_canister_carried_across_its_view() {
     assert!(newest_share >= 0.95, "newest patch alone: {:.0} % of frames", newest_share * 100.0);
 }
 
+#[test]
+fn the_canisters_box_bounds_its_range_from_arms_reach_to_30_m_and_rules_out_a_quarter_nearer_far_off() {
+    // The shipped TrackingTarget configuration's known size of the canister and the box's slack,
+    // against the box around the canister (as the operator draws it) from 1.5 to 30 m, at the
+    // mast's height, from every side: the true range always lies within the bounds, and from 25 m
+    // on, where stereo's disparity is a few pixels, a location 25 % nearer (a range-biased match,
+    // a rock on the line of sight) never does.
+    use gnc::localization::rectify::Rectification;
+    use gnc::tracking::size::range_bounds;
+    let path = root().join("scenarios/config/modules/tracking_target.toml");
+    let doc: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let params = doc["params"].as_table().unwrap();
+    let extent: Vec<f64> =
+        params["known_sizes"]["canister"].as_array().unwrap().iter().map(|v| v.as_float().unwrap()).collect();
+    let tolerance: Vec<f64> =
+        params["size_tolerance"].as_array().unwrap().iter().map(|v| v.as_float().unwrap()).collect();
+    let rect = Rectification::new(&head_pair());
+    let cam = &rect.model.left;
+    for yaw_deg in [0.0, 20.0, 45.0, 70.0] {
+        let can = Isometry3::from_parts(
+            Translation3::identity(),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), f64::to_radians(yaw_deg)),
+        );
+        let centre = nalgebra::Point3::new(0.0, 0.0, 0.1);
+        for range in [1.5, 2.5, 4.0, 8.0, 15.0, 25.0, 30.0] {
+            let eye = Vector3::new(-(range * range - 1.3f64 * 1.3).max(0.0).sqrt(), 0.0, 1.4);
+            let pose = look_at(eye, centre.coords);
+            let b = canister_box(cam, &pose, &can);
+            let extent_px = (b[2] - b[0]).max(b[3] - b[1]);
+            let (lo, hi) =
+                range_bounds([extent[0], extent[1]], cam.pinhole.fx, extent_px, [tolerance[0], tolerance[1]])
+                    .unwrap();
+            let truth = (eye - centre.coords).norm();
+            println!("yaw {yaw_deg} deg, {truth:.2} m: a {extent_px:.1} px box allows {lo:.2}-{hi:.2} m");
+            assert!((lo..=hi).contains(&truth), "yaw {yaw_deg}: {truth} m outside {lo}-{hi} m");
+            if range >= 25.0 {
+                assert!(lo > 0.75 * truth, "yaw {yaw_deg}: a location 25 % nearer than {truth} m passes");
+            }
+        }
+    }
+}
+
+/// A far approach to the canister as TrackingTarget sees it: on terrain `seed`'s Mars yard with
+/// the canister at (x, y) turned `yaw_deg`, the head camera approaches along the line from
+/// `from` (the rover's start), 24 m to 3 m, a frame every 0.3 m, the pointing wandering; the
+/// prior is what TrackingTarget gives from a perfect estimate (where it projects, the selected
+/// width scaled by the ranges), and each frame's box is learnt as TrackingTarget does when stereo
+/// agrees with the estimate (`confirm`). The frames whose box centre lies on the canister (within
+/// its true box), and how many there were.
+fn far_approach(seed: u64, (cx, cy, yaw_deg): (f64, f64, f64), from: (f64, f64)) -> (usize, usize) {
+    use gnc::tracking::template::{Prior, TemplateTracker, TrackStatus, TrackerParams};
+    let mut world = worlds::World::load_with_seed(worlds::worlds_dir().join("mars_yard.toml"), seed).unwrap();
+    world.keep_clear(cx, cy, 1.5);
+    world.keep_clear(from.0, from.1, 2.0);
+    world.keep_clear(12.0, -12.0, 2.0);
+    let z = world.ground_height(cx, cy);
+    let obj = world.objects.iter_mut().find(|o| o.name == "canister").unwrap();
+    obj.position = nalgebra::Point3::new(cx, cy, z);
+    obj.yaw = yaw_deg.to_radians();
+    // The twin's rover out of the way.
+    let t =
+        Twin::with_defaults(world.clone(), StartPose { x: 12.0, y: -12.0, yaw: 0.0 }, Fidelity::Kinematic)
+            .unwrap();
+    let mut r = SensorRenderer::new(&t).unwrap();
+    let rect = gnc::localization::rectify::Rectification::new(&head_pair());
+    let can = t.canister_truth().unwrap();
+    let centre = can.translation.vector + Vector3::z() * 0.1;
+    let (params, locate_params): (TrackerParams, gnc::tracking::locate::LocateParams) = {
+        let path = root().join("scenarios/config/modules/tracking_target.toml");
+        let doc: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+        (
+            doc["params"]["tracker"].clone().try_into().unwrap(),
+            doc["params"]["locate"].clone().try_into().unwrap(),
+        )
+    };
+    let mut tracker = TemplateTracker::new(params);
+    let away = Vector3::new(from.0 - cx, from.1 - cy, 0.0).normalize();
+    let mut selected = None;
+    let (mut good, mut frames) = (0, 0);
+    let mut k = 0;
+    let mut range = 24.0;
+    while range > 3.0 {
+        let mut eye = centre + away * range;
+        eye.z = world.ground_height(eye.x, eye.y) + 1.45;
+        let aim = centre + Vector3::new((k as f64 * 0.7).sin(), (k as f64 * 0.5).cos(), 0.0) * 0.02 * range;
+        let pose = look_at(eye, aim);
+        let (img, img_r, truth, _) =
+            canister_pair(&mut r, &t, &rect, eye, nalgebra::Point3::from(aim), 500 + k as u64);
+        let cam = &rect.model.left;
+        let true_range = (eye - centre).norm();
+        match selected {
+            None => {
+                tracker.init(&img, truth).unwrap();
+                selected = Some((true_range, truth[2] - truth[0]));
+            }
+            Some((r0, w0)) => {
+                let uv = cam.project(&(pose.inverse() * nalgebra::Point3::from(centre))).unwrap();
+                let prior = Prior {
+                    centre: Some((uv.x, uv.y)),
+                    radius_px: None,
+                    width_px: Some(w0 * r0 / true_range),
+                };
+                let out = tracker.update(&img, &prior);
+                if out.status != TrackStatus::Lost {
+                    tracker.confirm(&img);
+                }
+                let located = match gnc::tracking::locate::locate(
+                    &img,
+                    &img_r,
+                    &rect.model,
+                    out.bbox,
+                    &locate_params,
+                ) {
+                    Ok(l) => {
+                        let truth_range = (pose.inverse() * nalgebra::Point3::from(centre)).coords.norm();
+                        let err = l.position.coords.norm() - truth_range;
+                        format!("located {err:+.2} m ({:.1} sigma)", err / l.covariance[(2, 2)].sqrt())
+                    }
+                    Err(_) => "not located".to_string(),
+                };
+                let (tu, tv) = (0.5 * (truth[0] + truth[2]), 0.5 * (truth[1] + truth[3]));
+                let (bu, bv) = (0.5 * (out.bbox[0] + out.bbox[2]), 0.5 * (out.bbox[1] + out.bbox[3]));
+                let (w, h) = (truth[2] - truth[0], truth[3] - truth[1]);
+                let off = ((bu - tu) / w, (bv - tv) / h);
+                frames += 1;
+                if out.status != TrackStatus::Lost && off.0.abs() <= 0.5 && off.1.abs() <= 0.5 {
+                    good += 1;
+                }
+                println!(
+                    "{true_range:5.1} m: {:?} {:.2}, box {:.1}x{:.1} px, centre off by ({:+.2} widths, {:+.2} heights), overlap {:.2}, {located}",
+                    out.status,
+                    out.confidence,
+                    out.bbox[2] - out.bbox[0],
+                    out.bbox[3] - out.bbox[1],
+                    off.0,
+                    off.1,
+                    iou(&out.bbox, &truth)
+                );
+            }
+        }
+        k += 1;
+        range -= 0.3;
+    }
+    (good, frames)
+}
+
+#[test]
+fn the_tracker_stays_on_the_canister_through_25_m_approaches_on_the_mars_yard() {
+    // canister_sweep's yards and placements (terrain seed, canister, rover start): runs 6, 56, 77
+    // and 81, where (session 18) the box slid off the canister onto the ground or a rock in front
+    // of it, and eight others. With the 24 px template region of then (mostly ground, the horizon
+    // 11 px above the canister at 24 m, a rock below it) the box was on the canister in 1 to 18
+    // of the 69 frames of most approaches: what was learnt each frame carried the looming
+    // ground's pull. With templates of the target and a little context, re-centred on the anchor
+    // (the look when selected, or when last 1.5 times smaller), it stays on it. The box's centre
+    // must lie within the canister's true box; a 2 px wide box half a pixel off does not count.
+    let cases = [
+        (2, 37338, (4.1092, 5.3021, 48.9), (-12.24, -11.83)),
+        (6, 33945, (7.0260, 4.0258, 54.9), (-12.47, -11.87)),
+        (27, 74466, (7.6435, 7.0538, 8.0), (-11.64, -11.61)),
+        (31, 43223, (4.8472, 5.2086, 252.2), (-11.88, -11.17)),
+        (52, 39020, (5.0191, 6.6197, 44.3), (-11.49, -11.86)),
+        (56, 66336, (5.8705, 4.6292, 214.5), (-12.55, -12.76)),
+        (77, 71586, (6.3158, 4.9284, 51.5), (-10.81, -11.78)),
+        (81, 87831, (7.2560, 5.6878, 18.0), (-11.82, -11.61)),
+        (0, 60590, (6.1583, 5.4545, 229.7), (-12.02, -12.10)),
+        (1, 62543, (7.2566, 3.9869, 54.7), (-12.56, -11.82)),
+        (10, 54816, (6.9356, 5.1144, 349.5), (-12.02, -11.68)),
+        (20, 2600, (6.8725, 4.5431, 111.0), (-12.19, -11.41)),
+        (26, 21821, (4.5800, 4.6967, 65.9), (-12.24, -11.82)),
+        (30, 9963, (5.9904, 5.6518, 338.5), (-11.67, -11.70)),
+        (51, 4139, (5.4559, 4.4294, 191.9), (-11.52, -11.15)),
+        (76, 65222, (5.1583, 6.2468, 283.5), (-12.76, -12.42)),
+    ];
+    let (mut all, mut on) = (0, 0);
+    // (share, run); any run's share is below 2.
+    let mut worst = (2.0f64, 0);
+    for (run, seed, canister, from) in cases {
+        let (good, frames) = far_approach(seed, canister, from);
+        println!("run {run}: on the canister in {good} of {frames} frames");
+        (all, on) = (all + frames, on + good);
+        let share = good as f64 / frames as f64;
+        if share < worst.0 {
+            worst = (share, run);
+        }
+    }
+    println!(
+        "on the canister in {on} of {all} frames; the worst approach, run {}: {:.0} %",
+        worst.1,
+        worst.0 * 100.0
+    );
+    assert!(on as f64 >= 0.9 * all as f64, "on the canister in {on} of {all} frames");
+    assert!(worst.0 >= 0.7, "run {}: on the canister in {:.0} % of its frames", worst.1, worst.0 * 100.0);
+}
+
 /// The head pair from the rover's start pose of a canister_sweep run (terrain seed, canister
 /// placement, rover start) looking at the canister, the canister's true box and range.
 fn start_view(
@@ -791,7 +990,10 @@ fn the_canister_is_located_from_the_rovers_start_in_the_sweeps_yards() {
             Ok(found) => {
                 located += 1;
                 let err = found.position.coords.norm() - range;
-                let sigma = found.covariance[(2, 2)].sqrt();
+                // The sigma at the true depth: at its own, a location that noise put farther
+                // would claim a sigma that grows with the error (as the depth's square).
+                let z = found.position.z * range / found.position.coords.norm();
+                let sigma = found.at_depth(&rect.model, &lp, z).covariance[(2, 2)].sqrt();
                 within_sigma += usize::from(err.abs() <= sigma);
                 println!(
                     "run {run}: {range:.1} m: {err:+.2} m ({:+.1} sigma), sigma {sigma:.2} m, disparity {:.2} px, {} matched",

@@ -12,8 +12,9 @@
 //! target falls on the foreground's side of the split and would pull it nearer). Its position is
 //! triangulated from the cluster's mean pixel and mean disparity (a target of a few pixels, too
 //! small for clusters, is the whole box's match at the box's centre, where at least two pixels of
-//! the box match near it; the spread of the box's matches is then a bias of that place) (averaging disparities, not
-//! depths, which are biased by their own noise), and its covariance is the pixel and disparity
+//! the box match near it or where that match is distinct along the row and matched back from the
+//! right image; the spread of the box's matches, or a configured share, is then a bias of that
+//! place) (averaging disparities, not depths, which are biased by their own noise), and its covariance is the pixel and disparity
 //! noise of that mean carried through the triangulation, with a floor on the disparity's (the
 //! calibration's error does not average out).
 
@@ -48,14 +49,14 @@ pub struct LocateParams {
     pub disparity_floor_px: f64,
     /// Fewer foreground points than this: the whole box's match stands for the target.
     pub min_points: usize,
-    /// A whole box's match that no pixel of the box supports stands only with at least this
-    /// correlation...
+    /// A whole box's match that fewer than two pixels of the box support stands only inside the
+    /// searched range, with at least this correlation...
     pub min_box_correlation: f64,
     /// ...with no other local maximum more than two pixels away above this fraction of it...
     pub box_uniqueness: f64,
-    /// ...and matched back from the right image within `lr_tolerance_px`. The disparity error
-    /// of a whole box's match from the depths its window mixes (the ground around a far target),
-    /// at least, pixels (1 sigma, a bias: every image from about here repeats it).
+    /// ...and matched back from the right image within `lr_tolerance_px`. Its disparity error
+    /// from the depths its window mixes (the ground around a far target), at least, pixels (1
+    /// sigma, a bias: every image from about here repeats it).
     pub box_mix_sigma_px: f64,
     /// The foreground keeps the disparities within this many `disparity_sigma_px` (or the
     /// target's own depth, if more) of the median of its points near the box's centre.
@@ -315,6 +316,9 @@ pub struct BoxMatch {
     /// The disparity the right image's box at the match finds matched back into the left image,
     /// integer pixels.
     pub back: Option<usize>,
+    /// Whether the best correlation lies inside the searched range (not at an end, where a slope
+    /// cut off may rise further).
+    pub interior: bool,
 }
 
 /// The correlations of the left image's box `u` x `v` (integer pixel bounds) with the right
@@ -367,27 +371,36 @@ pub fn box_match(
     v: (usize, usize),
     max: usize,
 ) -> Option<BoxMatch> {
+    let (w, h) = (l.width as usize, l.height as usize);
+    if u.0 >= u.1 || v.0 >= v.1 || u.1 > w || v.1 > h || (r.width, r.height) != (l.width, l.height) {
+        return None;
+    }
     let scores = correlations(l, r, u, v, max, 1);
     let (best, &c) = scores.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1))?;
-    let runner_up = (1..scores.len().saturating_sub(1))
-        .filter(|&d| d.abs_diff(best) > 2 && scores[d] >= scores[d - 1] && scores[d] >= scores[d + 1])
+    // The ends of the searched range count as maxima: a slope cut off there may rise further.
+    let last = scores.len() - 1;
+    let runner_up = (0..=last)
+        .filter(|&d| {
+            d.abs_diff(best) > 2
+                && (d == 0 || scores[d] >= scores[d - 1])
+                && (d == last || scores[d] >= scores[d + 1])
+        })
         .map(|d| scores[d])
         .fold(-1.0, f64::max);
-    let back = if best <= u.0 {
-        let shifted = (u.0 - best, u.1 - best);
-        let back = correlations(r, l, shifted, v, max, -1);
-        back.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).map(|(d, _)| d)
-    } else {
-        None
-    };
-    let disparity = if best == 0 || best + 1 == scores.len() {
+    // The scores stop at u.0: the right image's box at the best disparity lies inside it.
+    let back = correlations(r, l, (u.0 - best, u.1 - best), v, max, -1)
+        .iter()
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(b.1))
+        .map(|(d, _)| d);
+    let disparity = if best == 0 || best == last {
         best as f64
     } else {
         let (m, p) = (scores[best - 1], scores[best + 1]);
         let den = m - 2.0 * c + p;
         best as f64 + if den < 0.0 { 0.5 * (m - p) / den } else { 0.0 }
     };
-    Some(BoxMatch { disparity, correlation: c, runner_up, back })
+    Some(BoxMatch { disparity, correlation: c, runner_up, back, interior: best > 0 && best < last })
 }
 
 fn median(v: &mut [f64]) -> Option<f64> {
@@ -519,7 +532,8 @@ pub fn locate(
     // that matches: the whole box is all there is.
     let support = whole.map_or(0, |d| samples.iter().filter(|s| (s.2 - d).abs() <= 1.0).count());
     let distinct = whole_match.filter(|_| whole.is_some()).is_some_and(|m| {
-        m.correlation >= p.min_box_correlation
+        m.interior
+            && m.correlation >= p.min_box_correlation
             && m.runner_up < p.box_uniqueness * m.correlation
             && m.back.is_some_and(|b| (b as f64 - m.disparity).abs() <= p.lr_tolerance_px)
     });
@@ -536,8 +550,10 @@ pub fn locate(
             samples.len(),
             match (whole, whole_match) {
                 (Some(d), Some(m)) => format!(
-                    "{support} pixels support the whole box's match at {d:.1} px (correlation {:.2}, runner-up {:.2}, matched back at {:?} px)",
-                    m.correlation, m.runner_up, m.back
+                    "{support} pixels support the whole box's match at {d:.1} px (correlation {:.2}, runner-up {:.2}, matched back at {})",
+                    m.correlation,
+                    m.runner_up,
+                    m.back.map_or("no disparity".to_string(), |b| format!("{b} px"))
                 ),
                 _ => "no match of the whole box".to_string(),
             }
@@ -555,18 +571,19 @@ pub fn locate(
     let var_v = fore.iter().map(|s| (s.1 - mv).powi(2)).sum::<f64>() / n / n + 0.25;
     // A whole-box match of a few pixels spans whatever depths its window covers (far away, the
     // ground in a 9-pixel window reaches metres nearer and farther): its disparity is uncertain by
-    // the spread of the box's own matches (at least MIN_SUPPORT of them). That mixing is the
-    // scene's, not the image noise's: every image from about here repeats it (a bias).
+    // the spread of the box's own matches. That mixing is the scene's, not the image noise's:
+    // every image from about here repeats it (a bias). A match that stands by being distinct,
+    // without MIN_SUPPORT pixels of its own near it, has its mixing unseen: at least the configured
+    // share.
     let (var_d, var_mix) = if fallback {
         let all: Vec<f64> = samples.iter().map(|s| s.2).collect();
         let m = all.iter().sum::<f64>() / all.len().max(1) as f64;
-        // Without matches of its own, the box's mixing of depths is not seen: the configured
-        // share stands for it.
-        let spread = if all.len() >= MIN_SUPPORT {
+        let spread = if all.len() >= 2 {
             all.iter().map(|d| (d - m).powi(2)).sum::<f64>() / (all.len() - 1) as f64
         } else {
-            p.box_mix_sigma_px.powi(2)
+            0.0
         };
+        let spread = if support >= MIN_SUPPORT { spread } else { spread.max(p.box_mix_sigma_px.powi(2)) };
         (p.disparity_sigma_px.powi(2), spread)
     } else {
         (p.disparity_sigma_px.powi(2) / n, 0.0)

@@ -41,10 +41,12 @@ const GREY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
 const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-/// Samples a passive camera's pixel takes of the scene by default, averaged (multisampling): a
-/// sensor pixel integrates the light over its area. With one sample at its centre, a feature
-/// narrower than a pixel (a lit or shadowed side of a canister 25 m away, 2 px wide) is all there
-/// in one camera of a pair and missing from the other, which no real pair sees and which stereo
+/// Samples a passive camera's pixel takes of the scene by default, averaged (multisampling): the
+/// surfaces that cover a pixel are weighed by the share of its area they cover, as a sensor's pixel
+/// integrates the light over its area (each surface is still shaded once a pixel, at its centre;
+/// textures are mip-mapped, filtered over the pixel's footprint). With one sample at its centre, a
+/// surface narrower than a pixel (the lit side of a canister 25 m away, 2 px wide) is all there in
+/// one camera of a pair and missing from the other, which no real pair sees and which stereo
 /// cannot match. ToF cameras keep one sample: a range averaged across a depth edge is no surface's.
 pub const DEFAULT_PIXEL_SAMPLES: u32 = 4;
 
@@ -709,7 +711,8 @@ impl Renderer {
                     _ => 0,
                 };
                 let mut current = None;
-                let grey_pipelines = &self.grey_pipelines[usize::from(key.3 > 1)];
+                let samples_at = PIXEL_SAMPLES.iter().position(|&n| n == key.3).unwrap_or(0);
+                let grey_pipelines = &self.grey_pipelines[samples_at];
                 if key.2 {
                     pass.set_pipeline(&self.tof_pipeline);
                 }

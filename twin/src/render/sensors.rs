@@ -110,8 +110,9 @@ pub struct Photometry {
     pub read_noise_e: f64,
     /// Relative loss of light in the image corners (quadratic in the radius).
     pub vignetting: f64,
-    /// Samples each pixel takes of the scene, averaged (1 or 4): a sensor's pixel integrates the
-    /// light over its area, which 4 approximate; 1 samples its centre (faster, aliased).
+    /// Samples each pixel takes of the scene, averaged (1 or 4): with 4, the surfaces crossing a
+    /// pixel are weighed by the area they cover, as a sensor's pixel integrates the light; 1
+    /// samples its centre (faster, aliased).
     #[serde(default = "default_pixel_samples")]
     pub pixel_samples: u32,
 }

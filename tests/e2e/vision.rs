@@ -287,9 +287,23 @@ fn canister_pair(
     centre: nalgebra::Point3<f64>,
     seed: u64,
 ) -> (GreyImage, GreyImage, [f64; 4], f64) {
+    canister_pair_sampled(r, t, rect, eye, centre, seed, head().1.pixel_samples)
+}
+
+/// [`canister_pair`] with `pixel_samples` samples a pixel.
+fn canister_pair_sampled(
+    r: &mut SensorRenderer,
+    t: &Twin,
+    rect: &gnc::localization::rectify::Rectification,
+    eye: Vector3<f64>,
+    centre: nalgebra::Point3<f64>,
+    seed: u64,
+    pixel_samples: u32,
+) -> (GreyImage, GreyImage, [f64; 4], f64) {
     let left = look_at(eye, centre.coords);
     let right = left * Isometry3::translation(0.25, 0.0, 0.0);
     let (cam, photometry) = head();
+    let photometry = twin::render::sensors::Photometry { pixel_samples, ..photometry };
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     let imgs =
         r.grey_views(t, &[(&cam, left), (&cam, right)], &photometry, Exposure::NOMINAL, &mut rng).unwrap();
@@ -706,11 +720,15 @@ fn the_tracker_stays_on_a_canister_carried_across_its_view() {
     );
     assert!(share >= 0.95, "{:.0} % of frames", share * 100.0);
     assert!(offset.abs() < 0.2, "the box sits {offset:+.2} widths off the canister");
-    // The newest patch alone (unanchored, the context at full weight) slid off the carried
-    // canister when the renderer took one sample a pixel (the aliased ground it learnt crawled
-    // with the view); with pixels that integrate the light it stays on too (100 %, -0.06 widths),
-    // so this carry no longer tells the two apart. Both must stay on.
-    assert!(newest_share >= 0.95, "newest patch alone: {:.0} % of frames", newest_share * 100.0);
+    // What the running average is for: the newest patch alone, learnt with the ground it crosses,
+    // lags behind and slides off (both runs without an anchor and with the context at full
+    // weight, the defaults, pinned here for the second). This is with the head's one sample a
+    // pixel: with 4 (pixels integrating the light) the newest patch stayed on too (100 % of
+    // frames, -0.06 widths, session 26), the aliased ground it learnt being what crawled.
+    assert!(
+        newest_offset > offset.abs() + 0.1,
+        "the newest patch alone lags by {newest_offset:+.2} widths only"
+    );
 }
 
 #[test]
@@ -914,6 +932,7 @@ fn start_view(
     seed: u64,
     (cx, cy, yaw_deg): (f64, f64, f64),
     from: (f64, f64),
+    pixel_samples: u32,
 ) -> (GreyImage, GreyImage, [f64; 4], f64, gnc::localization::rectify::Rectification) {
     let mut world = worlds::World::load_with_seed(worlds::worlds_dir().join("mars_yard.toml"), seed).unwrap();
     world.keep_clear(cx, cy, 1.5);
@@ -932,7 +951,7 @@ fn start_view(
     let centre = nalgebra::Point3::from(can.translation.vector + Vector3::z() * 0.1);
     let mut eye = Vector3::new(from.0, from.1, 0.0);
     eye.z = world.ground_height(eye.x, eye.y) + 1.45;
-    let (l, rr, b, range) = canister_pair(&mut r, &t, &rect, eye, centre, seed);
+    let (l, rr, b, range) = canister_pair_sampled(&mut r, &t, &rect, eye, centre, seed, pixel_samples);
     (l, rr, b, range, rect)
 }
 
@@ -943,10 +962,11 @@ fn the_canister_is_located_from_the_rovers_start_in_the_sweeps_yards() {
     // Rendered with one sample a pixel, the canister's lit and shaded halves (a pixel each) were
     // in one camera and not in the other; with pixels that integrate the light (multisampling)
     // both see them, but half a pixel of phase apart, which no 7-pixel window of the canister
-    // may match (9 of these 25 missions never located it, session 24). Here: 19 of 25 located
-    // with pixels that integrate the light and pixel matches alone, 22 when the whole box's match
-    // also stands where it is distinct along the row and matched back. A location must be within
-    // 3 sigmas of the truth along the line of sight.
+    // may match (9 of these 25 missions never located it, session 24). Measured here: with 4
+    // samples a pixel, 19 of 25 located by pixel matches alone and 22 when the whole box's match
+    // also stands where it is distinct along the row and matched back (20 within 1 sigma); with 1
+    // sample (the head's setting for now, see assets/rover/sensors.toml), 17 and 18 (12 within
+    // 1 sigma). Every location must be within 3 sigmas of the truth along the line of sight.
     use gnc::tracking::locate::{LocateParams, locate};
     let cases = [
         (0, 60590, (6.1583, 5.4545, 229.7), (-12.02, -12.10)),
@@ -975,41 +995,52 @@ fn the_canister_is_located_from_the_rovers_start_in_the_sweeps_yards() {
         (23, 68015, (5.8815, 7.2812, 61.4), (-11.89, -11.66)),
         (24, 12464, (6.2734, 5.1354, 344.7), (-11.82, -12.08)),
     ];
-    let lp: LocateParams = {
+    let shipped: LocateParams = {
         let path = root().join("scenarios/config/modules/tracking_target.toml");
         let doc: toml::Table = toml::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
         doc["params"]["locate"].clone().try_into().unwrap()
     };
+    // The rule on (the mission ships it off for now), with the module's default threshold.
+    let lp = LocateParams { min_box_correlation: LocateParams::default().min_box_correlation, ..shipped };
     // The same without the rule (a whole box's match stands only where pixels support it).
     let supported_only = LocateParams { min_box_correlation: f64::INFINITY, ..lp.clone() };
-    let (mut located, mut within_sigma, mut located_supported) = (0, 0, 0);
-    for (run, seed, can, from) in cases {
-        let (l, r, b, range, rect) = start_view(seed, can, from);
-        located_supported += usize::from(locate(&l, &r, &rect.model, b, &supported_only).is_ok());
-        match locate(&l, &r, &rect.model, b, &lp) {
-            Ok(found) => {
-                located += 1;
-                let err = found.position.coords.norm() - range;
-                // The sigma at the true depth: at its own, a location that noise put farther
-                // would claim a sigma that grows with the error (as the depth's square).
-                let z = found.position.z * range / found.position.coords.norm();
-                let sigma = found.at_depth(&rect.model, &lp, z).covariance[(2, 2)].sqrt();
-                within_sigma += usize::from(err.abs() <= sigma);
-                println!(
-                    "run {run}: {range:.1} m: {err:+.2} m ({:+.1} sigma), sigma {sigma:.2} m, disparity {:.2} px, {} matched",
-                    err / sigma,
-                    found.disparity,
-                    found.matched
-                );
-                assert!(err.abs() < 3.0 * sigma, "run {run}: {err:+.2} m, sigma {sigma:.2} m");
+    // Located (with the rule, without it) and within 1 sigma, with 4 and 1 samples a pixel.
+    let mut counts = [(0usize, 0usize, 0usize); 2];
+    for (k, samples) in [4u32, 1].into_iter().enumerate() {
+        for (run, seed, can, from) in cases {
+            let (l, r, b, range, rect) = start_view(seed, can, from, samples);
+            counts[k].1 += usize::from(locate(&l, &r, &rect.model, b, &supported_only).is_ok());
+            match locate(&l, &r, &rect.model, b, &lp) {
+                Ok(found) => {
+                    counts[k].0 += 1;
+                    let err = found.position.coords.norm() - range;
+                    // The sigma at the true depth: at its own, a location that noise put farther
+                    // would claim a sigma that grows with the error (as the depth's square).
+                    let z = found.position.z * range / found.position.coords.norm();
+                    let sigma = found.at_depth(&rect.model, &lp, z).covariance[(2, 2)].sqrt();
+                    counts[k].2 += usize::from(err.abs() <= sigma);
+                    println!(
+                        "{samples} samples, run {run}: {range:.1} m: {err:+.2} m ({:+.1} sigma), sigma {sigma:.2} m, disparity {:.2} px, {} matched",
+                        err / sigma,
+                        found.disparity,
+                        found.matched
+                    );
+                    assert!(
+                        err.abs() < 3.0 * sigma,
+                        "{samples} samples, run {run}: {err:+.2} m, sigma {sigma:.2} m"
+                    );
+                }
+                Err(e) => println!("{samples} samples, run {run}: {range:.1} m: not located: {e}"),
             }
-            Err(e) => println!("run {run}: {range:.1} m: not located: {e}"),
         }
+        let (located, supported, within) = counts[k];
+        println!(
+            "{samples} samples a pixel: located in {located} of {} yards, {within} of them within 1 sigma; {supported} without the whole box's rule",
+            cases.len()
+        );
     }
-    println!(
-        "located in {located} of {} yards, {within_sigma} of them within 1 sigma; {located_supported} without the whole box's rule",
-        cases.len()
-    );
+    let ((located, located_supported, _), (located_aliased, _, _)) = (counts[0], counts[1]);
     assert!(located >= 20, "located in {located} of {} yards", cases.len());
     assert!(located >= located_supported + 2, "the rule locates {located}, without it {located_supported}");
+    assert!(located >= located_aliased + 3, "4 samples locate {located}, 1 sample {located_aliased}");
 }

@@ -20,6 +20,8 @@ use std::sync::mpsc;
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
+use super::targets::{Targets, create_targets, read_back};
+
 /// Why the renderer could not start or draw.
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
@@ -36,10 +38,10 @@ pub enum RenderError {
 
 type BoxErr = RenderError;
 
-const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
-const GREY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
-const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
-const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+pub(super) const COLOR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8Unorm;
+pub(super) const GREY_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Unorm;
+pub(super) const RANGE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+pub(super) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 const SHADOW_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Samples a passive camera's pixel takes of the scene by default, averaged (multisampling): the
 /// surfaces that cover a pixel are weighed by the share of its area they cover, as a sensor's pixel
@@ -187,27 +189,6 @@ pub struct Frame {
     /// Distance along the optical axis in metres; 0.0 where nothing was hit. Read back for ToF
     /// shading only (empty for Sun-shaded camera frames).
     pub range_m: Vec<f32>,
-}
-
-/// The offscreen targets of one (size, shading).
-struct Targets {
-    width: u32,
-    height: u32,
-    /// Bytes per pixel of the colour target.
-    channels: u32,
-    /// Row pitch of the colour plane in the readback buffer.
-    color_bpr: u32,
-    /// Row pitch of the range plane in the readback buffer.
-    range_bpr: u32,
-    range_offset: u64,
-    color: wgpu::Texture,
-    color_view: wgpu::TextureView,
-    /// Passive cameras: the multisampled colour target, resolved into `color`.
-    samples_view: Option<wgpu::TextureView>,
-    /// Tof only.
-    range: Option<(wgpu::Texture, wgpu::TextureView)>,
-    depth_view: wgpu::TextureView,
-    readback: wgpu::Buffer,
 }
 
 /// Owns the device, the pipeline and the offscreen targets.
@@ -828,36 +809,6 @@ impl<'a> Binder<'a> {
     }
 }
 
-/// Copies a mapped readback buffer into a [`Frame`] and unmaps it (also when the copy fails).
-fn read_back(t: &Targets) -> Result<Frame, BoxErr> {
-    let frame = copy_frame(t);
-    t.readback.unmap();
-    frame
-}
-
-fn copy_frame(t: &Targets) -> Result<Frame, BoxErr> {
-    let (w, h) = (t.width as usize, t.height as usize);
-    let row_bytes = w * t.channels as usize;
-    let mut pixels = Vec::with_capacity(row_bytes * h);
-    let mut range_m = Vec::with_capacity(if t.range.is_some() { w * h } else { 0 });
-    // The view is dropped at the end of this function, before the caller unmaps.
-    let data = t.readback.slice(..).get_mapped_range().map_err(|e| RenderError::Gpu(e.to_string()))?;
-    for row in data.chunks_exact(t.color_bpr as usize).take(h) {
-        pixels.extend_from_slice(&row[..row_bytes]);
-    }
-    if t.range.is_some() {
-        let planes = &data[t.range_offset as usize..];
-        for row in planes.chunks_exact(t.range_bpr as usize).take(h) {
-            range_m.extend(
-                row[..w * 4]
-                    .chunks_exact(4)
-                    .map(|px| f32::from_bits(u32::from_le_bytes([px[0], px[1], px[2], px[3]]))),
-            );
-        }
-    }
-    Ok(Frame { width: t.width, height: t.height, pixels, range_m })
-}
-
 /// Side of the shadow map until [`Renderer::set_shadow_map_px`] says otherwise, pixels.
 pub const DEFAULT_SHADOW_MAP_PX: u32 = 1024;
 
@@ -961,61 +912,5 @@ fn uniform_entry(size: usize, dynamic: bool) -> wgpu::BindGroupLayoutEntry {
             min_binding_size: wgpu::BufferSize::new(size as u64),
         },
         count: None,
-    }
-}
-
-fn create_targets(device: &wgpu::Device, width: u32, height: u32, tof: bool, samples: u32) -> Targets {
-    let size = wgpu::Extent3d { width, height, depth_or_array_layers: 1 };
-    let make = |label: &str, format: wgpu::TextureFormat, usage: wgpu::TextureUsages, sample_count: u32| {
-        device.create_texture(&wgpu::TextureDescriptor {
-            label: Some(label),
-            size,
-            mip_level_count: 1,
-            sample_count,
-            dimension: wgpu::TextureDimension::D2,
-            format,
-            usage,
-            view_formats: &[],
-        })
-    };
-    let copy_target = wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC;
-    let (color_format, channels) = if tof { (COLOR_FORMAT, 4) } else { (GREY_FORMAT, 1) };
-    let color = make("color", color_format, copy_target, 1);
-    let samples_view = (samples > 1).then(|| {
-        make("samples", color_format, wgpu::TextureUsages::RENDER_ATTACHMENT, samples)
-            .create_view(&wgpu::TextureViewDescriptor::default())
-    });
-    let range = tof.then(|| {
-        let range = make("range", RANGE_FORMAT, copy_target, 1);
-        let view = range.create_view(&wgpu::TextureViewDescriptor::default());
-        (range, view)
-    });
-    let depth = make("depth", DEPTH_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, samples);
-
-    // Rows of a texture-to-buffer copy are padded to 256 bytes; each plane then is a multiple of 256.
-    let align = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
-    let color_bpr = (width * channels).div_ceil(align) * align;
-    let range_bpr = (width * 4).div_ceil(align) * align;
-    let range_offset = u64::from(color_bpr) * u64::from(height);
-    let range_bytes = if tof { u64::from(range_bpr) * u64::from(height) } else { 0 };
-    let readback = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("readback"),
-        size: range_offset + range_bytes,
-        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-        mapped_at_creation: false,
-    });
-    Targets {
-        width,
-        height,
-        channels,
-        color_bpr,
-        range_bpr,
-        range_offset,
-        color_view: color.create_view(&wgpu::TextureViewDescriptor::default()),
-        samples_view,
-        depth_view: depth.create_view(&wgpu::TextureViewDescriptor::default()),
-        color,
-        range,
-        readback,
     }
 }

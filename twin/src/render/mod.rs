@@ -5,6 +5,7 @@
 pub mod gpu;
 pub mod scene;
 pub mod sensors;
+mod targets;
 
 pub use gpu::{RenderError, Shading};
 pub use sensors::{SensorConfig, SensorRenderer};

@@ -32,17 +32,23 @@ impl Drop for Host {
     }
 }
 
-#[test]
-fn the_demo_with_its_navigator_on_a_module_host_equals_the_all_local_demo() {
+/// The shipped remote demo configuration (scenarios/config/demo_remote) copied into a fresh
+/// directory, its module host on a free port.
+fn demo_remote_on_a_free_port() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();
     let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    // The shipped remote configuration, on a free port.
     let shipped = root().join("scenarios/config/demo_remote");
     for f in ["gyro", "heading", "navigator", "locomotion", "host"] {
         let text = std::fs::read_to_string(shipped.join(format!("{f}.toml"))).unwrap();
-        let text = text.replace("tcp/127.0.0.1:7450", &endpoint);
-        std::fs::write(dir.path().join(format!("{f}.toml")), text).unwrap();
+        std::fs::write(dir.path().join(format!("{f}.toml")), text.replace("tcp/127.0.0.1:7450", &endpoint))
+            .unwrap();
     }
+    dir
+}
+
+#[test]
+fn the_demo_with_its_navigator_on_a_module_host_equals_the_all_local_demo() {
+    let dir = demo_remote_on_a_free_port();
     let _host = start_host(dir.path());
 
     let demo = |config_dir: &std::path::Path, record: &str| {
@@ -244,14 +250,7 @@ fn expect(rx: &std::sync::mpsc::Receiver<String>, prefix: &str) -> String {
 
 #[test]
 fn a_killed_module_host_process_restarted_takes_its_module_back_by_lifecycle_commands() {
-    let dir = tempfile::tempdir().unwrap();
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-    let shipped = root().join("scenarios/config/demo_remote");
-    for f in ["gyro", "heading", "navigator", "locomotion", "host"] {
-        let text = std::fs::read_to_string(shipped.join(format!("{f}.toml"))).unwrap();
-        std::fs::write(dir.path().join(format!("{f}.toml")), text.replace("tcp/127.0.0.1:7450", &endpoint))
-            .unwrap();
-    }
+    let dir = demo_remote_on_a_free_port();
     let host = start_host(dir.path());
     // The demo's system driven by its console, one line at a time.
     let mut demo = rover_twin()

@@ -90,6 +90,44 @@ impl Default for LocomotionParams {
     }
 }
 
+/// What the rover was doing when a wheel stalled, as named in the stall's reason: the navigator
+/// infers something ahead the map does not show only from a stall while driving forward (a skid
+/// turn in place that stalls on a slope, or a stall while reversing, says nothing of the way ahead).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Motion {
+    /// Forward speed, with or without turning.
+    Forward,
+    /// Backwards.
+    Reversing,
+    /// Turning with (almost) no forward speed.
+    TurningInPlace,
+}
+
+impl Motion {
+    /// Forward speeds under this count as none, m/s.
+    const STANDING_M_S: f64 = 0.01;
+
+    /// The motion a twist commands.
+    pub fn of(t: BodyTwist) -> Self {
+        if t.v > Self::STANDING_M_S {
+            Motion::Forward
+        } else if t.v < -Self::STANDING_M_S {
+            Motion::Reversing
+        } else {
+            Motion::TurningInPlace
+        }
+    }
+
+    /// The words in a stall's reason ("while driving forward", ...).
+    pub fn describe(self) -> &'static str {
+        match self {
+            Motion::Forward => "while driving forward",
+            Motion::Reversing => "while reversing",
+            Motion::TurningInPlace => "while turning in place",
+        }
+    }
+}
+
 /// Arguments of `drive`.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -528,7 +566,8 @@ impl Locomotion {
         let now = ctx.now();
         if let Some(wheel) = self.stalled_wheel(now) {
             let reason = format!(
-                "wheel '{wheel}' stalled: it turned at under {:.0}% of its commanded rate for {} s",
+                "wheel '{wheel}' stalled {}: it turned at under {:.0}% of its commanded rate for {} s",
+                Motion::of(self.command).describe(),
                 self.params.stall_rate_fraction * 100.0,
                 self.params.stall_time_s
             );
@@ -710,5 +749,27 @@ impl Module for Locomotion {
     fn on_safe(&mut self, _ctx: &mut Ctx<'_>) {
         self.pending = None;
         self.stop_rover();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_stall_names_the_motion_the_navigator_infers_an_obstacle_ahead_from() {
+        let twist = |v, omega| BodyTwist { v, omega };
+        assert_eq!(Motion::of(twist(0.2, 0.1)), Motion::Forward);
+        assert_eq!(Motion::of(twist(-0.1, 0.0)), Motion::Reversing);
+        // A skid turn in place, and the creep out of one, are not forward driving.
+        assert_eq!(Motion::of(twist(0.0, 0.4)), Motion::TurningInPlace);
+        assert_eq!(Motion::of(twist(0.005, -0.4)), Motion::TurningInPlace);
+        // The three are told apart by their words, which the navigator looks for.
+        let words = [Motion::Forward, Motion::Reversing, Motion::TurningInPlace].map(Motion::describe);
+        for (i, a) in words.iter().enumerate() {
+            for b in &words[i + 1..] {
+                assert!(!a.contains(b) && !b.contains(a), "{a:?} / {b:?}");
+            }
+        }
     }
 }

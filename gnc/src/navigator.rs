@@ -14,11 +14,15 @@
 //!   when a replan finds no path the rover stops, scans and plans again.
 //!
 //! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` before
-//! scanning again; after a front wheel's stall the planner is asked to keep the rover out of the
+//! scanning again; after a front wheel's stall while driving forward (not in a skid turn in place,
+//! which stalls on slopes with nothing in the way) the planner is asked to keep the rover out of the
 //! spot ahead (`stall_keep_out_m` around the point `stall_ahead_m` ahead: something there the map
 //! does not show; the rover's centre where it stalled on the disc's edge, outside once backed off),
-//! so the next plan goes round it instead of into it again. Progress is published on `navigation/state`.
+//! so the next plan goes round it instead of into it again. So too after any wheel's second stall
+//! driving forward at the same spot (within `SAME_STALL_SPOT_M`): a rear wheel that swings into a
+//! rock on a turn stalls there each time the same path is driven. Progress is published on `navigation/state`.
 
+use crate::locomotion::Motion;
 use crate::peer::send;
 use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
 use framework::message::{AckStatus, MessageId};
@@ -81,6 +85,9 @@ pub struct NavigateArgs {
 /// The tightest tolerance locomotion is asked to stop within at a path's end, m.
 const MIN_FOLLOW_TOLERANCE_M: f64 = 0.1;
 
+/// A stall within this of the last one on the same navigation is the same spot again, m.
+const SAME_STALL_SPOT_M: f64 = 1.0;
+
 /// A drive that ends less than this nearer the goal than it started made no progress, m.
 const MIN_PROGRESS_M: f64 = 0.05;
 
@@ -125,6 +132,8 @@ struct Goal {
     phase: Phase,
     plans: u32,
     failures: u32,
+    /// Where the rover stood (`map`) when a wheel last stalled on this navigation.
+    last_stall: Option<[f64; 2]>,
 }
 
 /// Names of the modules the navigator commands.
@@ -353,10 +362,25 @@ impl CoordinatorNavigator {
                     }
                     Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                         if r.contains("stalled") || r.contains("fault") {
-                            // A front wheel stalled: something ahead the map does not show. (A
-                            // rear wheel's obstacle is behind or beside: nothing to keep out of
-                            // on the way ahead.)
-                            if r.contains("wheel_front") {
+                            // A front wheel stalled driving forward: something ahead the map
+                            // does not show. (A rear wheel's obstacle is behind or beside; a skid
+                            // turn in place that stalled on a slope, or a stall while reversing,
+                            // says nothing of the way ahead: keeping out there would only block
+                            // the way on, as it once did the return to the start.)
+                            // Driving forward into the same spot again, whichever wheel
+                            // stalled, the way on from here is blocked for this rover (a rear
+                            // wheel swinging into a rock the map does not show on a turn): the
+                            // plan must go round it.
+                            let here = self.position(ctx);
+                            let again = match (here, self.goal.as_ref().and_then(|g| g.last_stall)) {
+                                (Some(a), Some(b)) => (a[0] - b[0]).hypot(a[1] - b[1]) <= SAME_STALL_SPOT_M,
+                                _ => false,
+                            };
+                            if let Some(g) = self.goal.as_mut() {
+                                g.last_stall = here;
+                            }
+                            if r.contains(Motion::Forward.describe()) && (r.contains("wheel_front") || again)
+                            {
                                 self.keep_out_ahead(ctx);
                             }
                             Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None))
@@ -513,6 +537,7 @@ impl Module for CoordinatorNavigator {
                 phase: Phase::Scan(None),
                 plans: 0,
                 failures: 0,
+                last_stall: None,
             });
             match ctx.goto("navigating") {
                 Ok(()) => Outcome::Accepted,

@@ -111,6 +111,8 @@ const REPOSITION_BEARING_DEG: f64 = 4.0;
 const MAX_SEARCH_BACK_M: f64 = 1.0;
 /// Most moves towards the head camera's estimate before the look (a turn, a drive, a turn).
 const MAX_PREPARE_MOVES: u32 = 3;
+/// Moves of one job that may stall a wheel, each recovered from and tried again, before it fails.
+const MAX_STALL_RECOVERIES: u32 = 2;
 
 /// Which command a job carries out.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -138,6 +140,11 @@ enum Step {
     Locate,
     /// Driving to put the located object in the grasp region.
     Reposition,
+    /// Clearing locomotion's fault after a wheel stalled in a move (`prepare` when that move was
+    /// towards the working distance): then the same move is sent again.
+    Recover {
+        prepare: bool,
+    },
     Grasp,
     Place,
     CameraOff,
@@ -158,6 +165,10 @@ struct Job {
     object_map: Option<Point3<f64>>,
     /// Whether the rover has backed up to search for an object no look pose saw.
     searched_back: bool,
+    /// Moves that stalled a wheel, each recovered from and tried again.
+    stalls: u32,
+    /// The last locomotion command sent (its name and arguments), to try again after a stall.
+    last_move: Option<(&'static str, serde_json::Value)>,
     result: serde_json::Value,
     /// When the step awaited began.
     since: Time,
@@ -242,7 +253,7 @@ impl CoordinatorManipulation {
             let rover = pose.translation.vector;
             let yaw = (object.y - rover.y).atan2(object.x - rover.x);
             let args = serde_json::json!({ "yaw_deg": yaw.to_degrees() });
-            job.id = send(ctx, &self.peers.locomotion, "turn_to", args)?;
+            self.move_rover(ctx, job, "turn_to", args)?;
             return Ok(true);
         }
         let go = d - want;
@@ -258,7 +269,19 @@ impl CoordinatorManipulation {
         let v = DRIVE_SPEED_MPS.copysign(distance);
         let args =
             serde_json::json!({ "v": v, "omega": 0.0, "duration_s": distance.abs() / DRIVE_SPEED_MPS });
-        job.id = send(ctx, &self.peers.locomotion, "drive", args)?;
+        self.move_rover(ctx, job, "drive", args)
+    }
+
+    /// Sends a locomotion command for the job, remembered to be tried again after a stall.
+    fn move_rover(
+        &self,
+        ctx: &mut Ctx<'_>,
+        job: &mut Job,
+        command: &'static str,
+        args: serde_json::Value,
+    ) -> Result<(), String> {
+        job.id = send(ctx, &self.peers.locomotion, command, args.clone())?;
+        job.last_move = Some((command, args));
         Ok(())
     }
 
@@ -374,6 +397,23 @@ impl CoordinatorManipulation {
                 job.look = 0;
                 self.look(ctx, job)?;
             }
+            // A move that stalled a wheel (a skid turn on a slope, a rock beside a wheel) leaves
+            // locomotion in fault: cleared, the rover's move is tried again from where it is.
+            (step @ (Step::Prepare | Step::Reposition), Err(r))
+                if r.contains("stalled") && job.stalls < MAX_STALL_RECOVERIES =>
+            {
+                job.stalls += 1;
+                ctx.note(format!("{}: the move stalled ({r}): recovering and trying again", job.kind.name()));
+                job.id = send(ctx, &self.peers.locomotion, "recover", serde_json::Value::Null)?;
+                job.step = Step::Recover { prepare: step == Step::Prepare };
+            }
+            // Rejected: locomotion was not in fault any more; either way, the same move again
+            // (from where the rover is: a stalled move got little of its way).
+            (Step::Recover { prepare }, Ok(_) | Err(_)) => {
+                let (command, args) = job.last_move.clone().ok_or("no move to try again")?;
+                self.move_rover(ctx, job, command, args)?;
+                job.step = if prepare { Step::Prepare } else { Step::Reposition };
+            }
             (Step::Grasp, Ok(v)) => {
                 if v["holding"].as_str() != Some(self.params.object.as_str()) {
                     return Err(format!("the grasp completed without holding the {}", self.params.object));
@@ -462,6 +502,8 @@ impl CoordinatorManipulation {
                     look: 0,
                     object_map: None,
                     searched_back: false,
+                    stalls: 0,
+                    last_move: None,
                     result: serde_json::Value::Null,
                     since: ctx.now(),
                     look_since: ctx.now(),
@@ -478,7 +520,7 @@ impl CoordinatorManipulation {
             let _ = self.camera(ctx, 0.0);
         }
         let to = match job.step {
-            Step::Prepare | Step::Reposition => Some(&self.peers.locomotion),
+            Step::Prepare | Step::Reposition | Step::Recover { .. } => Some(&self.peers.locomotion),
             Step::Look | Step::Grasp | Step::Place => Some(&self.peers.manipulator),
             Step::Locate => Some(&self.peers.markers),
             Step::CameraOn | Step::CameraOff => None,

@@ -148,7 +148,7 @@ fn point_turn_rate(w: World, x: f64, y: f64, yaw_deg: f64, omega: f64, tread_edg
 }
 
 /// Skid-steer point turns on slopes with 4 cm tread edges turn at over half the commanded rate.
-/// Wheels with a nearly flat tread (2 cm edge radius, the default for now) bear on their edges:
+/// Wheels with a nearly flat tread (2 cm edge radius) bear on their edges:
 /// on this 6-7 degree spot of a sweep's yard (friction 0.8), where a stalled turn ended a mission,
 /// the rover turns at under a quarter of the 0.4 rad/s commanded (0.01 rad/s measured), and on a
 /// 7 degree plane (turning right, facing down) as well.

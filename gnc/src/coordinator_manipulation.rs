@@ -8,7 +8,9 @@
 //!   rover by what is missing and looks again (when no look pose saw anything of it, the object may
 //!   lie nearer than the views reach: the rover backs up `search_back_m` once and looks again);
 //!   then has the manipulator grasp it under visual
-//!   servoing. A grasp that fails (the fingers closed beside the handle, the servo loop did not
+//!   servoing. A move of the rover that stalls a wheel is recovered from (locomotion's `recover`)
+//!   and sent again, what is left of it (a turn to its heading, a drive its remaining distance),
+//!   twice at most. A grasp that fails (the fingers closed beside the handle, the servo loop did not
 //!   converge) is tried again from the look, up to `max_attempts`. Completes once the manipulator
 //!   reports the object held (its fingers stopped on the handle), with the wrist camera off again.
 //! - `stow_canister`: has the manipulator place the held object in the stowage slot.
@@ -114,6 +116,32 @@ const MAX_PREPARE_MOVES: u32 = 3;
 /// Moves of one job that may stall a wheel, each recovered from and tried again, before it fails.
 const MAX_STALL_RECOVERIES: u32 = 2;
 
+/// A move of the rover, as sent to locomotion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Move {
+    /// A turn in place to a heading of `map`, rad.
+    Turn { yaw: f64 },
+    /// A straight drive of `distance` m (negative: backwards) from `from` (`map` x, y) along the
+    /// heading `heading` (rad) it started on.
+    Drive { distance: f64, from: [f64; 2], heading: f64 },
+}
+
+impl Move {
+    /// What is left of the move with the rover at `at` (`map` x, y): the turn (to an absolute
+    /// heading) as it was, the drive its distance less the way made good along its heading; None
+    /// when under a centimetre of it is left.
+    fn rest(&self, at: [f64; 2]) -> Option<Move> {
+        match *self {
+            Move::Turn { .. } => Some(*self),
+            Move::Drive { distance, from, heading } => {
+                let made = (at[0] - from[0]) * heading.cos() + (at[1] - from[1]) * heading.sin();
+                let left = distance - made;
+                (left * distance.signum() > 0.01).then_some(Move::Drive { distance: left, from: at, heading })
+            }
+        }
+    }
+}
+
 /// Which command a job carries out.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Kind {
@@ -167,8 +195,8 @@ struct Job {
     searched_back: bool,
     /// Moves that stalled a wheel, each recovered from and tried again.
     stalls: u32,
-    /// The last locomotion command sent (its name and arguments), to try again after a stall.
-    last_move: Option<(&'static str, serde_json::Value)>,
+    /// The last move of the rover, to send again (what is left of it) after a stall.
+    last_move: Option<Move>,
     result: serde_json::Value,
     /// When the step awaited began.
     since: Time,
@@ -252,8 +280,7 @@ impl CoordinatorManipulation {
         if in_base.y.atan2(in_base.x).abs() > max_bearing {
             let rover = pose.translation.vector;
             let yaw = (object.y - rover.y).atan2(object.x - rover.x);
-            let args = serde_json::json!({ "yaw_deg": yaw.to_degrees() });
-            self.move_rover(ctx, job, "turn_to", args)?;
+            self.move_rover(ctx, job, Move::Turn { yaw })?;
             return Ok(true);
         }
         let go = d - want;
@@ -266,22 +293,25 @@ impl CoordinatorManipulation {
 
     /// A straight drive of `distance` (m; negative: backwards), slowly and open loop.
     fn drive_straight(&self, ctx: &mut Ctx<'_>, job: &mut Job, distance: f64) -> Result<(), String> {
-        let v = DRIVE_SPEED_MPS.copysign(distance);
-        let args =
-            serde_json::json!({ "v": v, "omega": 0.0, "duration_s": distance.abs() / DRIVE_SPEED_MPS });
-        self.move_rover(ctx, job, "drive", args)
+        let pose = self.pose(ctx)?;
+        let from = [pose.translation.x, pose.translation.y];
+        let heading = pose.rotation.euler_angles().2;
+        self.move_rover(ctx, job, Move::Drive { distance, from, heading })
     }
 
-    /// Sends a locomotion command for the job, remembered to be tried again after a stall.
-    fn move_rover(
-        &self,
-        ctx: &mut Ctx<'_>,
-        job: &mut Job,
-        command: &'static str,
-        args: serde_json::Value,
-    ) -> Result<(), String> {
-        job.id = send(ctx, &self.peers.locomotion, command, args.clone())?;
-        job.last_move = Some((command, args));
+    /// Sends a move of the rover to locomotion for the job, remembered to be sent again (what is
+    /// left of it) after a stall.
+    fn move_rover(&self, ctx: &mut Ctx<'_>, job: &mut Job, m: Move) -> Result<(), String> {
+        let (command, args) = match m {
+            Move::Turn { yaw } => ("turn_to", serde_json::json!({ "yaw_deg": yaw.to_degrees() })),
+            Move::Drive { distance, .. } => {
+                let v = DRIVE_SPEED_MPS.copysign(distance);
+                let args = serde_json::json!({ "v": v, "omega": 0.0, "duration_s": distance.abs() / DRIVE_SPEED_MPS });
+                ("drive", args)
+            }
+        };
+        job.id = send(ctx, &self.peers.locomotion, command, args)?;
+        job.last_move = Some(m);
         Ok(())
     }
 
@@ -407,13 +437,25 @@ impl CoordinatorManipulation {
                 job.id = send(ctx, &self.peers.locomotion, "recover", serde_json::Value::Null)?;
                 job.step = Step::Recover { prepare: step == Step::Prepare };
             }
-            // Rejected: locomotion was not in fault any more; either way, the same move again
-            // (from where the rover is: a stalled move got little of its way).
-            (Step::Recover { prepare }, Ok(_) | Err(_)) => {
-                let (command, args) = job.last_move.clone().ok_or("no move to try again")?;
-                self.move_rover(ctx, job, command, args)?;
-                job.step = if prepare { Step::Prepare } else { Step::Reposition };
+            // Locomotion out of fault (`recover` completes when it was not in fault too): what is
+            // left of the move, from where the rover is (a drive is open loop, its way made good
+            // taken from the pose estimate), or on as if it had completed when nothing is.
+            (Step::Recover { prepare }, Ok(_)) => {
+                let pose = self.pose(ctx)?;
+                let rest = job.last_move.and_then(|m| m.rest([pose.translation.x, pose.translation.y]));
+                match rest {
+                    Some(m) => {
+                        self.move_rover(ctx, job, m)?;
+                        job.step = if prepare { Step::Prepare } else { Step::Reposition };
+                    }
+                    None if prepare => self.prepare(ctx, job)?,
+                    None => {
+                        job.look = 0;
+                        self.look(ctx, job)?;
+                    }
+                }
             }
+            (Step::Recover { .. }, Err(r)) => return Err(format!("cannot clear locomotion's fault: {r}")),
             (Step::Grasp, Ok(v)) => {
                 if v["holding"].as_str() != Some(self.params.object.as_str()) {
                     return Err(format!("the grasp completed without holding the {}", self.params.object));
@@ -631,5 +673,34 @@ mod tests {
         // Too near: backwards.
         let back = reposition(&Point3::new(0.7, 0.0, -0.3), &p).unwrap();
         assert!((back[0] + 0.3).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_stalled_move_is_sent_again_for_what_is_left_of_it() {
+        // A drive of 0.4 m north-east that stalled 0.1 m along: 0.3 m left, from where the rover is.
+        let h = std::f64::consts::FRAC_PI_4;
+        let drive = Move::Drive { distance: 0.4, from: [1.0, 2.0], heading: h };
+        let at = [1.0 + 0.1 * h.cos(), 2.0 + 0.1 * h.sin()];
+        match drive.rest(at) {
+            Some(Move::Drive { distance, from, heading }) => {
+                assert!((distance - 0.3).abs() < 1e-9, "{distance}");
+                assert_eq!((from, heading), (at, h));
+            }
+            other => panic!("{other:?}"),
+        }
+        // Sideways slip is no way made good; nearly all the way (or past it): nothing left.
+        let slipped = [1.0 + 0.2 * (h + 1.5).cos(), 2.0 + 0.2 * (h + 1.5).sin()];
+        assert!(matches!(drive.rest(slipped), Some(Move::Drive { distance, .. }) if distance > 0.38));
+        assert_eq!(drive.rest([1.0 + 0.4 * h.cos(), 2.0 + 0.4 * h.sin()]), None);
+        assert_eq!(drive.rest([1.0 + 0.5 * h.cos(), 2.0 + 0.5 * h.sin()]), None);
+        // Backwards: the way made good is negative too.
+        let back = Move::Drive { distance: -0.35, from: [0.0, 0.0], heading: 0.0 };
+        assert!(
+            matches!(back.rest([-0.05, 0.0]), Some(Move::Drive { distance, .. }) if (distance + 0.3).abs() < 1e-9)
+        );
+        assert_eq!(back.rest([-0.345, 0.0]), None);
+        // A turn is to an absolute heading: sent as it was.
+        let turn = Move::Turn { yaw: 1.0 };
+        assert_eq!(turn.rest([5.0, 5.0]), Some(turn));
     }
 }

@@ -17,7 +17,8 @@
 //! Each motion command completes (deferred acknowledgement) when the manoeuvre ends; a new one
 //! supersedes the one in progress, which then fails with that reason. A wheel that turns at less
 //! than a fraction of its commanded rate for longer than the stall time puts the module in `fault`:
-//! the rover stops and the manoeuvre fails naming the wheel.
+//! the rover stops and the manoeuvre fails naming the wheel and what the rover was commanded to do
+//! then (driving forward, reversing, turning in place: [`Motion`]).
 
 use framework::angle::wrap;
 use framework::data::{LocomotionState, PoseEstimate};

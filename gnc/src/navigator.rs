@@ -44,9 +44,10 @@ pub struct NavigatorParams {
     pub max_failures: u32,
     /// After a stall, the rover backs off this far before scanning again, m.
     pub back_off_m: f64,
-    /// After a front wheel's stall, the planner keeps the rover's centre this far from the spot
-    /// `stall_ahead_m` ahead of where it stalled (something there the map does not show), m (0:
-    /// not). At most `stall_ahead_m`, or the rover would stand in it.
+    /// After a front wheel's stall driving forward (or any wheel's second one at the same spot),
+    /// the planner keeps the rover's centre this far from the spot `stall_ahead_m` ahead of where
+    /// it stalled (something there the map does not show), m (0: not). At most `stall_ahead_m`, or
+    /// the rover would stand in it.
     pub stall_keep_out_m: f64,
     /// See `stall_keep_out_m`, m.
     pub stall_ahead_m: f64,
@@ -132,7 +133,7 @@ struct Goal {
     phase: Phase,
     plans: u32,
     failures: u32,
-    /// Where the rover stood (`map`) when a wheel last stalled on this navigation.
+    /// Where the rover stood (`map`) when a wheel last stalled driving forward on this navigation.
     last_stall: Option<[f64; 2]>,
 }
 
@@ -344,6 +345,8 @@ impl CoordinatorNavigator {
             },
             Phase::Drive { id, path_seq, from } => {
                 let status = ctx.ack_status(id);
+                // Failed (not rejected): the drive ran and ended on a stall of its own.
+                let failed = matches!(status, Some(AckStatus::Failed(_)));
                 match status {
                     Some(AckStatus::Completed(_)) => {
                         let left = self.distance_to_goal(ctx).unwrap_or(f64::INFINITY);
@@ -371,17 +374,20 @@ impl CoordinatorNavigator {
                             // stalled, the way on from here is blocked for this rover (a rear
                             // wheel swinging into a rock the map does not show on a turn): the
                             // plan must go round it.
-                            let here = self.position(ctx);
-                            let again = match (here, self.goal.as_ref().and_then(|g| g.last_stall)) {
-                                (Some(a), Some(b)) => (a[0] - b[0]).hypot(a[1] - b[1]) <= SAME_STALL_SPOT_M,
-                                _ => false,
-                            };
-                            if let Some(g) = self.goal.as_mut() {
-                                g.last_stall = here;
-                            }
-                            if r.contains(Motion::Forward.describe()) && (r.contains("wheel_front") || again)
-                            {
-                                self.keep_out_ahead(ctx);
+                            // Only this navigation's own stalls driving forward count (not a
+                            // rejection naming a fault left from before, nor a turn in place).
+                            let forward = failed && r.contains(Motion::Forward.describe());
+                            if let (true, Some(here)) = (forward, self.position(ctx)) {
+                                let last = self.goal.as_ref().and_then(|g| g.last_stall);
+                                let again = last.is_some_and(|b| {
+                                    (here[0] - b[0]).hypot(here[1] - b[1]) <= SAME_STALL_SPOT_M
+                                });
+                                if let Some(g) = self.goal.as_mut() {
+                                    g.last_stall = Some(here);
+                                }
+                                if r.contains("wheel_front") || again {
+                                    self.keep_out_ahead(ctx);
+                                }
                             }
                             Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None))
                         } else {

@@ -570,9 +570,9 @@ fn the_path_follower_turns_a_corner_on_a_slope_where_arcs_stall() {
 
 #[test]
 fn a_wheel_that_stalls_a_move_of_the_acquisition_is_recovered_from_and_the_move_driven_again() {
-    // acquire_stall: a wheel jams as the rover drives the last centimetres to the grasp distance.
+    // acquire_stall: a wheel jams as the rover drives the last 0.4 m to the grasp distance.
     // Locomotion faults naming the wheel and the motion; CoordinatorManipulation clears the fault
-    // and drives again (it once failed the acquisition: "locomotion is in fault").
+    // and drives what is left (the stalled move once failed the acquisition).
     let dir = tempfile::tempdir().unwrap();
     let o = run(&data("acquire_stall.toml"), dir.path(), &["--set", "logging.rrd=false"]);
     let s = score(dir.path());

@@ -272,8 +272,8 @@ fn the_canister_is_located_from_the_rovers_start_in_the_sweeps_yards() {
     // may match (9 of these 25 missions never located it, session 24). Measured here: with 4
     // samples a pixel, 19 of 25 located by pixel matches alone and 22 when the whole box's match
     // also stands where it is distinct along the row and matched back (20 within 1 sigma); with 1
-    // sample (the head's setting for now, see assets/rover/sensors.toml), 17 and 18 (12 within
-    // 1 sigma). Every location must be within 3 sigmas of the truth along the line of sight.
+    // sample (the localization pair's and the wrist camera's setting, see
+    // assets/rover/sensors.toml), 17 and 18 (12 within 1 sigma). Every location must be within 3 sigmas of the truth along the line of sight.
     use gnc::tracking::locate::{LocateParams, locate};
     let cases = SWEEP_YARDS;
     let shipped: LocateParams = {

@@ -12,7 +12,8 @@
 //!   lens (without a black border) and photometric model applied. `loc_stereo_pair_640x480`: the
 //!   same for the body's localization pair (wider, looking down: more terrain near the camera).
 //!   Compare with an older renderer in one run (machines here differ by up to 2x between runs).
-//!   Both with the shipped pixel samples (4: each pixel integrates the light over its area);
+//!   Both with their shipped pixel samples (the head pair 4: each pixel integrates the light over
+//!   its area; the localization pair 1);
 //!   `stereo_pair_640x480_one_sample`: the head pair with one sample a pixel, what the samples
 //!   cost measured in the same run.
 //!

@@ -34,9 +34,8 @@ pub struct TrackingTargetParams {
     /// Fuse each location with the covariance it has at the depth where the estimate lies, not
     /// at its own (gated at its own): taken at their own depths, the locations that disparity noise
     /// puts nearer count for more and the estimate ends short, 1.9 m at 20 m (see
-    /// `Located::at_depth`). Off by default for now: with it the main job's approach and
-    /// acquisition succeed, but its return, on another route, fails (see the mission's
-    /// configuration).
+    /// `Located::at_depth`). Off by default; the mission's configuration turns it on (there, a rock
+    /// in front of the canister on its line of sight took visual_approach's estimate over without).
     pub fuse_at_estimate_depth: bool,
     /// A location whose box shows a surface tilted less than this from level is a patch of the
     /// ground, not a target standing on it, and is rejected (a tracker's box slid off the target

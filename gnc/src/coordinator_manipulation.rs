@@ -169,7 +169,7 @@ enum Step {
     /// Driving to put the located object in the grasp region.
     Reposition,
     /// Clearing locomotion's fault after a wheel stalled in a move (`prepare` when that move was
-    /// towards the working distance): then the same move is sent again.
+    /// towards the working distance): then what is left of the move is sent again.
     Recover {
         prepare: bool,
     },

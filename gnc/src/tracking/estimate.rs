@@ -11,6 +11,14 @@
 //! a location with a smaller bias (nearer) takes over from the ones with larger biases (farther);
 //! the estimate never extrapolates past either.
 //!
+//! One bias is known to be the same in every image: the stereo pair calibration's disparity
+//! error. It is a considered parameter (Schmidt's consider filter): not estimated, but the
+//! estimate keeps its sensitivity to it (the error one sigma of it puts on the estimate, carried
+//! through every fusion), so that a location's error from it, which the estimate shares, is not
+//! counted twice when the two are compared. A look-alike a few metres behind the target on its
+//! line of sight is then told from the target by the disparity it really differs by, not hidden
+//! under two calibration errors that are one.
+//!
 //! A moving target's velocity (fitted by the caller to its recent locations: [`fitted_velocity`])
 //! carries the estimate from one location to the next; the wander allows for that velocity's
 //! error.
@@ -23,6 +31,48 @@ use nalgebra::{Matrix3, Point3, Vector3};
 /// first location must not lock out every later right one).
 pub const RESTART_AFTER: u32 = 5;
 
+/// One location of the target in `map` and its errors.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Location {
+    /// The position, m.
+    pub position: Point3<f64>,
+    /// The whole covariance, m^2: the image's noise, `bias`, and `shared`'s outer product.
+    pub covariance: Matrix3<f64>,
+    /// The share of `covariance` that other images repeat to an unknown degree.
+    pub bias: Matrix3<f64>,
+    /// The error that one sigma of the bias every image shares (the same parameter for all)
+    /// puts on this location, m.
+    pub shared: Vector3<f64>,
+}
+
+impl Location {
+    /// A location with no share of the common bias.
+    pub fn new(position: Point3<f64>, covariance: Matrix3<f64>, bias: Matrix3<f64>) -> Self {
+        Location { position, covariance, bias, shared: Vector3::zeros() }
+    }
+
+    /// This location with `shared` as its error from one sigma of the common bias (already part
+    /// of its covariance).
+    pub fn with_shared(self, shared: Vector3<f64>) -> Self {
+        Location { shared, ..self }
+    }
+
+    /// The image's own noise: the covariance less the biases.
+    fn noise(&self) -> Matrix3<f64> {
+        self.covariance - self.bias - self.shared * self.shared.transpose()
+    }
+
+    fn is_finite(&self) -> bool {
+        self.position
+            .coords
+            .iter()
+            .chain(self.covariance.iter())
+            .chain(self.bias.iter())
+            .chain(self.shared.iter())
+            .all(|v| v.is_finite())
+    }
+}
+
 /// The fused estimate.
 #[derive(Clone, Debug)]
 struct Fused {
@@ -31,6 +81,8 @@ struct Fused {
     noise: Matrix3<f64>,
     /// The covariance of the biases, whose correlation between images is unknown.
     bias: Matrix3<f64>,
+    /// The error one sigma of the common bias puts on the position (see [`Location::shared`]).
+    shared: Vector3<f64>,
     stamp: Time,
 }
 
@@ -50,20 +102,23 @@ pub struct TargetEstimate {
     horizon_s: f64,
 }
 
-/// One split covariance intersection of (x1, noise n1, bias b1) and (x2, n2, b2) at weight `w` of
-/// the first's bias: the position, the whole covariance and its noise part.
+/// One split covariance intersection of two estimates' (position, noise, bias, shared error)
+/// at weight `w` of the first's bias: the position, the covariance of the noise and bias parts,
+/// its noise part, and the shared error (each position's weight applied to its own).
 #[allow(clippy::type_complexity)]
 fn split_ci(
-    (x1, n1, b1): (&Point3<f64>, &Matrix3<f64>, &Matrix3<f64>),
-    (x2, n2, b2): (&Point3<f64>, &Matrix3<f64>, &Matrix3<f64>),
+    (x1, n1, b1, s1): (&Point3<f64>, &Matrix3<f64>, &Matrix3<f64>, &Vector3<f64>),
+    (x2, n2, b2, s2): (&Point3<f64>, &Matrix3<f64>, &Matrix3<f64>, &Vector3<f64>),
     w: f64,
-) -> Option<(Point3<f64>, Matrix3<f64>, Matrix3<f64>)> {
+) -> Option<(Point3<f64>, Matrix3<f64>, Matrix3<f64>, Vector3<f64>)> {
     let i1 = (b1 / w + n1).try_inverse()?;
     let i2 = (b2 / (1.0 - w) + n2).try_inverse()?;
     let p = (i1 + i2).try_inverse()?;
-    let x = p * (i1 * x1.coords + i2 * x2.coords);
-    let n = p * (i1 * n1 * i1.transpose() + i2 * n2 * i2.transpose()) * p.transpose();
-    Some((Point3::from(x), 0.5 * (p + p.transpose()), 0.5 * (n + n.transpose())))
+    let (a1, a2) = (p * i1, p * i2);
+    let x = a1 * x1.coords + a2 * x2.coords;
+    let n = a1 * n1 * a1.transpose() + a2 * n2 * a2.transpose();
+    let s = a1 * s1 + a2 * s2;
+    Some((Point3::from(x), 0.5 * (p + p.transpose()), 0.5 * (n + n.transpose()), s))
 }
 
 impl TargetEstimate {
@@ -72,14 +127,20 @@ impl TargetEstimate {
         self.fused.as_ref().map(|f| f.position)
     }
 
-    /// The whole covariance (noise and bias), once located.
+    /// The whole covariance (noise, biases and the common bias), once located.
     pub fn covariance(&self) -> Option<Matrix3<f64>> {
-        self.fused.as_ref().map(|f| f.noise + f.bias)
+        self.fused.as_ref().map(|f| f.noise + f.bias + f.shared * f.shared.transpose())
     }
 
-    /// The bias part of the covariance, once located.
+    /// The part of the covariance that more images do not reduce (the biases and the common
+    /// bias), once located.
     pub fn bias(&self) -> Option<Matrix3<f64>> {
-        self.fused.as_ref().map(|f| f.bias)
+        self.fused.as_ref().map(|f| f.bias + f.shared * f.shared.transpose())
+    }
+
+    /// The error one sigma of the common bias puts on the estimate, once located.
+    pub fn shared(&self) -> Option<Vector3<f64>> {
+        self.fused.as_ref().map(|f| f.shared)
     }
 
     /// Locations fused since the estimate (re)started.
@@ -144,64 +205,50 @@ impl TargetEstimate {
         Some(carried(&f.position, &self.velocity, self.horizon_s, f.stamp, t))
     }
 
-    /// Whether a location `p` of covariance `cov` taken at `stamp` lies within `gate` sigmas of
-    /// the estimate (for a target wandering `walk` m/sqrt(s)), as [`fuse`](Self::fuse) would
-    /// find; true while there is no estimate. Nothing changes.
-    pub fn agrees(&self, p: &Point3<f64>, cov: &Matrix3<f64>, stamp: Time, walk: f64, gate: f64) -> bool {
-        if !p.coords.iter().chain(cov.iter()).all(|v| v.is_finite()) {
+    /// Whether a location `loc` taken at `stamp` lies within `gate` sigmas of the estimate (for
+    /// a target wandering `walk` m/sqrt(s)), as [`fuse`](Self::fuse) would find; true while
+    /// there is no estimate. Nothing changes.
+    pub fn agrees(&self, loc: &Location, stamp: Time, walk: f64, gate: f64) -> bool {
+        if !loc.is_finite() {
             return false;
         }
         self.fused
             .as_ref()
-            .is_none_or(|e| self.mahalanobis2(e, p, cov, stamp, walk).is_some_and(|d2| d2 <= gate.powi(2)))
+            .is_none_or(|e| self.mahalanobis2(e, loc, stamp, walk).is_some_and(|d2| d2 <= gate.powi(2)))
     }
 
-    /// The squared Mahalanobis distance of a location `p` of covariance `cov` at `stamp` from the
-    /// estimate `e` carried to then. The gate allows for both biases in full: it is there to
-    /// reject a location of something else, metres away.
-    fn mahalanobis2(
-        &self,
-        e: &Fused,
-        p: &Point3<f64>,
-        cov: &Matrix3<f64>,
-        stamp: Time,
-        walk: f64,
-    ) -> Option<f64> {
+    /// The squared Mahalanobis distance of a location `loc` at `stamp` from the estimate `e`
+    /// carried to then. The gate allows for both biases of unknown correlation in full: it is
+    /// there to reject a location of something else, metres away. The common bias counts by how
+    /// differently it errs the two: by little, from about where the estimate's locations were
+    /// taken; by the estimate's own error from it, from much nearer.
+    fn mahalanobis2(&self, e: &Fused, loc: &Location, stamp: Time, walk: f64) -> Option<f64> {
         let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
         let carried = carried(&e.position, &self.velocity, self.horizon_s, e.stamp, stamp);
         let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
-        let innovation = p - carried;
-        let gate_inv = (prior + e.bias + cov).try_inverse()?;
+        let innovation = loc.position - carried;
+        let apart = loc.shared - e.shared;
+        let own = loc.covariance - loc.shared * loc.shared.transpose();
+        let gate_inv = (prior + e.bias + own + apart * apart.transpose()).try_inverse()?;
         Some(innovation.dot(&(gate_inv * innovation)))
     }
 
-    /// Fuses a location `p` of covariance `cov`, of which `bias` other images may repeat, taken
-    /// at `stamp`, for a target wandering `walk` m/sqrt(s); false when it lies more than `gate`
-    /// sigmas from the estimate (after [`RESTART_AFTER`] such in a row, if `restart` allows, the
-    /// estimate restarts from it, and it counts).
-    #[allow(clippy::too_many_arguments)]
-    pub fn fuse(
-        &mut self,
-        p: Point3<f64>,
-        cov: Matrix3<f64>,
-        bias: Matrix3<f64>,
-        stamp: Time,
-        walk: f64,
-        gate: f64,
-        restart: bool,
-    ) -> bool {
-        if !p.coords.iter().chain(cov.iter()).chain(bias.iter()).all(|v| v.is_finite()) {
+    /// Fuses a location `loc` taken at `stamp`, for a target wandering `walk` m/sqrt(s); false
+    /// when it lies more than `gate` sigmas from the estimate (after [`RESTART_AFTER`] such in a
+    /// row, if `restart` allows, the estimate restarts from it, and it counts).
+    pub fn fuse(&mut self, loc: &Location, stamp: Time, walk: f64, gate: f64, restart: bool) -> bool {
+        if !loc.is_finite() {
             return false;
         }
-        let noise = cov - bias;
-        let fresh = Fused { position: p, noise, bias, stamp };
+        let (p, noise, bias) = (loc.position, loc.noise(), loc.bias);
+        let fresh = Fused { position: p, noise, bias, shared: loc.shared, stamp };
         let Some(e) = &self.fused else {
             self.fused = Some(fresh);
             self.count = 1;
             (self.rejected, self.ruled_out) = (0, 0);
             return true;
         };
-        let Some(d2) = self.mahalanobis2(e, &p, &cov, stamp, walk) else { return false };
+        let Some(d2) = self.mahalanobis2(e, loc, stamp, walk) else { return false };
         if d2 > gate.powi(2) {
             self.rejected += 1;
             if restart && self.rejected >= RESTART_AFTER {
@@ -218,11 +265,11 @@ impl TargetEstimate {
         let dt = (stamp - e.stamp).as_secs_f64().max(0.0);
         let carried = carried(&e.position, &self.velocity, self.horizon_s, e.stamp, stamp);
         let prior = e.noise + Matrix3::identity() * walk.powi(2) * dt;
-        // The bias weight minimizing the fused covariance's trace (convex in it): golden section.
-        let (a, b) = ((carried, prior, e.bias), (p, noise, bias));
-        let trace = |w: f64| {
-            split_ci((&a.0, &a.1, &a.2), (&b.0, &b.1, &b.2), w).map_or(f64::INFINITY, |(_, c, _)| c.trace())
-        };
+        // The bias weight minimizing the fused covariance's trace, the common bias's share
+        // included: golden section.
+        let (a, b) = ((carried, prior, e.bias, e.shared), (p, noise, bias, loc.shared));
+        let fused = |w: f64| split_ci((&a.0, &a.1, &a.2, &a.3), (&b.0, &b.1, &b.2, &b.3), w);
+        let trace = |w: f64| fused(w).map_or(f64::INFINITY, |(_, c, _, s)| c.trace() + s.norm_squared());
         let (mut lo, mut hi) = (1e-4, 1.0 - 1e-4);
         let g = 0.5 * (5f64.sqrt() - 1.0);
         for _ in 0..40 {
@@ -233,7 +280,7 @@ impl TargetEstimate {
                 lo = m1;
             }
         }
-        let Some((x, c, n)) = split_ci((&a.0, &a.1, &a.2), (&b.0, &b.1, &b.2), 0.5 * (lo + hi)) else {
+        let Some((x, c, n, s)) = fused(0.5 * (lo + hi)) else {
             return false;
         };
         (self.rejected, self.ruled_out) = (0, 0);
@@ -241,6 +288,7 @@ impl TargetEstimate {
         e.position = x;
         e.noise = n;
         e.bias = c - n;
+        e.shared = s;
         // A late location (older than the newest fused) does not take the estimate back in time.
         e.stamp = e.stamp.max(stamp);
         true
@@ -291,7 +339,7 @@ mod tests {
         for k in 0..400 {
             let n: f64 = rng.sample(StandardNormal);
             let p = truth + nalgebra::Vector3::new(n, -n, 0.5 * n) * noise_sigma;
-            assert!(e.fuse(p, cov, bias_cov, t(k as f64), 0.0, 5.0, true));
+            assert!(e.fuse(&Location::new(p, cov, bias_cov), t(k as f64), 0.0, 5.0, true));
         }
         let c = e.covariance().unwrap();
         let b = e.bias().unwrap();
@@ -309,11 +357,11 @@ mod tests {
         let bias = Matrix3::identity() * 0.001;
         let mut e = TargetEstimate::default();
         // A wrong first location (a background match), then the right ones.
-        assert!(e.fuse(Point3::new(-3.0, 2.0, 0.0), cov, bias, t(0.0), 0.01, 5.0, true));
+        assert!(e.fuse(&Location::new(Point3::new(-3.0, 2.0, 0.0), cov, bias), t(0.0), 0.01, 5.0, true));
         let right = Point3::new(6.0, 5.0, 0.0);
         let mut accepted = Vec::new();
         for k in 1..=RESTART_AFTER + 3 {
-            accepted.push(e.fuse(right, cov, bias, t(k as f64), 0.01, 5.0, true));
+            accepted.push(e.fuse(&Location::new(right, cov, bias), t(k as f64), 0.01, 5.0, true));
         }
         // Rejected until the restart, accepted from it on.
         let first = accepted.iter().position(|a| *a).expect("restarted");
@@ -323,16 +371,28 @@ mod tests {
         // The count restarted with the estimate.
         assert_eq!(e.count(), accepted.len() as u32 - first as u32);
         // A single outlier now is rejected and does not move the estimate.
-        assert!(!e.fuse(Point3::new(20.0, 5.0, 0.0), cov, bias, t(20.0), 0.01, 5.0, true));
+        assert!(!e.fuse(&Location::new(Point3::new(20.0, 5.0, 0.0), cov, bias), t(20.0), 0.01, 5.0, true));
         assert!((e.position().unwrap() - right).norm() < 1e-9);
         // Without restarts, a run of disagreeing locations never takes over.
         let mut held = e.clone();
         for k in 0..3 * RESTART_AFTER {
-            assert!(!held.fuse(Point3::new(-3.0, 2.0, 0.0), cov, bias, t(30.0 + k as f64), 0.01, 5.0, false));
+            assert!(!held.fuse(
+                &Location::new(Point3::new(-3.0, 2.0, 0.0), cov, bias),
+                t(30.0 + k as f64),
+                0.01,
+                5.0,
+                false
+            ));
         }
         assert!((held.position().unwrap() - right).norm() < 1e-9);
         // Non-finite input is refused.
-        assert!(!e.fuse(Point3::new(f64::NAN, 0.0, 0.0), cov, bias, t(21.0), 0.01, 5.0, true));
+        assert!(!e.fuse(
+            &Location::new(Point3::new(f64::NAN, 0.0, 0.0), cov, bias),
+            t(21.0),
+            0.01,
+            5.0,
+            true
+        ));
     }
 
     #[test]
@@ -345,10 +405,10 @@ mod tests {
         }
         assert_eq!(e.rejected(), RESTART_AFTER);
         let right = Point3::new(6.0, 5.0, 0.0);
-        assert!(e.fuse(right, cov, bias, t(0.0), 0.01, 5.0, true));
+        assert!(e.fuse(&Location::new(right, cov, bias), t(0.0), 0.01, 5.0, true));
         assert_eq!(e.rejected(), 0);
         // One disagreeing location after it does not restart the estimate.
-        assert!(!e.fuse(Point3::new(-3.0, 2.0, 0.0), cov, bias, t(1.0), 0.01, 5.0, true));
+        assert!(!e.fuse(&Location::new(Point3::new(-3.0, 2.0, 0.0), cov, bias), t(1.0), 0.01, 5.0, true));
         assert!((e.position().unwrap() - right).norm() < 1e-9);
         // Many ruled out in a row count (the tracker is on something else), but only the gate's
         // own rejections restart: RESTART_AFTER - 2 more of those still do not.
@@ -357,11 +417,17 @@ mod tests {
         }
         assert_eq!(e.rejected(), 1 + 3 * RESTART_AFTER);
         for k in 0..RESTART_AFTER - 2 {
-            assert!(!e.fuse(Point3::new(-3.0, 2.0, 0.0), cov, bias, t(2.0 + k as f64), 0.01, 5.0, true));
+            assert!(!e.fuse(
+                &Location::new(Point3::new(-3.0, 2.0, 0.0), cov, bias),
+                t(2.0 + k as f64),
+                0.01,
+                5.0,
+                true
+            ));
         }
         assert!((e.position().unwrap() - right).norm() < 1e-9);
         // An agreeing location clears both counts.
-        assert!(e.fuse(right, cov, bias, t(10.0), 0.01, 5.0, true));
+        assert!(e.fuse(&Location::new(right, cov, bias), t(10.0), 0.01, 5.0, true));
         assert_eq!(e.rejected(), 0);
     }
 
@@ -369,17 +435,24 @@ mod tests {
     fn agreeing_is_what_fusing_would_accept_and_changes_nothing() {
         let (cov, bias) = (Matrix3::identity() * 0.04, Matrix3::identity() * 0.01);
         let mut e = TargetEstimate::default();
-        assert!(e.agrees(&Point3::new(100.0, 0.0, 0.0), &cov, t(0.0), 0.01, 3.0), "nothing to disagree with");
-        assert!(e.fuse(Point3::new(5.0, 2.0, 0.3), cov, bias, t(0.0), 0.01, 3.0, false));
+        assert!(
+            e.agrees(&Location::new(Point3::new(100.0, 0.0, 0.0), cov, bias), t(0.0), 0.01, 3.0),
+            "nothing to disagree with"
+        );
+        assert!(e.fuse(&Location::new(Point3::new(5.0, 2.0, 0.3), cov, bias), t(0.0), 0.01, 3.0, false));
         let (mut agreed, mut disagreed) = (0, 0);
         for k in 0..40 {
             // Drifting away, then jumping back and forth.
             let off = if k < 20 { 0.06 * k as f64 } else { 2.5 * (k % 2) as f64 };
             let p = Point3::new(5.0 + off, 2.0 - 0.5 * off, 0.3);
             let before = e.position();
-            let agrees = e.agrees(&p, &cov, t(1.0 + k as f64), 0.01, 3.0);
+            let agrees = e.agrees(&Location::new(p, cov, bias), t(1.0 + k as f64), 0.01, 3.0);
             assert_eq!(before, e.position(), "agrees moved the estimate");
-            assert_eq!(agrees, e.fuse(p, cov, bias, t(1.0 + k as f64), 0.01, 3.0, false), "at {p:?}");
+            assert_eq!(
+                agrees,
+                e.fuse(&Location::new(p, cov, bias), t(1.0 + k as f64), 0.01, 3.0, false),
+                "at {p:?}"
+            );
             if agrees {
                 agreed += 1;
             } else {
@@ -387,7 +460,7 @@ mod tests {
             }
         }
         assert!(agreed > 5 && disagreed > 5, "{agreed} agreed, {disagreed} disagreed");
-        assert!(!e.agrees(&Point3::new(f64::NAN, 0.0, 0.0), &cov, t(50.0), 0.01, 3.0));
+        assert!(!e.agrees(&Location::new(Point3::new(f64::NAN, 0.0, 0.0), cov, bias), t(50.0), 0.01, 3.0));
     }
 
     #[test]
@@ -400,9 +473,7 @@ mod tests {
         let mut e = TargetEstimate::default();
         for k in 0..20 {
             assert!(e.fuse(
-                Point3::new(1.0, 0.0, 0.0),
-                noise + far_bias,
-                far_bias,
+                &Location::new(Point3::new(1.0, 0.0, 0.0), noise + far_bias, far_bias),
                 t(k as f64),
                 0.0,
                 5.0,
@@ -411,7 +482,7 @@ mod tests {
         }
         let truth = Point3::new(0.0, 0.0, 0.0);
         for k in 20..23 {
-            assert!(e.fuse(truth, noise + near_bias, near_bias, t(k as f64), 0.0, 5.0, true));
+            assert!(e.fuse(&Location::new(truth, noise + near_bias, near_bias), t(k as f64), 0.0, 5.0, true));
         }
         let x = e.position().unwrap().x;
         let b = e.bias().unwrap()[(0, 0)].sqrt();
@@ -429,9 +500,7 @@ mod tests {
         let mut e = TargetEstimate::default();
         for k in 0..5 {
             assert!(e.fuse(
-                Point3::new(1.6, 0.0, 0.0),
-                noise + along(0.8),
-                along(0.8),
+                &Location::new(Point3::new(1.6, 0.0, 0.0), noise + along(0.8), along(0.8)),
                 t(k as f64),
                 0.0,
                 5.0,
@@ -441,12 +510,90 @@ mod tests {
         // From a little nearer (a bias of about the same size, but another window's), the right
         // location is within the gate, and so are the nearer ones that then pull the estimate in.
         let truth = Point3::origin();
-        assert!(e.fuse(truth, noise + along(0.7), along(0.7), t(5.0), 0.0, 3.5, false));
+        assert!(e.fuse(&Location::new(truth, noise + along(0.7), along(0.7)), t(5.0), 0.0, 3.5, false));
         for (k, b) in [0.4, 0.2, 0.1, 0.05].iter().enumerate() {
-            assert!(e.fuse(truth, noise + along(*b), along(*b), t(6.0 + k as f64), 0.0, 3.5, false));
+            assert!(e.fuse(
+                &Location::new(truth, noise + along(*b), along(*b)),
+                t(6.0 + k as f64),
+                0.0,
+                3.5,
+                false
+            ));
         }
         let x = e.position().unwrap().x;
         assert!(x.abs() < 0.25, "estimate still {x} m off");
+    }
+
+    /// A stereo location along x at range `z` of a pair of `fb` px m whose disparity errs by
+    /// `b` px: the pair's calibration error of `sigma_b` px shared by all, `place` px of the
+    /// place's own and `noise` px of the image's.
+    fn along_sight(z: f64, b: f64, (sigma_b, place, noise): (f64, f64, f64)) -> Location {
+        let fb = 115.0;
+        let measured = fb / (fb / z + b);
+        let j = measured * measured / fb;
+        let radius = Matrix3::identity() * 0.05f64.powi(2);
+        let across = Matrix3::from_diagonal(&Vector3::new(0.0, 1.0, 1.0)) * (0.01 * measured).powi(2);
+        let bias = Matrix3::from_diagonal(&Vector3::new((j * place).powi(2), 0.0, 0.0)) + radius + across;
+        let shared = Vector3::new(-j * sigma_b, 0.0, 0.0);
+        let cov = bias
+            + Matrix3::from_diagonal(&Vector3::new((j * noise).powi(2), 1e-4, 1e-4))
+            + shared * shared.transpose();
+        Location::new(Point3::new(measured, 0.0, 0.0), cov, bias).with_shared(shared)
+    }
+
+    #[test]
+    fn a_look_alike_behind_the_target_is_told_by_the_disparity_it_differs_by() {
+        // The pair's calibration errs by 0.55 px of disparity (its sigma: 0.4 px), which every
+        // location shares; each has 0.1 px of its place's own error and 0.08 px of noise.
+        let mut rng = Pcg64::seed_from_u64(11);
+        let errs = (0.4, 0.1, 0.08);
+        let mut draw = |z: f64| {
+            let n: f64 = rng.sample(StandardNormal);
+            along_sight(z, 0.55 + 0.1 * n, errs)
+        };
+        // Approached from 24 m to 12 m: every location of the target is let in, though each
+        // is metres short of it at first.
+        let mut shared = TargetEstimate::default();
+        let mut k = 0.0;
+        let mut z = 24.0;
+        while z >= 12.0 {
+            let loc = draw(z);
+            assert!(shared.fuse(&loc, t(k), 0.01, 3.5, false), "the target at {z} m rejected: {loc:?}");
+            (z, k) = (z - 0.25, k + 1.0);
+        }
+        // Without the shared error (counted as a bias of unknown correlation), the same.
+        let unshared =
+            |l: &Location| Location::new(l.position, l.covariance, l.bias + l.shared * l.shared.transpose());
+        let mut folded = TargetEstimate::default();
+        let mut k2 = 0.0;
+        let mut z = 24.0;
+        let mut rng2 = Pcg64::seed_from_u64(11);
+        while z >= 12.0 {
+            let n: f64 = rng2.sample(StandardNormal);
+            assert!(folded.fuse(&unshared(&along_sight(z, 0.55 + 0.1 * n, errs)), t(k2), 0.01, 3.5, false));
+            (z, k2) = (z - 0.25, k2 + 1.0);
+        }
+        // At 12 m, a rock 2 m behind the target on its line of sight: the estimate knows its
+        // own error from the calibration is the rock's too, and rejects it; counted as two
+        // errors of unknown correlation, they hide it.
+        let rock = along_sight(14.0, 0.55, errs);
+        assert!(!shared.agrees(&rock, t(k), 0.01, 3.5), "the rock 2 m behind let in");
+        assert!(
+            folded.agrees(&unshared(&rock), t(k), 0.01, 3.5),
+            "the rock rejected without sharing: no test"
+        );
+        // Approached on to 3 m, the target's own locations take the estimate to it (the
+        // calibration's error shrinks with the range squared).
+        let mut z = 11.75;
+        while z >= 3.0 {
+            let loc = draw(z);
+            assert!(shared.fuse(&loc, t(k), 0.01, 3.5, false), "the target at {z} m rejected");
+            (z, k) = (z - 0.25, k + 1.0);
+        }
+        let off = (shared.position().unwrap().x - 3.0).abs();
+        let sigma = shared.covariance().unwrap()[(0, 0)].sqrt();
+        assert!(off < 0.1, "{off} m off at 3 m");
+        assert!(off < 3.0 * sigma, "{off} m off, sigma {sigma}");
     }
 
     #[test]
@@ -455,14 +602,20 @@ mod tests {
         let cov = Matrix3::identity() * 0.01;
         let bias = Matrix3::identity() * 0.0025;
         for i in 0..5 {
-            assert!(e.fuse(Point3::new(10.0, 0.0, 0.3), cov, bias, t(f64::from(i)), 0.0, 3.0, false));
+            assert!(e.fuse(
+                &Location::new(Point3::new(10.0, 0.0, 0.3), cov, bias),
+                t(f64::from(i)),
+                0.0,
+                3.0,
+                false
+            ));
         }
         // The target is 2 m nearer than the estimate says: its locations are rejected...
         let there = Point3::new(8.0, 0.0, 0.3);
-        assert!(!e.fuse(there, cov, bias, t(5.0), 0.0, 3.0, false));
+        assert!(!e.fuse(&Location::new(there, cov, bias), t(5.0), 0.0, 3.0, false));
         // ... until the estimate is doubted.
         e.widen(1.0);
-        assert!(e.fuse(there, cov, bias, t(6.0), 0.0, 3.0, false));
+        assert!(e.fuse(&Location::new(there, cov, bias), t(6.0), 0.0, 3.0, false));
         assert!((e.position().unwrap() - there).norm() < 0.2, "{:?}", e.position());
     }
 
@@ -474,7 +627,7 @@ mod tests {
         // Moving at 5 cm/s along x; the walk allows it.
         for k in 0..200 {
             let p = Point3::new(0.05 * k as f64, 0.0, 0.0);
-            e.fuse(p, cov, bias, t(k as f64), 0.05, 5.0, true);
+            e.fuse(&Location::new(p, cov, bias), t(k as f64), 0.05, 5.0, true);
         }
         let x = e.position().unwrap().x;
         assert!((x - 0.05 * 199.0).abs() < 0.5, "estimate {x} behind the target at {}", 0.05 * 199.0);
@@ -494,8 +647,8 @@ mod tests {
         for k in 0..200 {
             let n = Vector3::from_fn(|_, _| rng.sample::<f64, _>(StandardNormal));
             let p = truth(k as f64) + n * 0.2;
-            still.fuse(p, cov, bias, t(k as f64), 0.005, 5.0, true);
-            accepted += u32::from(carried.fuse(p, cov, bias, t(k as f64), 0.005, 5.0, true));
+            still.fuse(&Location::new(p, cov, bias), t(k as f64), 0.005, 5.0, true);
+            accepted += u32::from(carried.fuse(&Location::new(p, cov, bias), t(k as f64), 0.005, 5.0, true));
         }
         assert_eq!(accepted, 200, "the carried estimate rejected locations");
         let lag = |e: &TargetEstimate| (e.position().unwrap() - truth(199.0)).norm();

@@ -19,6 +19,7 @@
 //! calibration's error does not average out).
 
 use crate::localization::features::{FeatureParams, match_disparity};
+use crate::tracking::estimate::Location;
 use framework::camera::{GreyImage, StereoModel};
 use nalgebra::{Matrix3, Point3, Vector3};
 
@@ -45,8 +46,14 @@ pub struct LocateParams {
     pub max_samples: usize,
     /// Disparity noise of one match (1 sigma), pixels.
     pub disparity_sigma_px: f64,
-    /// Floor of the mean disparity's noise (calibration), pixels.
+    /// The pair calibration's disparity error, pixels (1 sigma): the same in every image of the
+    /// pair, a bias all its locations share (averaging and fusing them do not remove it, but it
+    /// does not tell one location from another either).
     pub disparity_floor_px: f64,
+    /// A place's own disparity error beyond its matches' noise (sub-pixel locking, the surfaces
+    /// its matches mix), pixels (1 sigma): the images from about the same place repeat it, those
+    /// from elsewhere need not.
+    pub disparity_place_px: f64,
     /// Fewer foreground points than this: the whole box's match stands for the target.
     pub min_points: usize,
     /// A whole box's match that fewer than two pixels of the box support stands only inside the
@@ -80,6 +87,7 @@ impl Default for LocateParams {
             max_samples: 3000,
             disparity_sigma_px: 0.3,
             disparity_floor_px: 0.4,
+            disparity_place_px: 0.1,
             min_points: 8,
             min_box_correlation: 0.5,
             box_uniqueness: 0.75,
@@ -96,11 +104,16 @@ impl Default for LocateParams {
 pub struct Located {
     /// Position in the rectified left optical frame, m.
     pub position: Point3<f64>,
-    /// Its covariance, m^2: the noise of this image and the biases below.
+    /// Its covariance, m^2: the noise of this image, the biases below and the shared one.
     pub covariance: Matrix3<f64>,
-    /// The share of `covariance` that every image of the same pair repeats (the calibration's
-    /// disparity and pointing errors, the target's size): averaging images does not reduce it.
+    /// The share of `covariance` that other images repeat to an unknown degree (the place's
+    /// disparity error, the pointing error, the target's size): averaging images does not
+    /// reduce it.
     pub bias_covariance: Matrix3<f64>,
+    /// The error one sigma of the pair calibration's disparity error puts on `position`, m
+    /// (rectified left optical frame): every image of the pair has that same error, carried to
+    /// its own location. Its outer product is the rest of `covariance`.
+    pub shared: Vector3<f64>,
     /// What the covariances are made of in the image (they are carried to any depth by
     /// [`Located::at_depth`]).
     pub noise: LocateNoise,
@@ -182,8 +195,9 @@ fn row_profile(
 }
 
 /// A location's errors in the image, pixels^2: its mean pixel's and mean disparity's variances
-/// (this image's noise) and its disparity's bias variance (repeated by every image from about
-/// here: the calibration's floor and a far window's mixing of depths).
+/// (this image's noise), its disparity's bias variance (repeated by the images from about here:
+/// the place's own error and a far window's mixing of depths) and the pair calibration's
+/// disparity error that every image shares.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LocateNoise {
     /// The mean pixel's column variance.
@@ -194,6 +208,8 @@ pub struct LocateNoise {
     pub var_d: f64,
     /// The disparity's bias variance.
     pub var_bias_d: f64,
+    /// The pair calibration's disparity error, pixels (1 sigma, not squared).
+    pub shared_d: f64,
 }
 
 impl Located {
@@ -225,6 +241,11 @@ impl Located {
         Some((s * up_p - a * up.y).atan2(s * l.dot(&p) - a * l.y).to_degrees())
     }
 
+    /// This location with its errors, for the estimate (in the rectified left optical frame).
+    pub fn location(&self) -> Location {
+        Location::new(self.position, self.covariance, self.bias_covariance).with_shared(self.shared)
+    }
+
     /// This location with the covariances it would have at depth `z` along its line of sight
     /// (rectified left optical frame, m); its position and `disparity` stay as measured, and so
     /// do the image errors (a far window's depth mixing and a small box's centring among them). A
@@ -237,22 +258,23 @@ impl Located {
             return self.clone();
         }
         let there = Point3::from(self.position.coords * (z / self.position.z));
-        let (covariance, bias_covariance) = covariances(&there, model.disparity(z), model, &self.noise, p);
-        Located { covariance, bias_covariance, ..self.clone() }
+        let (covariance, bias_covariance, shared) =
+            covariances(&there, model.disparity(z), model, &self.noise, p);
+        Located { covariance, bias_covariance, shared, ..self.clone() }
     }
 }
 
 /// The covariance of a location at `position` (rectified left optical frame) of disparity `d`
-/// with the image errors `noise`, and the share of it that is bias: the pixel and disparity
-/// errors carried through the triangulation, plus the target's radius and the camera's pointing
-/// error.
+/// with the image errors `noise`, the share of it that is bias, and the error of one sigma of the
+/// shared calibration error: the pixel and disparity errors carried through the triangulation,
+/// plus the target's radius and the camera's pointing error.
 fn covariances(
     position: &Point3<f64>,
     d: f64,
     model: &StereoModel,
     noise: &LocateNoise,
     p: &LocateParams,
-) -> (Matrix3<f64>, Matrix3<f64>) {
+) -> (Matrix3<f64>, Matrix3<f64>, Vector3<f64>) {
     let k = &model.left.pinhole;
     let z = position.z;
     // d(X, Y, Z)/d(u, v, d).
@@ -262,7 +284,8 @@ fn covariances(
         + Matrix3::identity() * p.target_radius_m.powi(2)
         + Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, 0.0))
             * (p.pointing_sigma_deg.to_radians() * position.coords.norm()).powi(2);
-    (through(noise.var_u, noise.var_v, noise.var_d) + bias, bias)
+    let shared = j.column(2) * noise.shared_d;
+    (through(noise.var_u, noise.var_v, noise.var_d) + bias + shared * shared.transpose(), bias, shared)
 }
 
 /// Zero-mean SAD between the left window at (u, v) and the right window at (u - d, v), and the
@@ -591,12 +614,19 @@ pub fn locate(
     // The box's centre as the target's centre: its pixel is known to a quarter of the box.
     let (var_u, var_v) =
         if fallback { (var_u + (0.25 * hu).powi(2), var_v + (0.25 * hv).powi(2)) } else { (var_u, var_v) };
-    let noise = LocateNoise { var_u, var_v, var_d, var_bias_d: p.disparity_floor_px.powi(2) + var_mix };
-    let (covariance, bias_covariance) = covariances(&position, md, model, &noise, p);
+    let noise = LocateNoise {
+        var_u,
+        var_v,
+        var_d,
+        var_bias_d: p.disparity_place_px.powi(2) + var_mix,
+        shared_d: p.disparity_floor_px,
+    };
+    let (covariance, bias_covariance, shared) = covariances(&position, md, model, &noise, p);
     Ok(Located {
         position,
         covariance,
         bias_covariance,
+        shared,
         noise,
         disparity: md,
         matched: samples.len(),
@@ -777,7 +807,8 @@ mod tests {
                 position: p,
                 covariance: Matrix3::zeros(),
                 bias_covariance: Matrix3::zeros(),
-                noise: LocateNoise { var_u: 0.0, var_v: 0.0, var_d: 0.0, var_bias_d: 0.0 },
+                shared: Vector3::zeros(),
+                noise: LocateNoise { var_u: 0.0, var_v: 0.0, var_d: 0.0, var_bias_d: 0.0, shared_d: 0.0 },
                 disparity: model.disparity(p.z),
                 matched: 100,
                 foreground: 50,
@@ -814,8 +845,13 @@ mod tests {
         let k = model.left.pinhole;
         let d_true = model.disparity(truth.z);
         let (u, v) = (k.cx + k.fx * truth.x / truth.z, k.cy + k.fy * truth.y / truth.z);
-        let noise =
-            LocateNoise { var_u: 0.25, var_v: 0.25, var_d: 0.09, var_bias_d: p.disparity_floor_px.powi(2) };
+        let noise = LocateNoise {
+            var_u: 0.25,
+            var_v: 0.25,
+            var_d: 0.09,
+            var_bias_d: p.disparity_place_px.powi(2),
+            shared_d: p.disparity_floor_px,
+        };
         let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
         let jitter = Normal::new(0.0, 0.3).unwrap();
         let (mut own, mut expected) = (TargetEstimate::default(), TargetEstimate::default());
@@ -825,11 +861,12 @@ mod tests {
             let z = model.depth(d);
             mean_depth += z / 300.0;
             let position = Point3::new((u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy, z);
-            let (covariance, bias_covariance) = covariances(&position, d, &model, &noise, &p);
+            let (covariance, bias_covariance, shared) = covariances(&position, d, &model, &noise, &p);
             let loc = Located {
                 position,
                 covariance,
                 bias_covariance,
+                shared,
                 noise,
                 disparity: d,
                 matched: 50,
@@ -837,9 +874,9 @@ mod tests {
                 profile: None,
             };
             let stamp = Time::from_secs_f64(f64::from(i) * 0.2);
-            own.fuse(loc.position, loc.covariance, loc.bias_covariance, stamp, 0.0, 1e3, false);
+            own.fuse(&loc.location(), stamp, 0.0, 1e3, false);
             let there = expected.position().map_or(loc.clone(), |e| loc.at_depth(&model, &p, e.z));
-            expected.fuse(there.position, there.covariance, there.bias_covariance, stamp, 0.0, 1e3, false);
+            expected.fuse(&there.location(), stamp, 0.0, 1e3, false);
         }
         let short = |e: &TargetEstimate| truth.z - e.position().unwrap().z;
         // Weighted by their own covariances the nearer ones win and the estimate ends metres

@@ -370,13 +370,12 @@ impl TrackingTarget {
                     let verdict = match &loc {
                         Err(_) => Verdict::Unknown,
                         Ok(loc) => {
-                            let (p, cov, _) = in_map(loc, map_from_rect, pose, fix);
+                            let here = in_map(loc, map_from_rect, pose, fix);
                             let gate = params.redetect_gate_sigma;
-                            let sized = view.is_none_or(|v| v.allows(&p, bounds));
+                            let sized = view.is_none_or(|v| v.allows(&here.position, bounds));
                             let ground = on_the_ground(loc, map_from_rect, &rect.model, params).is_some();
                             ground_candidate_at_estimate |= ground && inside(b, prior.centre);
-                            if sized && !ground && estimate.agrees(&p, &cov, stamp, params.target_walk, gate)
-                            {
+                            if sized && !ground && estimate.agrees(&here, stamp, params.target_walk, gate) {
                                 Verdict::Agrees
                             } else {
                                 Verdict::Disagrees
@@ -436,8 +435,9 @@ impl TrackingTarget {
                 // uncertainty. One behind passes its own wider gate: far away it is more often the
                 // target behind a short estimate than a look-alike (gated at both, the visual
                 // approach on 4 cm treads ends 2.1 m from the canister, beside it).
-                let (p, cov_own, bias_own) = in_map(&loc, map_from_rect, pose, self.fix_pose_term);
-                let (cov, bias) = if self.params.fuse_at_estimate_depth {
+                let own = in_map(&loc, map_from_rect, pose, self.fix_pose_term);
+                let p = own.position;
+                let there = if self.params.fuse_at_estimate_depth {
                     let there = at_expected_depth(
                         &loc,
                         map_from_rect,
@@ -446,10 +446,11 @@ impl TrackingTarget {
                         &self.rect.model,
                         &self.params.locate,
                     );
-                    let (_, cov, bias) = in_map(&there, map_from_rect, pose, self.fix_pose_term);
-                    (cov, bias)
+                    // At the measured position (at_depth keeps it), with the errors of the
+                    // estimate's depth.
+                    in_map(&there, map_from_rect, pose, self.fix_pose_term)
                 } else {
-                    (cov_own, bias_own)
+                    own.clone()
                 };
                 let gate = if result.status == TrackStatus::Redetected {
                     self.params.redetect_gate_sigma
@@ -491,12 +492,11 @@ impl TrackingTarget {
                 }
                 let fused = sized
                     && ground.is_none()
-                    && if self.params.fuse_at_estimate_depth
-                        && self.estimate.agrees(&p, &cov_own, stamp, walk, gate)
+                    && if self.params.fuse_at_estimate_depth && self.estimate.agrees(&own, stamp, walk, gate)
                     {
-                        self.estimate.fuse(p, cov, bias, stamp, walk, f64::INFINITY, false)
+                        self.estimate.fuse(&there, stamp, walk, f64::INFINITY, false)
                     } else {
-                        self.estimate.fuse(p, cov_own, bias_own, stamp, walk, gate, !established)
+                        self.estimate.fuse(&own, stamp, walk, gate, !established)
                     };
                 if fused {
                     // Where an established estimate holds it, the box is the target: its look is

@@ -5,6 +5,7 @@
 
 use super::TrackingTargetParams;
 use crate::localization::rectify::Rectification;
+use crate::tracking::estimate::Location;
 use crate::tracking::locate::{LocateParams, Located};
 use crate::tracking::markers::compose_covariance;
 use crate::tracking::size::{SelectedView, range_bounds};
@@ -32,8 +33,8 @@ pub(super) fn pose_drift(then: Option<Matrix3<f64>>, now: &PoseEstimate, p: &Poi
     change.eigenvectors * d * change.eigenvectors.transpose()
 }
 
-/// A location `loc` (rectified left camera) placed in `map` through `map_from_rect`: the
-/// position, its covariance and the bias part of it. Relative to the rover's pose estimate
+/// A location `loc` (rectified left camera) placed in `map` through `map_from_rect`, with its
+/// errors. Relative to the rover's pose estimate
 /// (`pose`): that estimate's own error moves the rover and the target alike in `map`; what it
 /// adds is how far it drifts between the images (counted as this location's noise: `fix` is the
 /// pose term of the last location fused) and until the position is used (`settle`).
@@ -42,12 +43,12 @@ pub(super) fn in_map(
     map_from_rect: &Isometry3<f64>,
     pose: &PoseEstimate,
     fix: Option<Matrix3<f64>>,
-) -> (Point3<f64>, Matrix3<f64>, Matrix3<f64>) {
+) -> Location {
     let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
     let p = *map_from_rect * loc.position;
     let cov = r * loc.covariance * r.transpose() + pose_drift(fix, pose, &p);
     let bias = r * loc.bias_covariance * r.transpose();
-    (p, cov, bias)
+    Location::new(p, cov, bias).with_shared(r * loc.shared)
 }
 
 /// `loc` (by the camera `map_from_rect`) with the covariances it has at the depth where the
@@ -167,11 +168,12 @@ mod tests {
         let p = LocateParams::default();
         // The camera somewhere in map, turned about two axes.
         let map_from_rect = Isometry3::new(Vector3::new(3.0, -2.0, 1.3), Vector3::new(1.2, -0.3, 0.8));
-        let noise = LocateNoise { var_u: 0.3, var_v: 0.3, var_d: 0.05, var_bias_d: 0.16 };
+        let noise = LocateNoise { var_u: 0.3, var_v: 0.3, var_d: 0.05, var_bias_d: 0.01, shared_d: 0.4 };
         let measured = Located {
             position: Point3::new(0.4, -0.1, 14.0),
             covariance: Matrix3::zeros(),
             bias_covariance: Matrix3::zeros(),
+            shared: Vector3::zeros(),
             noise,
             disparity: model.disparity(14.0),
             matched: 40,

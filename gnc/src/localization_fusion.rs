@@ -7,14 +7,18 @@
 //! much larger noise while the IMU is silent), and the accelerometer's gravity direction for roll
 //! and pitch. Each closed visual odometry keyframe (`localization/visual`) is a relative pose
 //! measurement applied at its images' capture times, however late it arrives. The estimate is
-//! published as `localization/pose` in `map`, stamped with the data's time.
+//! published as `localization/pose` in `map`, stamped with the data's time. Each sighting of a
+//! surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
+//! reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
+//! with respect to a fixed object).
 //!
 //! The wheels' noise here is the fusion's own model of slip (per metre, along, across and up), not
 //! the wheel odometry's: it is what lets vision correct a slipping drive.
 
-use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativePose};
+use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
+use crate::localization::landmark::LandmarkFix;
 use crate::params::require_positive;
-use framework::data::{AttitudeEstimate, PoseEstimate, VisualOdometry};
+use framework::data::{AttitudeEstimate, ObjectPoses, PoseEstimate, VisualOdometry};
 use framework::hal::BodyTwist;
 use framework::prelude::*;
 use nalgebra::{Isometry3, Matrix3, Matrix6, Translation3, UnitQuaternion, Vector3};
@@ -58,6 +62,23 @@ pub struct FusionParams {
     pub use_visual: bool,
     /// An IMU whose estimate does not advance for this long is silent: heading from the wheels, s.
     pub silent_after_s: f64,
+    /// The surveyed landmarks (the runner gives those of the scenario's `[operator] surveyed`).
+    pub landmarks: Vec<Landmark>,
+    /// Landmark fixes beyond this squared Mahalanobis distance (4 dof) are refused: a wrong
+    /// sighting, not a drifted estimate (which its covariance may understate by a few times).
+    pub landmark_gate: f64,
+}
+
+/// A landmark: an object whose place in `map` the operator surveyed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Landmark {
+    /// The object's kind as TrackingMarker names it (`marker_table`).
+    pub object: String,
+    /// Its frame's surveyed origin in `map`, x, y, z (m), and heading (degrees).
+    pub pose: [f64; 4],
+    /// The survey's error (1 sigma): position (m) and heading (degrees).
+    pub sigma: [f64; 2],
 }
 
 impl Default for FusionParams {
@@ -76,6 +97,8 @@ impl Default for FusionParams {
             visual_gate: 50.0,
             use_visual: true,
             silent_after_s: 0.2,
+            landmarks: Vec::new(),
+            landmark_gate: 100.0,
         }
     }
 }
@@ -87,6 +110,10 @@ pub struct FusionCounts {
     pub applied: u64,
     /// Refused (too old, overlapping, beyond the gate).
     pub refused: u64,
+    /// Landmark fixes applied.
+    pub landmarks_applied: u64,
+    /// Landmark fixes refused (too old, beyond the gate).
+    pub landmarks_refused: u64,
 }
 
 /// The data fusion module.
@@ -96,6 +123,9 @@ pub struct LocalizationDataFusion {
     mechanical: Option<Reader<PoseEstimate>>,
     inertial: Option<Reader<AttitudeEstimate>>,
     visual: Option<Reader<VisualOdometry>>,
+    objects_slot: Option<String>,
+    objects: Option<Reader<ObjectPoses>>,
+    last_objects_seq: u64,
     out: Option<Writer<PoseEstimate>>,
     filter: Option<PoseFilter>,
     last_mech: Option<(Time, Isometry3<f64>)>,
@@ -119,6 +149,9 @@ impl LocalizationDataFusion {
             mechanical: None,
             inertial: None,
             visual: None,
+            objects_slot: None,
+            objects: None,
+            last_objects_seq: 0,
             out: None,
             filter: None,
             last_mech: None,
@@ -128,6 +161,61 @@ impl LocalizationDataFusion {
             gyro_resync: false,
             counts: FusionCounts::default(),
             velocity: BodyTwist::default(),
+        }
+    }
+
+    /// Also fixes the pose on the surveyed landmarks seen in `slot` (TrackingMarker's
+    /// `tracking/objects`).
+    pub fn with_landmarks_from(mut self, slot: &str) -> Self {
+        self.objects_slot = Some(slot.to_string());
+        self
+    }
+
+    /// Applies the sightings of surveyed landmarks in the newest object poses.
+    fn landmarks(&mut self, ctx: &mut Ctx<'_>) {
+        let Some(seen) = self.objects.as_ref().and_then(|r| ctx.read(r)) else { return };
+        if seen.seq == self.last_objects_seq || self.params.landmarks.is_empty() {
+            return;
+        }
+        self.last_objects_seq = seen.seq;
+        for o in &seen.value.objects {
+            let Some(l) = self.params.landmarks.iter().find(|l| l.object == o.object) else { continue };
+            let [x, y, z, yaw_deg] = l.pose;
+            let [sp, sy] = l.sigma;
+            let fix = LandmarkFix {
+                stamp: o.stamp,
+                in_body: o.base_from_object.translation.vector,
+                in_body_covariance: o.base_covariance.fixed_view::<3, 3>(0, 0).into_owned(),
+                relative_yaw: o.base_from_object.rotation.euler_angles().2,
+                relative_yaw_var: o.base_covariance[(5, 5)],
+                surveyed: Vector3::new(x, y, z),
+                surveyed_covariance: Matrix3::identity() * sp * sp,
+                surveyed_yaw: yaw_deg.to_radians(),
+                surveyed_yaw_var: sy.to_radians().powi(2),
+            };
+            let Some(filter) = self.filter.as_mut() else { return };
+            let before = filter.state().pose.translation.vector;
+            match filter.landmark(fix) {
+                Ok(d2) => {
+                    self.counts.landmarks_applied += 1;
+                    let moved = (filter.state().pose.translation.vector - before).norm();
+                    if self.counts.landmarks_applied.is_power_of_two() {
+                        ctx.note(format!(
+                            "fixed on the surveyed {} ({} so far): squared distance {d2:.1}, the position moved {moved:.2} m",
+                            l.object, self.counts.landmarks_applied
+                        ));
+                    }
+                }
+                Err(e) => {
+                    self.counts.landmarks_refused += 1;
+                    if self.counts.landmarks_refused.is_power_of_two() {
+                        ctx.note(format!(
+                            "a sighting of the surveyed {} refused ({} so far): {e}",
+                            l.object, self.counts.landmarks_refused
+                        ));
+                    }
+                }
+            }
         }
     }
 
@@ -156,6 +244,7 @@ impl LocalizationDataFusion {
             history_s: p.history_s,
             gravity_sigma: p.gravity_sigma,
             relative_gate: p.visual_gate,
+            landmark_gate: p.landmark_gate,
             tilt_random_walk: p.tilt_random_walk,
             gyro_bias_sigma: p.gyro_bias_sigma,
             gyro_bias_walk: p.gyro_bias_walk,
@@ -259,13 +348,14 @@ impl LocalizationDataFusion {
                 self.count(ctx, r);
             }
         }
+        self.landmarks(ctx);
         self.publish(ctx);
         Ok(())
     }
 
     /// Counts an applied (`Ok` with its distance) or refused measurement; `Ok(NaN)` is one deferred
     /// until the filter reaches its end, counted then.
-    fn count(&mut self, ctx: &mut Ctx<'_>, r: Result<f64, crate::localization::filter::RelativeError>) {
+    fn count(&mut self, ctx: &mut Ctx<'_>, r: Result<f64, RelativeError>) {
         match r {
             Ok(d2) if d2.is_nan() => {}
             Ok(_) => self.counts.applied += 1,
@@ -306,6 +396,9 @@ impl Module for LocalizationDataFusion {
         if let Some(slot) = &self.visual_slot {
             self.visual = Some(d.reads(slot));
         }
+        if let Some(slot) = &self.objects_slot {
+            self.objects = Some(d.reads(slot));
+        }
         self.out = Some(d.writes(SLOT));
         d.context_switchable();
         d.state("fusing", |m, ctx| m.cycle(ctx));
@@ -338,7 +431,18 @@ impl Module for LocalizationDataFusion {
             ("history_s", p.history_s),
             ("visual_gate", p.visual_gate),
             ("silent_after_s", p.silent_after_s),
+            ("landmark_gate", p.landmark_gate),
         ])?;
+        for l in &p.landmarks {
+            let values: Vec<f64> = l.pose.iter().chain(&l.sigma).copied().collect();
+            crate::params::require_finite(&format!("landmark '{}'", l.object), &values)?;
+            if l.sigma.iter().any(|s| *s < 0.0) {
+                return Err(format!(
+                    "landmark '{}': sigma must not be negative, got {:?}",
+                    l.object, l.sigma
+                ));
+            }
+        }
         self.params = p.clone();
         self.filter = None;
         Ok(())

@@ -91,6 +91,8 @@ struct Parts {
     map: DryRunDeviceMap,
     model: framework::hal::LocomotorModel,
     known: [f64; 4],
+    /// The surveyed landmarks, as the operator knows them.
+    landmarks: Vec<gnc::localization_fusion::Landmark>,
     wiring: Wiring,
 }
 
@@ -107,6 +109,7 @@ impl Parts {
         // What the operator knows of the start: base_link's pose as surveyed, off the truth by the
         // scenario's uncertainty (drawn from the run's seed). Each localization module is told it.
         let known = known_start(&twin.lock().base_pose(), &s.rover, seed);
+        let landmarks = surveyed_landmarks(&twin.lock().world().objects, &s.operator, seed)?;
         let cameras = cameras_enabled(s);
         let wiring = Wiring {
             visual: visual_enabled(s),
@@ -114,7 +117,7 @@ impl Parts {
             navigation: navigation_enabled(s),
             head_tracking: camera_rate_on(s, "head_stereo_hz"),
         };
-        Ok(Parts { map, model, known, wiring })
+        Ok(Parts { map, model, known, landmarks, wiring })
     }
 
     /// Module `name`'s configuration as the runner gives it (start knowledge included).
@@ -125,9 +128,16 @@ impl Parts {
         let pose = toml::Value::Array(known.iter().map(|v| (*v).into()).collect());
         let sigma = toml::Value::Array(vec![s.rover.known_sigma_m.into(), s.rover.known_sigma_deg.into()]);
         match name {
-            "localization_mechanical" | "localization_fusion" => {
+            "localization_mechanical" => {
                 params.insert("initial_pose".into(), pose);
                 params.insert("initial_sigma".into(), sigma);
+            }
+            "localization_fusion" => {
+                params.insert("initial_pose".into(), pose);
+                params.insert("initial_sigma".into(), sigma);
+                let landmarks = toml::Value::try_from(&self.landmarks)
+                    .map_err(|e| anyhow::anyhow!("the surveyed landmarks as configuration: {e}"))?;
+                params.insert("landmarks".into(), landmarks);
             }
             "localization_visual" => {
                 params.insert("initial_pose".into(), pose);
@@ -273,6 +283,43 @@ pub fn known_start(
     ]
 }
 
+/// What the operator knows of the objects of kinds `operator.surveyed` (each must name one object
+/// of the world): their places off the truth by the survey's error, drawn from the run's seed.
+pub fn surveyed_landmarks(
+    objects: &[worlds::PlacedObject],
+    operator: &crate::scenario::Operator,
+    seed: u64,
+) -> Result<Vec<gnc::localization_fusion::Landmark>> {
+    let mut d = twin::belief::Draws::new(seed, "operator:survey");
+    let [sp, sy] = operator.survey_sigma;
+    operator
+        .surveyed
+        .iter()
+        .map(|kind| {
+            let named = |o: &&worlds::PlacedObject| {
+                serde_json::to_value(o.kind).ok().and_then(|v| v.as_str().map(|k| k == kind)).unwrap_or(false)
+            };
+            let found: Vec<_> = objects.iter().filter(named).collect();
+            let [o] = found.as_slice() else {
+                anyhow::bail!(
+                    "operator.surveyed: the world has {} objects of kind '{kind}', where a landmark needs exactly one",
+                    found.len()
+                );
+            };
+            Ok(gnc::localization_fusion::Landmark {
+                object: kind.clone(),
+                pose: [
+                    o.position.x + d.normal(sp),
+                    o.position.y + d.normal(sp),
+                    o.position.z + d.normal(sp),
+                    o.yaw.to_degrees() + d.normal(sy),
+                ],
+                sigma: [sp, sy],
+            })
+        })
+        .collect()
+}
+
 /// The cameras run when the scenario has a `[modules.cameras]` table with a non-zero rate (sweeps
 /// turn them off by setting the rates to 0; the wrist camera counts only when given a rate).
 fn cameras_enabled(s: &Scenario) -> bool {
@@ -353,7 +400,14 @@ fn add_module<R: Registrar>(
         ),
         "localization_fusion" => {
             let visual = wiring.visual.then_some(gnc::localization_visual::SLOT);
-            b.register(name, gnc::localization_fusion::LocalizationDataFusion::new(visual), config)
+            let fusion = gnc::localization_fusion::LocalizationDataFusion::new(visual);
+            // The head camera's TrackingMarker sees the surveyed landmarks.
+            let fusion = if wiring.head_tracking {
+                fusion.with_landmarks_from(&format!("{}/objects", gnc::tracking_marker::HEAD_PREFIX))
+            } else {
+                fusion
+            };
+            b.register(name, fusion, config)
         }
         "locomotion" => b.register(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
         "arm" | "ptu" | "gripper" => b.register(name, JointGroupModule::new(map.joint_group(name)?), config),

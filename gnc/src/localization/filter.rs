@@ -16,11 +16,15 @@
 //! - Relative measurement (t_a, t_b, D): r = (R_a^T (p_b - p_a) - t_D, Log(R_D^T R_a^T R_b)), by
 //!   stochastic cloning: the state at t_a is cloned into an augmented state, the increments from
 //!   t_a to t_b re-propagated with it, and the update made at t_b.
+//! - Landmark fix (a surveyed object seen from the body: [`super::landmark`]): carried by the
+//!   filter's own motion from its capture time to the newest step, applied there, and kept with
+//!   that step's inputs, so that every later re-run applies it again.
 //! - Latency: every step is kept for `history_s` (its inputs and its posterior). A measurement
 //!   ending in the past rolls the filter back to t_a and re-runs every kept step since, so a late
 //!   measurement leaves the filter exactly as if it had come in time. Relative measurements must
 //!   chain (each starts no earlier than the previous ended), as keyframe odometry gives them.
 
+use super::landmark::LandmarkFix;
 use framework::time::Time;
 use nalgebra::{
     Isometry3, Matrix3, Matrix6, SMatrix, SVector, Translation3, UnitQuaternion, Vector3, Vector6,
@@ -38,6 +42,8 @@ pub struct FilterParams {
     /// Relative measurements whose rotation's squared Mahalanobis distance exceeds this are
     /// refused.
     pub relative_gate: f64,
+    /// Landmark fixes whose squared Mahalanobis distance (4 dof) exceeds this are refused.
+    pub landmark_gate: f64,
     /// Random walk of roll and pitch (about the `map` x and y axes), rad/sqrt(s): keeps the tilt
     /// from converging below what gravity can tell (an accelerometer's bias is no white noise).
     pub tilt_random_walk: f64,
@@ -53,6 +59,7 @@ impl Default for FilterParams {
             history_s: 10.0,
             gravity_sigma: 0.01,
             relative_gate: 50.0,
+            landmark_gate: 100.0,
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
             gyro_bias_walk: 2e-5,
@@ -94,12 +101,15 @@ pub struct RelativePose {
     pub covariance: Matrix6<f64>,
 }
 
-/// Why a relative measurement was not applied.
+/// Why a measurement (relative, or a landmark fix) was not applied.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RelativeError {
     /// It starts before the kept history.
     #[error("starts {0:.3} s before the kept history")]
     TooOld(f64),
+    /// The filter has taken no step yet.
+    #[error("comes before the filter's first step")]
+    NoStep,
     /// It starts before the previous one ended.
     #[error("overlaps the previous relative measurement")]
     Overlaps,
@@ -138,6 +148,8 @@ impl State {
 #[derive(Clone, Debug)]
 struct Step {
     input: Increment,
+    /// Landmark fixes applied at this step (again at each re-run).
+    fixes: Vec<LandmarkFix>,
     posterior: State,
 }
 
@@ -323,6 +335,15 @@ impl Augmented {
         // stall) exactly when vision matters most.
         self.update(&y, &h, &m.covariance, Some((3, gate)))
     }
+
+    /// A landmark fix on the current state, refused beyond `gate` (squared Mahalanobis distance)
+    /// when one is given.
+    fn landmark(&mut self, fix: &LandmarkFix, gate: Option<f64>) -> Result<f64, f64> {
+        let (y, h6, n) = fix.model(&self.pose);
+        let mut h = SMatrix::<f64, 4, 18>::zeros();
+        h.fixed_view_mut::<4, 6>(0, 0).copy_from(&h6);
+        self.update(&y, &h, &n, gate.map(|g| (0, g)))
+    }
 }
 
 impl PoseFilter {
@@ -363,7 +384,7 @@ impl PoseFilter {
         let mut a = Augmented::new(&prev);
         a.advance(&inc, (inc.stamp - prev.stamp).as_secs_f64(), &self.params);
         let stamp = inc.stamp;
-        self.steps.push_back(Step { input: inc, posterior: a.state(stamp) });
+        self.steps.push_back(Step { input: inc, fixes: Vec::new(), posterior: a.state(stamp) });
         // Forget what is older than the history (keeping the state before the first step).
         while self.steps.len() > 1
             && (stamp - self.steps[0].input.stamp).as_secs_f64() > self.params.history_s
@@ -401,7 +422,7 @@ impl PoseFilter {
         let mut a = Augmented::new(&start);
         a.start_clone();
         for k in ia..ib {
-            a.advance(&self.steps[k].input, self.step_dt(k), &self.params);
+            self.advance_step(&mut a, k);
         }
         // Refused, a re-run reproduces what the steps were.
         let outcome = a.relative(&m, self.params.relative_gate);
@@ -423,6 +444,37 @@ impl PoseFilter {
         }
     }
 
+    /// Applies a sighting of a surveyed landmark: carried by the filter's motion from its
+    /// capture time to the newest step and applied there (and at every re-run of that step).
+    /// Returns the squared Mahalanobis distance.
+    pub fn landmark(&mut self, fix: LandmarkFix) -> Result<f64, RelativeError> {
+        let Some(then) = self.state_at(fix.stamp) else {
+            return Err(RelativeError::TooOld((self.base.stamp - fix.stamp).as_secs_f64()));
+        };
+        let Some(k) = self.steps.len().checked_sub(1) else { return Err(RelativeError::NoStep) };
+        let now = self.steps[k].posterior;
+        let fix = fix.carried(&(now.pose.inverse() * then.pose), now.stamp);
+        let mut a = Augmented::new(&now);
+        match a.landmark(&fix, Some(self.params.landmark_gate)) {
+            Ok(d2) => {
+                self.store(k, &a);
+                self.steps[k].fixes.push(fix);
+                Ok(d2)
+            }
+            Err(d2) => Err(RelativeError::Gated(d2)),
+        }
+    }
+
+    /// Advances `a` by step `k`: its prediction, then its landmark fixes.
+    fn advance_step(&self, a: &mut Augmented, k: usize) {
+        let step = &self.steps[k];
+        a.advance(&step.input, self.step_dt(k), &self.params);
+        for fix in &step.fixes {
+            // Taken when first applied: applied again whatever the distance.
+            let _ = a.landmark(fix, None);
+        }
+    }
+
     /// How long step `k` lasts: from the previous step's time (or the base's) to its own.
     fn step_dt(&self, k: usize) -> f64 {
         let start = if k == 0 { self.base.stamp } else { self.steps[k - 1].input.stamp };
@@ -438,7 +490,7 @@ impl PoseFilter {
     /// going on from each stored, symmetrized state, as an in-order step would).
     fn rerun(&mut self, from: usize, mut a: Augmented) {
         for k in from..self.steps.len() {
-            a.advance(&self.steps[k].input, self.step_dt(k), &self.params);
+            self.advance_step(&mut a, k);
             self.store(k, &a);
             a = Augmented::new(&self.steps[k].posterior);
         }

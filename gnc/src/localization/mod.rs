@@ -4,6 +4,7 @@
 
 pub mod features;
 pub mod filter;
+pub mod landmark;
 pub mod motion;
 pub mod rectify;
 pub mod visual;

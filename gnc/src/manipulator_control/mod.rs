@@ -131,6 +131,10 @@ struct Job {
     setting_down: bool,
     /// A place's seat: where the object goes down into the slot.
     seat: Option<Seat>,
+    /// The arm move in progress lifts the open fingers off an object let go.
+    lifting_free: bool,
+    /// Such a lift got stuck once and went again straight up.
+    lift_retried: bool,
 }
 
 /// The ManipulatorControl module.
@@ -384,6 +388,8 @@ impl ManipulatorControl {
         let Some(action) = job.actions.pop_front() else { return Ok(true) };
         // Only a place's descent sets the object down (a failure there lets go early).
         job.setting_down = false;
+        // A lift's steps go on lifting.
+        job.lifting_free &= matches!(action, Action::Straight { contact: true, .. });
         match action {
             Action::Plan(to) => self.start_plan(ctx, job, &to)?,
             Action::Straight { to, contact } => {
@@ -431,6 +437,7 @@ impl ManipulatorControl {
                 } else {
                     self.line(&q, -self.params.lift_m)?
                 };
+                job.lifting_free = self.held.is_none();
                 for p in path.into_iter().rev() {
                     job.actions.push_front(Action::Straight { to: p, contact: true });
                 }
@@ -627,6 +634,26 @@ impl ManipulatorControl {
                         self.set_down_early(ctx, job, &why);
                         return Ok(None);
                     }
+                    if far && job.lifting_free && !job.lift_retried {
+                        // The open fingers caught on what they let go (a handle clamped in its
+                        // slot): the rest of that lift dropped, the motors out of fault, straight
+                        // up instead, once.
+                        job.lift_retried = true;
+                        while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
+                            job.actions.pop_front();
+                        }
+                        let up = self.vertical(&q, self.params.lift_m)?;
+                        for p in up.into_iter().rev() {
+                            job.actions.push_front(Action::Straight { to: p, contact: true });
+                        }
+                        job.actions.push_front(Action::Recover(Group::Arm));
+                        ctx.note(format!(
+                            "{what}: the lift off the object let go stopped {:.1} mm from its goal (a finger caught?): lifting straight up instead",
+                            off * 1e3
+                        ));
+                        job.wait = Wait::Idle;
+                        return Ok(None);
+                    }
                     if far {
                         return Err(format!(
                             "{what}: the arm stopped {:.1} mm from its goal (blocked on its way?)",
@@ -705,6 +732,8 @@ impl ManipulatorControl {
             slot,
             setting_down: false,
             seat: None,
+            lifting_free: false,
+            lift_retried: false,
         };
         match self.next_action(ctx, &mut job) {
             Ok(true) => Outcome::Completed(self.result(ctx, &job)),

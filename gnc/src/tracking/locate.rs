@@ -14,9 +14,12 @@
 //! small for clusters, is the whole box's match at the box's centre, where at least two pixels of
 //! the box match near it or where that match is distinct along the row and matched back from the
 //! right image; the spread of the box's matches, or a configured share, is then a bias of that
-//! place) (averaging disparities, not depths, which are biased by their own noise), and its covariance is the pixel and disparity
-//! noise of that mean carried through the triangulation, with a floor on the disparity's (the
-//! calibration's error does not average out).
+//! place) (averaging disparities, not depths, which are biased by their own noise), and its
+//! covariance is the pixel and disparity noise of that mean carried through the triangulation,
+//! a place's own disparity error, the target's size and the pointing error as biases, and the
+//! pair calibration's disparity error (`disparity_floor_px`, the name of old: it was a floor) as
+//! the error every location of the pair shares (`Located::shared`, a considered parameter of
+//! the estimate).
 
 use crate::localization::features::{FeatureParams, match_disparity};
 use crate::tracking::estimate::Location;
@@ -87,7 +90,7 @@ impl Default for LocateParams {
             max_samples: 3000,
             disparity_sigma_px: 0.3,
             disparity_floor_px: 0.4,
-            disparity_place_px: 0.1,
+            disparity_place_px: 0.2,
             min_points: 8,
             min_box_correlation: 0.5,
             box_uniqueness: 0.75,

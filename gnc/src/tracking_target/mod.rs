@@ -432,9 +432,11 @@ impl TrackingTarget {
                 let established = self.estimate.count() >= CONFIRM_AFTER;
                 // Fused at the estimate's depth if so configured, but gated at its own: what lies in
                 // front of the target (the likeliest look-alike) is held to its own smaller
-                // uncertainty. One behind passes its own wider gate: far away it is more often the
-                // target behind a short estimate than a look-alike (gated at both, the visual
-                // approach on 4 cm treads ends 2.1 m from the canister, beside it).
+                // uncertainty, what lies behind to its wider one (gated at both, the visual
+                // approach on 4 cm treads ended 2.1 m from the canister, beside it). The pair
+                // calibration's disparity error, the largest share of either far away, is the
+                // estimate's as much as the location's and counts once (`tracking::estimate`):
+                // a look-alike behind the target differs by its real disparity.
                 let own = in_map(&loc, map_from_rect, pose, self.fix_pose_term);
                 let p = own.position;
                 let there = if self.params.fuse_at_estimate_depth {

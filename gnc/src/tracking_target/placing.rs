@@ -34,8 +34,7 @@ pub(super) fn pose_drift(then: Option<Matrix3<f64>>, now: &PoseEstimate, p: &Poi
 }
 
 /// A location `loc` (rectified left camera) placed in `map` through `map_from_rect`, with its
-/// errors. Relative to the rover's pose estimate
-/// (`pose`): that estimate's own error moves the rover and the target alike in `map`; what it
+/// errors. Relative to the rover's pose estimate (`pose`): that estimate's own error moves the rover and the target alike in `map`; what it
 /// adds is how far it drifts between the images (counted as this location's noise: `fix` is the
 /// pose term of the last location fused) and until the position is used (`settle`).
 pub(super) fn in_map(
@@ -183,7 +182,11 @@ mod tests {
         let own = measured.at_depth(&model, &p, 14.0);
         let at = |z: f64| measured.at_depth(&model, &p, z);
         let close = |a: &Located, b: &Located| {
-            a.position == b.position && (a.covariance - b.covariance).norm() < 1e-9 * b.covariance.norm()
+            let near = |x: f64, y: f64| x <= 1e-9 * y;
+            a.position == b.position
+                && near((a.covariance - b.covariance).norm(), b.covariance.norm())
+                && near((a.bias_covariance - b.bias_covariance).norm(), b.bias_covariance.norm())
+                && near((a.shared - b.shared).norm(), b.shared.norm())
         };
         let expected_at = |z: f64| Some(map_from_rect * Point3::new(-0.3, 0.2, z));
         let weighed = |z: f64, established: bool| {
@@ -200,5 +203,45 @@ mod tests {
         // Farther means less certain along the line of sight (its sigma as the depth squared).
         let ratio = at(18.0).covariance[(2, 2)] / own.covariance[(2, 2)];
         assert!(ratio > (18.0f64 / 14.0).powi(3), "{ratio}");
+        // The share of the calibration's disparity error grows as the depth squared, along the
+        // line of sight towards the camera.
+        let (s14, s18) = (own.shared, at(18.0).shared);
+        assert!((s18.norm() / s14.norm() - (18.0f64 / 14.0).powi(2)).abs() < 1e-9);
+        assert!(
+            s14.dot(&own.position.coords) < 0.0
+                && s14.normalize().dot(&own.position.coords.normalize()) < -0.999
+        );
+    }
+
+    #[test]
+    fn a_location_placed_in_map_keeps_its_errors_apart_and_turned_with_it() {
+        let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
+        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
+        let p = LocateParams::default();
+        let map_from_rect = Isometry3::new(Vector3::new(3.0, -2.0, 1.3), Vector3::new(1.2, -0.3, 0.8));
+        let noise = LocateNoise { var_u: 0.3, var_v: 0.3, var_d: 0.05, var_bias_d: 0.01, shared_d: 0.4 };
+        let loc = Located {
+            position: Point3::new(0.4, -0.1, 14.0),
+            covariance: Matrix3::zeros(),
+            bias_covariance: Matrix3::zeros(),
+            shared: Vector3::zeros(),
+            noise,
+            disparity: model.disparity(14.0),
+            matched: 40,
+            foreground: 20,
+            profile: None,
+        }
+        .at_depth(&model, &p, 14.0);
+        let pose = PoseEstimate::planar("map", 1.0, 2.0, 0.0, 0.3);
+        let placed = in_map(&loc, &map_from_rect, &pose, None);
+        let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
+        assert!((placed.position - map_from_rect * loc.position).norm() < 1e-12);
+        assert!((placed.shared - r * loc.shared).norm() < 1e-12);
+        assert!((placed.bias - r * loc.bias_covariance * r.transpose()).norm() < 1e-12);
+        // What is left once the biases are taken out is the image's noise, turned.
+        let left = placed.covariance - placed.bias - placed.shared * placed.shared.transpose();
+        let image = loc.covariance - loc.bias_covariance - loc.shared * loc.shared.transpose();
+        assert!((left - r * image * r.transpose()).norm() < 1e-9 * left.norm());
+        assert!(SymmetricEigen::new(left).eigenvalues.min() > 0.0);
     }
 }

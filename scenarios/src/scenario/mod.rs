@@ -222,13 +222,31 @@ pub struct CanisterMotionSpec {
 }
 
 /// The scripted operator: the person at the ground station, scripted.
-#[derive(Clone, Debug, Default, Deserialize, Serialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Operator {
     /// The operator selects the target region in the first tracking-camera image (from ground
     /// truth, marked as operator input): used by the tracking phase once target tracking exists.
     #[serde(default)]
     pub select_target: bool,
+    /// Kinds of the world's objects the operator surveyed (`marker_table`): their places, off the
+    /// truth by the survey's error (drawn from the run's seed), are LocalizationDataFusion's
+    /// landmarks. A kind must name one object of the world.
+    #[serde(default)]
+    pub surveyed: Vec<String>,
+    /// The survey's error (1 sigma): position, m, and heading, degrees.
+    #[serde(default = "default_survey_sigma")]
+    pub survey_sigma: [f64; 2],
+}
+
+fn default_survey_sigma() -> [f64; 2] {
+    [0.03, 1.0]
+}
+
+impl Default for Operator {
+    fn default() -> Self {
+        Operator { select_target: false, surveyed: Vec::new(), survey_sigma: default_survey_sigma() }
+    }
 }
 
 /// One phase of the ground plan: commands sent in order, each awaited.

@@ -68,9 +68,12 @@ pub(super) fn validate(
             format!("must be in [{MIN_BASE_PERIOD_S}, 1] s, got {}", s.run.base_period_s),
         );
     }
-    for (k, v) in
-        [("rover.known_sigma_m", s.rover.known_sigma_m), ("rover.known_sigma_deg", s.rover.known_sigma_deg)]
-    {
+    for (k, v) in [
+        ("rover.known_sigma_m", s.rover.known_sigma_m),
+        ("rover.known_sigma_deg", s.rover.known_sigma_deg),
+        ("operator.survey_sigma[0]", s.operator.survey_sigma[0]),
+        ("operator.survey_sigma[1]", s.operator.survey_sigma[1]),
+    ] {
         if !(v >= 0.0 && v.is_finite()) {
             return err(k, format!("must be >= 0, got {v}"));
         }

@@ -1,0 +1,224 @@
+//! Landmark fixes of the pose filter (seed 000, 10: "rover localization with respect to a fixed
+//! object"): an object whose place in `map` the operator surveyed (a marker table in the yard),
+//! seen from the body by TrackingMarker, measures the body's position and heading in `map`.
+//!
+//! The measurement is the landmark as the body sees it: its position in the body frame and its
+//! heading relative to the body's. Predicted from the state (p, R) and the surveyed place
+//! (t, ψ_T): R^T (t - p) and ψ_T - ψ. With the filter's left perturbation R_true = Exp(δθ) R,
+//! the Jacobians are -R^T for δp, R^T [t - p]x for δθ, and -1 of the heading for δθ_z (small
+//! tilts; the predicted heading itself is exact). The survey's error adds to the sighting's.
+
+use framework::time::Time;
+use nalgebra::{Isometry3, Matrix3, Matrix4, Point3, SMatrix, UnitQuaternion, Vector3, Vector4};
+
+/// One sighting of a surveyed landmark.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LandmarkFix {
+    /// Capture time of the image it was seen in.
+    pub stamp: Time,
+    /// The landmark's origin in the body frame, m.
+    pub in_body: Vector3<f64>,
+    /// Its covariance, m^2.
+    pub in_body_covariance: Matrix3<f64>,
+    /// The landmark's heading relative to the body's (the yaw of `body_from_landmark`), rad.
+    pub relative_yaw: f64,
+    /// Its variance, rad^2.
+    pub relative_yaw_var: f64,
+    /// The landmark's surveyed origin in `map`, m.
+    pub surveyed: Vector3<f64>,
+    /// Its covariance (the survey's error), m^2.
+    pub surveyed_covariance: Matrix3<f64>,
+    /// The landmark's surveyed heading in `map`, rad.
+    pub surveyed_yaw: f64,
+    /// Its variance, rad^2.
+    pub surveyed_yaw_var: f64,
+}
+
+/// The heading (yaw) of a rotation, rad.
+fn yaw(q: &UnitQuaternion<f64>) -> f64 {
+    q.euler_angles().2
+}
+
+/// An angle wrapped into (-pi, pi].
+fn wrap(a: f64) -> f64 {
+    let w = a.rem_euclid(std::f64::consts::TAU);
+    if w > std::f64::consts::PI { w - std::f64::consts::TAU } else { w }
+}
+
+impl LandmarkFix {
+    /// The same sighting as the body at another time would have made it, `now_from_then` being
+    /// the body's motion since (from the filter: its error over a fraction of a second is far
+    /// below the sighting's), stamped `stamp`.
+    pub fn carried(&self, now_from_then: &Isometry3<f64>, stamp: Time) -> LandmarkFix {
+        let r = now_from_then.rotation.to_rotation_matrix().into_inner();
+        LandmarkFix {
+            stamp,
+            in_body: (now_from_then * Point3::from(self.in_body)).coords,
+            in_body_covariance: r * self.in_body_covariance * r.transpose(),
+            relative_yaw: wrap(self.relative_yaw + yaw(&now_from_then.rotation)),
+            ..self.clone()
+        }
+    }
+
+    /// For a body at `pose` (`map_from_body`): the innovation (measured minus predicted: the
+    /// position in the body frame, then the relative heading), its Jacobian with respect to the
+    /// pose error (δp, δθ), and its noise (the sighting's and the survey's).
+    pub fn model(&self, pose: &Isometry3<f64>) -> (Vector4<f64>, SMatrix<f64, 4, 6>, Matrix4<f64>) {
+        let r = pose.rotation.to_rotation_matrix().into_inner();
+        let to_landmark = self.surveyed - pose.translation.vector;
+        let predicted = r.transpose() * to_landmark;
+        let dp = self.in_body - predicted;
+        // The heading of the (level) landmark as the body sees it: exact, tilted or not.
+        let seen = pose.rotation.inverse() * UnitQuaternion::from_euler_angles(0.0, 0.0, self.surveyed_yaw);
+        let dyaw = wrap(self.relative_yaw - yaw(&seen));
+        let y = Vector4::new(dp.x, dp.y, dp.z, dyaw);
+        let mut h = SMatrix::<f64, 4, 6>::zeros();
+        h.fixed_view_mut::<3, 3>(0, 0).copy_from(&-r.transpose());
+        h.fixed_view_mut::<3, 3>(0, 3).copy_from(&(r.transpose() * to_landmark.cross_matrix()));
+        h[(3, 5)] = -1.0;
+        let mut n = Matrix4::zeros();
+        n.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&(self.in_body_covariance + r.transpose() * self.surveyed_covariance * r));
+        n[(3, 3)] = self.relative_yaw_var + self.surveyed_yaw_var;
+        (y, h, n)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Translation3, Vector6};
+
+    fn sighting(body: &Isometry3<f64>, landmark: &Isometry3<f64>) -> LandmarkFix {
+        let seen = body.inverse() * landmark;
+        LandmarkFix {
+            stamp: Time::from_secs_f64(1.0),
+            in_body: seen.translation.vector,
+            in_body_covariance: Matrix3::identity() * 1e-4,
+            relative_yaw: yaw(&seen.rotation),
+            relative_yaw_var: 1e-4,
+            surveyed: landmark.translation.vector,
+            surveyed_covariance: Matrix3::identity() * 4e-4,
+            surveyed_yaw: yaw(&landmark.rotation),
+            surveyed_yaw_var: 1e-4,
+        }
+    }
+
+    #[test]
+    fn a_sighting_from_the_true_pose_has_no_innovation_and_the_jacobian_matches_a_perturbation() {
+        let landmark = Isometry3::from_parts(
+            Translation3::new(-11.0, -8.0, 0.1),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, -1.5),
+        );
+        let truth = Isometry3::from_parts(
+            Translation3::new(-11.2, -11.1, 0.3),
+            UnitQuaternion::from_euler_angles(0.03, -0.02, 1.4),
+        );
+        let fix = sighting(&truth, &landmark);
+        let (y, h, n) = fix.model(&truth);
+        assert!(y.norm() < 1e-12, "{y}");
+        assert!(n[(0, 0)] > 4e-4 && n[(3, 3)] > 1e-4);
+        // A small error of the estimate: predicted innovation -H dx to first order.
+        let dx = Vector6::new(0.02, -0.03, 0.01, 0.002, -0.001, 0.004);
+        let off = Isometry3::from_parts(
+            Translation3::from(truth.translation.vector - Vector3::new(dx[0], dx[1], dx[2])),
+            UnitQuaternion::from_scaled_axis(-Vector3::new(dx[3], dx[4], dx[5])) * truth.rotation,
+        );
+        let (y_off, _, _) = fix.model(&off);
+        // (To second order: a hundredth of it here.)
+        assert!((y_off - h * dx).norm() < 0.01 * (h * dx).norm(), "{y_off} vs {}", h * dx);
+    }
+
+    #[test]
+    fn a_drifted_filter_is_fixed_on_a_landmark_and_keeps_the_fix_through_a_late_relative_measurement() {
+        use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
+        use nalgebra::Matrix6;
+        let t = Time::from_secs_f64;
+        let landmark = Isometry3::from_parts(
+            Translation3::new(-11.0, -8.0, 0.1),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, -std::f64::consts::FRAC_PI_2),
+        );
+        let truth = Isometry3::from_parts(
+            Translation3::new(-11.0, -11.0, 0.3),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+        );
+        // The filter believes the rover 1.5 m off and 4 degrees turned (the drift of a return),
+        // and knows it only that well.
+        let drifted = Isometry3::from_parts(
+            Translation3::new(-12.2, -10.1, 0.3),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2 + 4f64.to_radians()),
+        );
+        let mut cov = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 0.01, 1e-4, 1e-4, 0.0));
+        cov[(5, 5)] = 5f64.to_radians().powi(2);
+        let mut f = PoseFilter::new(t(0.0), drifted, cov, FilterParams::default());
+        let still = |s: f64| Increment {
+            stamp: t(s),
+            translation: Vector3::zeros(),
+            rotation: UnitQuaternion::identity(),
+            translation_covariance: Matrix3::identity() * 1e-8,
+            rotation_covariance: Matrix3::identity() * 1e-10,
+            gyro_dt: 0.1,
+            gravity: Some(Vector3::z()),
+        };
+        let mut fix = sighting(&truth, &landmark);
+        fix.stamp = t(0.45);
+        assert_eq!(f.landmark(fix.clone()), Err(RelativeError::NoStep));
+        for k in 1..=5 {
+            f.predict(still(0.1 * f64::from(k)));
+        }
+        // A sighting of something else, many metres from where the table is: refused (within a
+        // few sigmas of the drift, the gate lets a sighting in).
+        let mut wrong = fix.clone();
+        wrong.in_body += Vector3::new(0.0, 15.0, 0.0);
+        assert!(matches!(f.landmark(wrong), Err(RelativeError::Gated(_))));
+        // The table's: the pose is fixed on it.
+        let err = |f: &PoseFilter| {
+            let s = f.state().pose;
+            let yaw = (s.rotation.inverse() * truth.rotation).euler_angles().2.abs().to_degrees();
+            ((s.translation.vector - truth.translation.vector).xy().norm(), yaw)
+        };
+        assert!(f.landmark(fix.clone()).is_ok());
+        let (dp, dyaw) = err(&f);
+        // One sighting takes 1.5 m and 4 degrees of drift to about a tenth of a metre (the rest is the
+        // linearization's, about the drifted pose).
+        assert!(dp < 0.15 && dyaw < 1.0, "{dp:.3} m, {dyaw:.2} deg off after the fix");
+        for k in 6..=10 {
+            f.predict(still(0.1 * f64::from(k)));
+        }
+        // A relative measurement over the fix's step re-runs it: the fix stays.
+        let rel = RelativePose {
+            from: t(0.2),
+            to: t(0.9),
+            delta: Isometry3::identity(),
+            covariance: Matrix6::identity() * 1e-6,
+        };
+        assert!(f.relative(rel).is_ok());
+        let (dp2, dyaw2) = err(&f);
+        assert!(dp2 < 0.15 && dyaw2 < 1.0, "{dp2:.3} m, {dyaw2:.2} deg off after the re-run");
+        // Without the fix kept with its step, the re-run would have gone back to the drift.
+        assert!((dp2 - dp).abs() < 0.02, "the re-run moved the pose from {dp:.3} m off to {dp2:.3} m");
+    }
+
+    #[test]
+    fn a_sighting_carried_to_a_later_body_is_what_that_body_would_see() {
+        let landmark = Isometry3::from_parts(
+            Translation3::new(-11.0, -8.0, 0.1),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, -1.5),
+        );
+        let then = Isometry3::from_parts(
+            Translation3::new(-11.5, -11.0, 0.3),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 1.2),
+        );
+        let now = then
+            * Isometry3::from_parts(
+                Translation3::new(0.2, 0.05, 0.0),
+                UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3),
+            );
+        let carried = sighting(&then, &landmark).carried(&(now.inverse() * then), Time::from_secs_f64(2.0));
+        let direct = sighting(&now, &landmark);
+        assert!((carried.in_body - direct.in_body).norm() < 1e-12);
+        assert!((carried.relative_yaw - direct.relative_yaw).abs() < 1e-12);
+        assert_eq!(carried.stamp, Time::from_secs_f64(2.0));
+        assert!(carried.model(&now).0.norm() < 1e-12);
+    }
+}

@@ -118,7 +118,7 @@ mod tests {
         let (y, h, n) = fix.model(&truth);
         assert!(y.norm() < 1e-12, "{y}");
         assert!(n[(0, 0)] > 4e-4 && n[(3, 3)] > 1e-4);
-        // A small error of the estimate: predicted innovation -H dx to first order.
+        // A small error of the estimate: the innovation is H dx to first order.
         let dx = Vector6::new(0.02, -0.03, 0.01, 0.002, -0.001, 0.004);
         let off = Isometry3::from_parts(
             Translation3::from(truth.translation.vector - Vector3::new(dx[0], dx[1], dx[2])),

@@ -604,6 +604,27 @@ impl ManipulatorControl {
         self.next_action(ctx, job).map(|_| ())
     }
 
+    /// The lift of the open fingers off an object let go got stuck (`why`): a finger caught on it
+    /// (a handle clamped in its slot). The rest of that lift is dropped, the motors are taken out
+    /// of fault and the tool goes straight up instead, once.
+    fn lift_again(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, why: &str) -> Result<(), String> {
+        job.lift_retried = true;
+        while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
+            job.actions.pop_front();
+        }
+        let (q, _) = self.arm_now(ctx)?;
+        let up = self.vertical(&q, self.params.lift_m)?;
+        for p in up.into_iter().rev() {
+            job.actions.push_front(Action::Straight { to: p, contact: true });
+        }
+        job.actions.push_front(Action::Recover(Group::Arm));
+        ctx.note(format!(
+            "the lift of the open fingers {why} (a finger caught?): lifting straight up instead"
+        ));
+        job.wait = Wait::Idle;
+        Ok(())
+    }
+
     /// Advances the job; its result once it ends.
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
         match job.wait.clone() {
@@ -616,6 +637,12 @@ impl ManipulatorControl {
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) if job.setting_down => {
                     self.set_down_early(ctx, job, &format!("{what} failed: {r}"));
+                }
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r))
+                    if job.lifting_free && !job.lift_retried =>
+                {
+                    // A finger caught firmly stalls a servo: the move fails rather than stops short.
+                    self.lift_again(ctx, job, &format!("failed: {r}"))?;
                 }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     return Err(format!("{what} failed: {r}"));
@@ -635,23 +662,8 @@ impl ManipulatorControl {
                         return Ok(None);
                     }
                     if far && job.lifting_free && !job.lift_retried {
-                        // The open fingers caught on what they let go (a handle clamped in its
-                        // slot): the rest of that lift dropped, the motors out of fault, straight
-                        // up instead, once.
-                        job.lift_retried = true;
-                        while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
-                            job.actions.pop_front();
-                        }
-                        let up = self.vertical(&q, self.params.lift_m)?;
-                        for p in up.into_iter().rev() {
-                            job.actions.push_front(Action::Straight { to: p, contact: true });
-                        }
-                        job.actions.push_front(Action::Recover(Group::Arm));
-                        ctx.note(format!(
-                            "{what}: the lift off the object let go stopped {:.1} mm from its goal (a finger caught?): lifting straight up instead",
-                            off * 1e3
-                        ));
-                        job.wait = Wait::Idle;
+                        let why = format!("stopped {:.1} mm from its goal", off * 1e3);
+                        self.lift_again(ctx, job, &why)?;
                         return Ok(None);
                     }
                     if far {

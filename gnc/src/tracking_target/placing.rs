@@ -34,8 +34,8 @@ pub(super) fn pose_drift(then: Option<Matrix3<f64>>, now: &PoseEstimate, p: &Poi
 }
 
 /// A location `loc` (rectified left camera) placed in `map` through `map_from_rect`, with its
-/// errors. Relative to the rover's pose estimate (`pose`): that estimate's own error moves the rover and the target alike in `map`; what it
-/// adds is how far it drifts between the images (counted as this location's noise: `fix` is the
+/// errors. Relative to the rover's pose estimate (`pose`): that estimate's own error moves the
+/// rover and the target alike in `map`; what it adds is how far it drifts between the images (counted as this location's noise: `fix` is the
 /// pose term of the last location fused) and until the position is used (`settle`).
 pub(super) fn in_map(
     loc: &Located,
@@ -160,12 +160,11 @@ mod tests {
     use crate::tracking::locate::LocateNoise;
     use framework::camera::CameraModel;
 
-    #[test]
-    fn a_location_is_weighed_at_the_estimates_depth_and_before_it_is_established_at_the_farther() {
+    /// The head pair's model, a camera somewhere in map (turned about two axes), and a location
+    /// 14 m ahead of it with its image errors (its covariances not yet worked out).
+    fn scene() -> (StereoModel, Isometry3<f64>, Located) {
         let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
         let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
-        let p = LocateParams::default();
-        // The camera somewhere in map, turned about two axes.
         let map_from_rect = Isometry3::new(Vector3::new(3.0, -2.0, 1.3), Vector3::new(1.2, -0.3, 0.8));
         let noise = LocateNoise { var_u: 0.3, var_v: 0.3, var_d: 0.05, var_bias_d: 0.01, shared_d: 0.4 };
         let measured = Located {
@@ -179,6 +178,13 @@ mod tests {
             foreground: 20,
             profile: None,
         };
+        (model, map_from_rect, measured)
+    }
+
+    #[test]
+    fn a_location_is_weighed_at_the_estimates_depth_and_before_it_is_established_at_the_farther() {
+        let p = LocateParams::default();
+        let (model, map_from_rect, measured) = scene();
         let own = measured.at_depth(&model, &p, 14.0);
         let at = |z: f64| measured.at_depth(&model, &p, z);
         let close = |a: &Located, b: &Located| {
@@ -215,23 +221,9 @@ mod tests {
 
     #[test]
     fn a_location_placed_in_map_keeps_its_errors_apart_and_turned_with_it() {
-        let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
-        let model = StereoModel { left: cam.clone(), right: cam, baseline: 0.25 };
         let p = LocateParams::default();
-        let map_from_rect = Isometry3::new(Vector3::new(3.0, -2.0, 1.3), Vector3::new(1.2, -0.3, 0.8));
-        let noise = LocateNoise { var_u: 0.3, var_v: 0.3, var_d: 0.05, var_bias_d: 0.01, shared_d: 0.4 };
-        let loc = Located {
-            position: Point3::new(0.4, -0.1, 14.0),
-            covariance: Matrix3::zeros(),
-            bias_covariance: Matrix3::zeros(),
-            shared: Vector3::zeros(),
-            noise,
-            disparity: model.disparity(14.0),
-            matched: 40,
-            foreground: 20,
-            profile: None,
-        }
-        .at_depth(&model, &p, 14.0);
+        let (model, map_from_rect, measured) = scene();
+        let loc = measured.at_depth(&model, &p, 14.0);
         let pose = PoseEstimate::planar("map", 1.0, 2.0, 0.0, 0.3);
         let placed = in_map(&loc, &map_from_rect, &pose, None);
         let r = map_from_rect.rotation.to_rotation_matrix().into_inner();

@@ -128,16 +128,14 @@ impl Parts {
         let pose = toml::Value::Array(known.iter().map(|v| (*v).into()).collect());
         let sigma = toml::Value::Array(vec![s.rover.known_sigma_m.into(), s.rover.known_sigma_deg.into()]);
         match name {
-            "localization_mechanical" => {
+            "localization_mechanical" | "localization_fusion" => {
                 params.insert("initial_pose".into(), pose);
                 params.insert("initial_sigma".into(), sigma);
-            }
-            "localization_fusion" => {
-                params.insert("initial_pose".into(), pose);
-                params.insert("initial_sigma".into(), sigma);
-                let landmarks = toml::Value::try_from(&self.landmarks)
-                    .map_err(|e| anyhow::anyhow!("the surveyed landmarks as configuration: {e}"))?;
-                params.insert("landmarks".into(), landmarks);
+                if name == "localization_fusion" {
+                    let landmarks = toml::Value::try_from(&self.landmarks)
+                        .map_err(|e| anyhow::anyhow!("the surveyed landmarks as configuration: {e}"))?;
+                    params.insert("landmarks".into(), landmarks);
+                }
             }
             "localization_visual" => {
                 params.insert("initial_pose".into(), pose);
@@ -296,10 +294,7 @@ pub fn surveyed_landmarks(
         .surveyed
         .iter()
         .map(|kind| {
-            let named = |o: &&worlds::PlacedObject| {
-                serde_json::to_value(o.kind).ok().and_then(|v| v.as_str().map(|k| k == kind)).unwrap_or(false)
-            };
-            let found: Vec<_> = objects.iter().filter(named).collect();
+            let found: Vec<_> = objects.iter().filter(|o| o.kind.name() == kind).collect();
             let [o] = found.as_slice() else {
                 anyhow::bail!(
                     "operator.surveyed: the world has {} objects of kind '{kind}', where a landmark needs exactly one",

@@ -275,3 +275,14 @@ pub enum ObjectKind {
     /// A table of fiducial markers (static).
     MarkerTable,
 }
+
+impl ObjectKind {
+    /// The kind as the object database (`assets/objects.toml`) and the scenario files name it.
+    pub fn name(self) -> &'static str {
+        match self {
+            ObjectKind::Canister => "canister",
+            ObjectKind::Lander => "lander",
+            ObjectKind::MarkerTable => "marker_table",
+        }
+    }
+}

@@ -386,15 +386,6 @@ fn canister_parts(out: &mut Vec<(MeshData, [f32; 4], Placement, TextureId)>) {
     out.push((handle, [0.78, 0.79, 0.8, kind::PLAIN], Placement::Canister, TextureId::White));
 }
 
-/// The kind of a world object as the object database names it.
-fn kind_name(k: ObjectKind) -> &'static str {
-    match k {
-        ObjectKind::Canister => "canister",
-        ObjectKind::Lander => "lander",
-        ObjectKind::MarkerTable => "marker_table",
-    }
-}
-
 /// Checks that each object of `world` that names its marker ids (`marker_ids`) names one per slot
 /// of its kind's table in the object database `db`. The index of the first object that does not,
 /// and why.
@@ -403,7 +394,7 @@ pub fn check_marker_ids(
     db: &framework::objects::ObjectDatabase,
 ) -> Result<(), (usize, String)> {
     for (i, o) in world.objects.iter().enumerate() {
-        let Some(entry) = db.object(kind_name(o.kind)) else { continue };
+        let Some(entry) = db.object(o.kind.name()) else { continue };
         if !o.marker_ids.is_empty() && o.marker_ids.len() != entry.markers.len() {
             return Err((
                 i,
@@ -437,7 +428,7 @@ fn marker_parts(
     check_marker_ids(twin.world(), db).map_err(|(_, why)| why)?;
     let mut out = Vec::new();
     for o in &twin.world().objects {
-        let Some(entry) = db.object(kind_name(o.kind)) else { continue };
+        let Some(entry) = db.object(o.kind.name()) else { continue };
         let own: Vec<u32> = if o.marker_ids.is_empty() {
             entry.markers.iter().map(|m| m.id).collect()
         } else {

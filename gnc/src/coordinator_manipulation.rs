@@ -6,8 +6,10 @@
 //!   distance); raises the arm to its look pose and has the wrist camera's TrackingMarker locate
 //!   the object by its markers; if the located object is outside the arm's grasp region, moves the
 //!   rover by what is missing and looks again (when no look pose saw anything of it, the object may
-//!   lie nearer than the views reach: the rover backs up `search_back_m` once and looks again);
-//!   then has the manipulator grasp it under visual
+//!   lie nearer than the views reach: the rover backs up `search_back_m` once and looks again;
+//!   seen from none then, where the head camera's estimate brought the rover, that estimate is of
+//!   something else and TrackingTarget is told to `reject` it); then has the manipulator grasp it
+//!   under visual
 //!   servoing. A move of the rover that stalls a wheel is recovered from (locomotion's `recover`)
 //!   and sent again, what is left of it (a turn to its heading, a drive its remaining distance),
 //!   twice at most. A grasp that fails (the fingers closed beside the handle, the servo loop did not
@@ -98,6 +100,9 @@ pub struct ManipulationPeers {
     pub locomotion: String,
     /// The head camera's target track (where the object is, in `map`), if the system has one.
     pub target: Option<String>,
+    /// The TrackingTarget module that publishes it: told (`reject`) when the wrist camera saw
+    /// nothing of the object where its estimate put it.
+    pub tracker: Option<String>,
     /// The pose estimate.
     pub pose: String,
     /// The wrist camera's object poses (a glimpse of the object the markers could not locate to
@@ -193,6 +198,10 @@ struct Job {
     object_map: Option<Point3<f64>>,
     /// Whether the rover has backed up to search for an object no look pose saw.
     searched_back: bool,
+    /// Whether the rover was brought to the object by the head camera's estimate.
+    by_head: bool,
+    /// Whether the wrist camera has seen the object (located or glimpsed) in this job.
+    seen: bool,
     /// Moves that stalled a wheel, each recovered from and tried again.
     stalls: u32,
     /// The last move of the rover, to send again (what is left of it) after a stall.
@@ -321,6 +330,7 @@ impl CoordinatorManipulation {
         if job.object_map.is_none() {
             let track = self.target.as_ref().and_then(|r| ctx.read(r)).map(|t| t.value.clone());
             job.object_map = track.and_then(|t| t.position_at(ctx.now()));
+            job.by_head = job.object_map.is_some();
         }
         let Some(object) = job.object_map else { return self.look(ctx, job) };
         let p = &self.params;
@@ -335,10 +345,19 @@ impl CoordinatorManipulation {
 
     /// No look pose saw anything of the object: the rover backs up `search_back_m` (once) so that
     /// the views reach nearer, and looks again from the first pose; the second time, the locate
-    /// fails with `reason`.
+    /// fails with `reason`. If the rover came by the head camera's estimate and the wrist camera
+    /// never saw the object, what the head camera follows is not the object: its tracker is told
+    /// (`reject`), so that a retry after a new approach goes to where it looks for it again.
     fn search_back(&self, ctx: &mut Ctx<'_>, job: &mut Job, reason: &str) -> Result<(), String> {
         let back = self.params.search_back_m;
         if job.searched_back || back <= 0.0 {
+            if let (Some(tracker), true, false) = (&self.peers.tracker, job.by_head, job.seen) {
+                send(ctx, tracker, "reject", serde_json::Value::Null)?;
+                return Err(format!(
+                    "Locate failed: {reason}; nothing of the {} where the head camera's estimate put it: that estimate is rejected",
+                    self.params.object
+                ));
+            }
             return Err(format!("Locate failed: {reason}"));
         }
         job.searched_back = true;
@@ -384,6 +403,7 @@ impl CoordinatorManipulation {
                 }
             }
             (Step::Locate, Ok(v)) => {
+                job.seen = true;
                 let xyz: [f64; 3] = serde_json::from_value(v["base_from_object"]["xyz"].clone())
                     .map_err(|e| format!("locate's result has no base_from_object: {e}"))?;
                 let object = Point3::from(xyz);
@@ -473,9 +493,10 @@ impl CoordinatorManipulation {
                 ));
                 self.look(ctx, job)?;
             }
-            (Step::Locate, Err(r)) if job.repositions < self.params.max_repositions => {
-                // Not located from any look pose: if the wrist camera glimpsed the object since the
-                // locate began, turn and drive towards it and look again.
+            (Step::Look | Step::Locate, Err(r)) if job.repositions < self.params.max_repositions => {
+                // Not located from any look pose (the last one perhaps not reached: a motion the
+                // arm refuses): if the wrist camera glimpsed the object since the locate began,
+                // turn and drive towards it and look again.
                 let glimpse = self.objects.as_ref().and_then(|o| ctx.read(o)).and_then(|o| {
                     (o.value.stamp >= job.look_since)
                         .then(|| o.value.objects.iter().find(|x| x.object == self.params.object).cloned())
@@ -485,6 +506,7 @@ impl CoordinatorManipulation {
                     return self.search_back(ctx, job, &r).map(|()| None);
                 };
                 job.repositions += 1;
+                job.seen = true;
                 let target = Point3::from(seen.map_from_object.translation.vector);
                 job.object_map = Some(target);
                 ctx.note(format!(
@@ -544,6 +566,8 @@ impl CoordinatorManipulation {
                     look: 0,
                     object_map: None,
                     searched_back: false,
+                    by_head: false,
+                    seen: false,
                     stalls: 0,
                     last_move: None,
                     result: serde_json::Value::Null,

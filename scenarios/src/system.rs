@@ -541,6 +541,7 @@ fn add_module<R: Registrar>(
                     cameras: ("cameras".into(), "wrist_camera".into()),
                     locomotion: "locomotion".into(),
                     target: wiring.head_tracking.then(|| gnc::tracking_target::SLOT.to_string()),
+                    tracker: wiring.head_tracking.then(|| "tracking_target".to_string()),
                     pose: POSE_SLOT.into(),
                     objects: format!("{}/objects", gnc::tracking_marker::WRIST_PREFIX),
                 },

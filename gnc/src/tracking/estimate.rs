@@ -144,6 +144,29 @@ impl TargetEstimate {
         self.fused.as_ref().map(|f| f.shared)
     }
 
+    /// Starts afresh from a prior: a region the target is known to lie in (its covariance taken as
+    /// noise, independent of every location), not a location of it. It counts as `count` fused
+    /// locations, so that with enough of them it is established at once: a location outside the
+    /// region is rejected by the gate rather than restarting the estimate from it (restarts
+    /// still follow [`RESTART_AFTER`] rejections in a row where the caller allows them). The
+    /// velocity is dropped.
+    pub fn start_from(&mut self, prior: &Location, stamp: Time, count: u32) {
+        if !prior.is_finite() {
+            return;
+        }
+        self.fused = Some(Fused {
+            position: prior.position,
+            noise: prior.noise(),
+            bias: prior.bias,
+            shared: prior.shared,
+            stamp,
+        });
+        self.count = count;
+        (self.rejected, self.ruled_out) = (0, 0);
+        self.velocity = Vector3::zeros();
+        self.horizon_s = 0.0;
+    }
+
     /// Locations fused since the estimate (re)started.
     pub fn count(&self) -> u32 {
         self.count
@@ -404,6 +427,40 @@ mod tests {
             5.0,
             true
         ));
+    }
+
+    #[test]
+    fn a_prior_region_admits_the_target_in_it_and_no_look_alike_outside() {
+        // The stretch of a line of sight from 21 to 30 m along x (2.5 sigmas to its ends), 0.25 m
+        // across: the target at 25 m is in it, a rock at 19 m (the rejected one's neighbour) is not.
+        let prior_cov = Matrix3::from_diagonal(&Vector3::new((4.5f64 / 2.5).powi(2), 0.0625, 0.0625));
+        let prior = Location::new(Point3::new(25.5, 0.0, 0.0), prior_cov, Matrix3::zeros());
+        let mut e = TargetEstimate::default();
+        e.set_velocity(Vector3::new(0.1, 0.0, 0.0), 10.0);
+        e.start_from(&prior, t(0.0), 3);
+        assert_eq!(e.count(), 3);
+        assert_eq!(e.velocity(), Vector3::zeros());
+        assert_eq!(e.covariance(), Some(prior_cov));
+        // From 8 m away each location is good to a few centimetres along the line.
+        let (cov, bias) = (Matrix3::identity() * 0.04f64.powi(2), Matrix3::identity() * 0.02f64.powi(2));
+        let rock = Location::new(Point3::new(19.0, 0.1, 0.0), cov, bias);
+        for k in 0..3 * RESTART_AFTER {
+            assert!(!e.fuse(&rock, t(1.0 + k as f64), 0.01, 2.5, false), "the rock let in");
+        }
+        assert_eq!(e.position(), Some(Point3::new(25.5, 0.0, 0.0)));
+        let target = Point3::new(24.2, 0.05, 0.02);
+        assert!(e.fuse(&Location::new(target, cov, bias), t(20.0), 0.01, 2.5, false));
+        // The first location takes the estimate over: the prior only said where to look.
+        assert!((e.position().unwrap() - target).norm() < 0.01, "{:?}", e.position());
+        assert!(e.covariance().unwrap()[(0, 0)].sqrt() < 0.06);
+        // A non-finite prior changes nothing.
+        let before = e.position();
+        e.start_from(
+            &Location::new(Point3::new(f64::NAN, 0.0, 0.0), prior_cov, Matrix3::zeros()),
+            t(21.0),
+            3,
+        );
+        assert_eq!(e.position(), before);
     }
 
     #[test]

@@ -20,19 +20,25 @@
 //! ([`TargetTrack`]).
 //!
 //! Commands: `select {bbox, image_stamp_s?}` (a box in a held image, the newest by default),
-//! `forget`, `stop` (a pending `locate` fails; tracking goes on), and `locate {max_sigma_m?}`,
+//! `forget`, `reject` (what the estimate found is not the target, as the wrist camera tells at
+//! the end of an approach: its place is excluded and the target looked for again along the line
+//! of sight it was selected on: [`reject`]), `stop` (a pending `locate` fails; tracking goes on),
+//! and `locate {max_sigma_m?}`,
 //! which completes once the target's position (its uncertainty grown by the target's wander since
 //! it was last located) is known to `max_sigma_m` (1 sigma, horizontal) and fails if the target
 //! is lost for `lost_timeout_s` or nothing is selected.
 
 mod params;
 mod placing;
+mod reject;
 
 pub use params::{LocateArgs, SelectArgs, TrackingTargetParams};
 
+use reject::{Excluded, beyond, excluded, ray_prior};
+
 use placing::{
     at_expected_depth, in_map, inside, map_box, on_the_ground, pose_drift, pose_term, raw_to_rect,
-    rect_to_raw, selected_view, size_bounds,
+    rect_to_raw, selected_view, sight_through, size_bounds,
 };
 
 use crate::localization::rectify::Rectification;
@@ -47,7 +53,7 @@ use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, 
 use framework::mechanism::MechanismModel;
 use framework::module::Request;
 use framework::prelude::*;
-use nalgebra::{Isometry3, Matrix3, Point2, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3};
 use std::collections::VecDeque;
 
 /// Locations fused since the estimate (re)started after which it is established: one that agrees
@@ -118,6 +124,14 @@ pub struct TrackingTarget {
     selection_clipped: bool,
     /// The fused locations of the last `velocity_window_s` (capture time s, position in `map`).
     recent: Vec<(f64, Point3<f64>)>,
+    /// The tracker as the selection started it (its look then), to start again from after a
+    /// `reject`.
+    selected_tracker: Option<TemplateTracker>,
+    /// The line of sight through the selected box's centre, and the rover's pose estimate, in
+    /// the selection's image.
+    selected_sight: Option<(LineOfSight, PoseEstimate)>,
+    /// The places of objects rejected as not the target (`reject`).
+    excluded: Vec<Excluded>,
 }
 
 impl TrackingTarget {
@@ -168,12 +182,18 @@ impl TrackingTarget {
             selected_view: None,
             selection_clipped: false,
             recent: Vec::new(),
+            selected_tracker: None,
+            selected_sight: None,
+            excluded: Vec::new(),
         }
     }
 
     /// Forgets everything known of the target; `tracker` (a new selection's, or none) follows it
     /// from now on.
     fn start_over(&mut self, tracker: Option<TemplateTracker>) {
+        self.selected_tracker = tracker.clone();
+        self.selected_sight = None;
+        self.excluded.clear();
         self.tracker = tracker;
         self.estimate = TargetEstimate::default();
         self.located = 0;
@@ -224,6 +244,76 @@ impl TrackingTarget {
             let stamp = self.held[j].stamp;
             self.process(ctx, stamp, true);
         }
+        Ok(())
+    }
+
+    /// The object followed is not the target (`reject`): its place is excluded, the estimate
+    /// restarts from the selection's line of sight (where the selected box's size allows a target
+    /// of known size, else beyond the rejected object), and the tracker from the selection's look,
+    /// lost, so that the next images re-detect the target there (see [`reject`]).
+    fn reject(&mut self, ctx: &mut Ctx<'_>) -> Result<(), String> {
+        let mut tracker = self.selected_tracker.clone().ok_or("no target selected")?;
+        let now = ctx.now();
+        let object = self
+            .estimate
+            .position_at(now)
+            .ok_or_else(|| format!("the {} is not located: there is nothing to reject", self.target))?;
+        let place = Excluded { position: object, radius_m: self.params.reject_radius_m };
+        self.excluded.push(place);
+        let prior = self.selected_sight.clone().and_then(|(sight, pose)| {
+            // A target of known size: anywhere its selected box's size allows, from the near
+            // bound (with the box's slack: a loose box makes it look nearer) to the far one
+            // (without), centred where its smallest extent fills the box (far off and low, the
+            // canister's longer side is its height, its smallest extent); the rejected object,
+            // which may lie in front of it or behind, is excluded. Else beyond the rejected object.
+            let [near_slack, far_slack] = self.params.size_tolerance;
+            let stretch = match self.size_bounds() {
+                Some((lo, hi)) => (lo, Some(lo * near_slack), hi / far_slack),
+                None => {
+                    let near = beyond(&sight, &place);
+                    (near, None, near + self.params.reject_search_m)
+                }
+            };
+            // Across the line: the head's pointing and the selected box's half width.
+            let half_box =
+                self.selected_view.map_or(0.0, |v| 0.5 * v.width_px / self.rect.model.left.pinhole.fx);
+            let pointing = self.params.locate.pointing_sigma_deg.to_radians();
+            let lateral = |r: f64| r * pointing.hypot(half_box);
+            let prior = ray_prior(&sight, stretch, lateral, self.params.redetect_gate_sigma)?;
+            Some((prior, pose))
+        });
+        match prior {
+            Some((prior, pose)) => {
+                self.estimate.start_from(&prior, now, CONFIRM_AFTER);
+                // Relative to the pose estimate of the selection's image: its drift since counts.
+                self.fix_pose_term = Some(pose_term(&pose, &prior.position));
+                let c = prior.covariance;
+                ctx.note(format!(
+                    "the object followed at {object:?} is not the {}: excluded; looked for again along the line of sight it was selected on, around {:?} ({:.1} m along, {:.2} m across, 1 sigma)",
+                    self.target,
+                    prior.position,
+                    c.symmetric_eigenvalues().max().sqrt(),
+                    c.symmetric_eigenvalues().min().sqrt(),
+                ));
+            }
+            None => {
+                self.estimate = TargetEstimate::default();
+                self.fix_pose_term = None;
+                ctx.note(format!(
+                    "the object followed at {object:?} is not the {}: excluded; nothing is left of the line of sight it was selected on: looked for anywhere",
+                    self.target
+                ));
+            }
+        }
+        tracker.reject();
+        self.tracker = Some(tracker);
+        self.lost_since = None;
+        self.searched_lost = LostSearch::default();
+        self.ground_history = 0;
+        self.locate_noted = false;
+        self.last_range = None;
+        self.sight = self.selected_sight.as_ref().map(|(s, _)| *s);
+        self.recent.clear();
         Ok(())
     }
 
@@ -359,8 +449,8 @@ impl TrackingTarget {
                 // a rock), and the next best is tried; one stereo cannot locate (a few pixels far
                 // away) says nothing either way.
                 let established = self.estimate.count() >= CONFIRM_AFTER;
-                let (estimate, params, rect, fix) =
-                    (&self.estimate, &self.params, &self.rect, self.fix_pose_term);
+                let (estimate, params, rect, fix, rejected) =
+                    (&self.estimate, &self.params, &self.rect, self.fix_pose_term, &self.excluded);
                 let view = self.selected_view;
                 let bounds =
                     size_bounds(&self.params, &self.target, view, self.selection_clipped, &self.rect);
@@ -375,7 +465,12 @@ impl TrackingTarget {
                             let sized = view.is_none_or(|v| v.allows(&here.position, bounds));
                             let ground = on_the_ground(loc, map_from_rect, &rect.model, params).is_some();
                             ground_candidate_at_estimate |= ground && inside(b, prior.centre);
-                            if sized && !ground && estimate.agrees(&here, stamp, params.target_walk, gate) {
+                            let elsewhere = !excluded(rejected, &here.position);
+                            if sized
+                                && !ground
+                                && elsewhere
+                                && estimate.agrees(&here, stamp, params.target_walk, gate)
+                            {
                                 Verdict::Agrees
                             } else {
                                 Verdict::Disagrees
@@ -392,15 +487,18 @@ impl TrackingTarget {
                 // target is found stands for it.
                 if self.selected_view.is_none()
                     && r.status != TrackStatus::Lost
-                    && let Ok((map_from_rect, _)) = &placed
+                    && let Ok((map_from_rect, pose)) = &placed
                 {
                     self.selected_view = Some(selected_view(map_from_rect, &r.bbox));
+                    self.selected_sight =
+                        Some((sight_through(&self.rect, map_from_rect, &r.bbox), pose.clone()));
                 }
                 r
             }
         } else {
-            if let (Ok((map_from_rect, _)), Some(b)) = (&placed, tracker.bbox()) {
+            if let (Ok((map_from_rect, pose)), Some(b)) = (&placed, tracker.bbox()) {
                 self.selected_view = Some(selected_view(map_from_rect, &b));
+                self.selected_sight = Some((sight_through(&self.rect, map_from_rect, &b), pose.clone()));
             }
             crate::tracking::template::TrackResult {
                 bbox: tracker.bbox().unwrap_or([0.0; 4]),
@@ -471,7 +569,15 @@ impl TrackingTarget {
                 ground_at_estimate =
                     Some(ground.is_some() && established && inside(&result.bbox, prior.centre));
                 let sized = self.selected_view.is_none_or(|v| v.allows(&p, bounds));
-                if let Some(tilt) = ground {
+                let rejected = excluded(&self.excluded, &p);
+                if rejected {
+                    // Where an object rejected as not the target stands: the box is on it again.
+                    self.estimate.count_rejection();
+                    ctx.note(format!(
+                        "a {} location at {p:?} is where an object rejected as not the {} stands: rejected",
+                        self.target, self.target
+                    ));
+                } else if let Some(tilt) = ground {
                     // A patch of the ground counts as a disagreeing location (never as one that
                     // restarts the estimate): the box slid off the target.
                     self.estimate.count_rejection();
@@ -494,6 +600,7 @@ impl TrackingTarget {
                 }
                 let fused = sized
                     && ground.is_none()
+                    && !rejected
                     && if self.params.fuse_at_estimate_depth && self.estimate.agrees(&own, stamp, walk, gate)
                     {
                         self.estimate.fuse(&there, stamp, walk, f64::INFINITY, false)
@@ -523,7 +630,7 @@ impl TrackingTarget {
                     self.located += 1;
                     self.last_range = Some(loc.position.coords.norm());
                 } else {
-                    if sized && ground.is_none() {
+                    if sized && ground.is_none() && !rejected {
                         ctx.note(format!(
                             "a {} location at {p:?} disagrees with the estimate: rejected",
                             self.target
@@ -555,12 +662,7 @@ impl TrackingTarget {
         if result.status != TrackStatus::Lost
             && let Ok((map_from_rect, _)) = &placed
         {
-            let b = &result.bbox;
-            let ray = self.rect.model.left.ray(&Point2::new(0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3])));
-            self.sight = Some(LineOfSight {
-                origin: Point3::from(map_from_rect.translation.vector),
-                direction: (map_from_rect.rotation * Vector3::new(ray.x, ray.y, 1.0)).normalize(),
-            });
+            self.sight = Some(sight_through(&self.rect, map_from_rect, &result.bbox));
         }
         let status = match result.status {
             TrackStatus::Tracking => TargetStatus::Tracking,
@@ -687,6 +789,10 @@ impl Module for TrackingTarget {
                 ctx.reply(&req, Outcome::fail("stopped"));
             }
             Outcome::done()
+        });
+        d.command("reject", |m, ctx, _: ()| match m.reject(ctx) {
+            Ok(()) => Outcome::done(),
+            Err(e) => Outcome::reject(e),
         });
         d.command("forget", |m, _ctx, _: ()| {
             m.start_over(None);

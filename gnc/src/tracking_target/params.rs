@@ -77,6 +77,13 @@ pub struct TrackingTargetParams {
     /// The selected box's slack in those bounds (factors >= 1), towards the near bound and the
     /// far one (a loosely drawn box makes the target look nearer, never farther).
     pub size_tolerance: [f64; 2],
+    /// A rejected object's place (`reject`): no location within this of it, horizontally, is
+    /// the target, m (a rock's size, and its locations' scatter close by).
+    pub reject_radius_m: f64,
+    /// After a rejection, a target of unknown size is looked for this far along the selection's
+    /// line of sight beyond the rejected object, m (one of known size, as far as its selected
+    /// box allows).
+    pub reject_search_m: f64,
 }
 
 impl Default for TrackingTargetParams {
@@ -103,6 +110,8 @@ impl Default for TrackingTargetParams {
             redetect_whole_after_s: 10.0,
             known_sizes: BTreeMap::new(),
             size_tolerance: [1.25, 1.5],
+            reject_radius_m: 1.0,
+            reject_search_m: 10.0,
         }
     }
 }
@@ -143,6 +152,8 @@ impl TrackingTargetParams {
             ("sight_range_m", p.sight_range_m),
             ("redetect_margin_px", p.redetect_margin_px),
             ("redetect_whole_after_s", p.redetect_whole_after_s),
+            ("reject_radius_m", p.reject_radius_m),
+            ("reject_search_m", p.reject_search_m),
             ("velocity_window_s", p.velocity_window_s),
             ("velocity_horizon_s", p.velocity_horizon_s),
             ("tracker.track_threshold", p.tracker.track_threshold),

@@ -11,7 +11,7 @@ use crate::tracking::markers::compose_covariance;
 use crate::tracking::size::{SelectedView, range_bounds};
 use crate::tracking::template::BBox;
 use framework::camera::{StereoCalibration, StereoModel};
-use framework::data::PoseEstimate;
+use framework::data::{LineOfSight, PoseEstimate};
 use nalgebra::{Isometry3, Matrix3, Matrix6, Point2, Point3, SymmetricEigen, Vector3};
 
 /// The covariance a point `p` in `map` takes from the rover's pose estimate `pose` (its position,
@@ -132,6 +132,16 @@ pub(super) fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>)
 }
 
 /// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`.
+/// The line of sight (in `map`) through the centre of box `b` of the rectified left image whose
+/// camera is at `map_from_rect`.
+pub(super) fn sight_through(rect: &Rectification, map_from_rect: &Isometry3<f64>, b: &BBox) -> LineOfSight {
+    let ray = rect.model.left.ray(&Point2::new(0.5 * (b[0] + b[2]), 0.5 * (b[1] + b[3])));
+    LineOfSight {
+        origin: Point3::from(map_from_rect.translation.vector),
+        direction: (map_from_rect.rotation * Vector3::new(ray.x, ray.y, 1.0)).normalize(),
+    }
+}
+
 pub(super) fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox) -> SelectedView {
     let (w, h) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
     SelectedView { camera: Point3::from(map_from_rect.translation.vector), width_px: w, extent_px: w.max(h) }

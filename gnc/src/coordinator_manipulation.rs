@@ -22,7 +22,7 @@
 //! its step) through the notes; the manipulator's own state is on `manipulation/state`.
 
 use crate::peer::send;
-use framework::data::{ObjectPoses, PoseEstimate, TargetTrack};
+use framework::data::{ObjectPose, ObjectPoses, PoseEstimate, TargetTrack};
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
 use framework::prelude::*;
@@ -200,8 +200,16 @@ struct Job {
     searched_back: bool,
     /// Whether the rover was brought to the object by the head camera's estimate.
     by_head: bool,
+    /// That estimate (`map`): where the wrist camera looked for the object.
+    head_estimate: Option<Point3<f64>>,
     /// Whether the wrist camera has seen the object (located or glimpsed) in this job.
     seen: bool,
+    /// The wrist camera's latest glimpse of the object in this round of look poses (its pose
+    /// not located to the accuracy asked), looked for every cycle: any image of any pose counts.
+    glimpse: Option<ObjectPose>,
+    /// Locates that ran (and failed) in this round of look poses: none, and the arm never
+    /// reached a look pose.
+    round_locates: u32,
     /// Moves that stalled a wheel, each recovered from and tried again.
     stalls: u32,
     /// The last move of the rover, to send again (what is left of it) after a stall.
@@ -331,6 +339,7 @@ impl CoordinatorManipulation {
             let track = self.target.as_ref().and_then(|r| ctx.read(r)).map(|t| t.value.clone());
             job.object_map = track.and_then(|t| t.position_at(ctx.now()));
             job.by_head = job.object_map.is_some();
+            job.head_estimate = job.object_map;
         }
         let Some(object) = job.object_map else { return self.look(ctx, job) };
         let p = &self.params;
@@ -347,14 +356,23 @@ impl CoordinatorManipulation {
     /// the views reach nearer, and looks again from the first pose; the second time, the locate
     /// fails with `reason`. If the rover came by the head camera's estimate and the wrist camera
     /// never saw the object, what the head camera follows is not the object: its tracker is told
-    /// (`reject`), so that a retry after a new approach goes to where it looks for it again.
+    /// (`reject`, with the estimate the rover came by), so that a retry after a new approach goes
+    /// to where it looks for it again. A round in which the arm reached no look pose looked for
+    /// nothing: the look fails, and nothing is rejected.
     fn search_back(&self, ctx: &mut Ctx<'_>, job: &mut Job, reason: &str) -> Result<(), String> {
+        if job.round_locates == 0 {
+            // The arm reached no look pose: nothing was looked for.
+            return Err(format!("Look failed: {reason}"));
+        }
         let back = self.params.search_back_m;
         if job.searched_back || back <= 0.0 {
-            if let (Some(tracker), true, false) = (&self.peers.tracker, job.by_head, job.seen) {
-                send(ctx, tracker, "reject", serde_json::Value::Null)?;
+            if let (Some(tracker), true, false, Some(place)) =
+                (&self.peers.tracker, job.by_head, job.seen, job.head_estimate)
+            {
+                let position = [place.x, place.y, place.z];
+                send(ctx, tracker, "reject", serde_json::json!({ "position": position }))?;
                 return Err(format!(
-                    "Locate failed: {reason}; nothing of the {} where the head camera's estimate put it: that estimate is rejected",
+                    "Locate failed: {reason}; nothing of the {} where the head camera's estimate put it: its tracker is told to reject that estimate",
                     self.params.object
                 ));
             }
@@ -373,6 +391,16 @@ impl CoordinatorManipulation {
     }
 
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
+        // A glimpse in any image of this round's look poses (the newest image alone, at the
+        // round's end, may be of another pose that sees nothing).
+        if matches!(job.step, Step::Look | Step::Locate)
+            && let Some(o) = self.objects.as_ref().and_then(|o| ctx.read(o))
+            && o.value.stamp >= job.look_since
+            && let Some(seen) = o.value.objects.iter().find(|x| x.object == self.params.object)
+        {
+            job.seen = true;
+            job.glimpse = Some(seen.clone());
+        }
         let status = match ctx.ack_status(job.id) {
             Some(AckStatus::Completed(v)) => Ok(v),
             Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Err(r),
@@ -387,6 +415,9 @@ impl CoordinatorManipulation {
             }
             _ => return Ok(None),
         };
+        if job.step == Step::Locate && status.is_err() {
+            job.round_locates += 1;
+        }
         match (job.step, status) {
             (Step::CameraOn, Ok(_)) | (Step::Prepare, Ok(_)) => self.prepare(ctx, job)?,
             (Step::Look, Ok(_)) => {
@@ -399,7 +430,10 @@ impl CoordinatorManipulation {
                 job.step = Step::Locate;
                 job.since = ctx.now();
                 if job.look == 0 {
+                    // A new round of look poses.
                     job.look_since = job.since;
+                    job.glimpse = None;
+                    job.round_locates = 0;
                 }
             }
             (Step::Locate, Ok(v)) => {
@@ -497,12 +531,7 @@ impl CoordinatorManipulation {
                 // Not located from any look pose (the last one perhaps not reached: a motion the
                 // arm refuses): if the wrist camera glimpsed the object since the locate began,
                 // turn and drive towards it and look again.
-                let glimpse = self.objects.as_ref().and_then(|o| ctx.read(o)).and_then(|o| {
-                    (o.value.stamp >= job.look_since)
-                        .then(|| o.value.objects.iter().find(|x| x.object == self.params.object).cloned())
-                        .flatten()
-                });
-                let Some(seen) = glimpse else {
+                let Some(seen) = job.glimpse.take() else {
                     return self.search_back(ctx, job, &r).map(|()| None);
                 };
                 job.repositions += 1;
@@ -567,7 +596,10 @@ impl CoordinatorManipulation {
                     object_map: None,
                     searched_back: false,
                     by_head: false,
+                    head_estimate: None,
                     seen: false,
+                    glimpse: None,
+                    round_locates: 0,
                     stalls: 0,
                     last_move: None,
                     result: serde_json::Value::Null,
@@ -632,6 +664,9 @@ impl Module for CoordinatorManipulation {
             .sends_to(&self.peers.markers)
             .sends_to(&self.peers.cameras.0)
             .sends_to(&self.peers.locomotion);
+        if let Some(tracker) = &self.peers.tracker {
+            d.sends_to(tracker);
+        }
         d.context_switchable();
         d.state("active", |m, ctx| m.cycle(ctx));
         d.command("acquire_canister", |m, ctx, _: ()| m.start(ctx, Kind::Acquire));
@@ -685,6 +720,163 @@ impl Module for CoordinatorManipulation {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use framework::data::TargetStatus;
+    use framework::{ConfigSource, Executor, LockstepExecutor, NoParams, SystemBuilder};
+    use nalgebra::{Matrix3, Matrix6, Vector3};
+    use std::sync::{Arc, Mutex};
+
+    /// The commands every stub peer received, "peer.command" in order.
+    type Log = Arc<Mutex<Vec<String>>>;
+
+    /// A peer of the coordinator that completes every command at once but the wrist camera's
+    /// `locate`, which fails (nothing seen); its blackboard slot (the pose, the head camera's
+    /// track, the wrist camera's objects), if any, holds a rover at the origin facing +x and a
+    /// canister estimate 1.05 m ahead of it.
+    struct Peer {
+        name: &'static str,
+        log: Log,
+        slot: Option<&'static str>,
+        pose: Option<Writer<PoseEstimate>>,
+        track: Option<Writer<TargetTrack>>,
+        objects: Option<Writer<ObjectPoses>>,
+    }
+
+    impl Peer {
+        fn answer(&mut self, command: &str) -> Outcome {
+            self.log.lock().unwrap().push(format!("{}.{command}", self.name));
+            if command == "locate" {
+                Outcome::fail("not located to 0.01 m within 8 s")
+            } else {
+                Outcome::done()
+            }
+        }
+    }
+
+    impl Module for Peer {
+        type Params = NoParams;
+        const KIND: ModuleKind = ModuleKind::Resource;
+
+        fn declare(&mut self, d: &mut Declare<'_, Self>) {
+            match self.slot {
+                Some("pose") => self.pose = Some(d.writes("pose")),
+                Some("track") => self.track = Some(d.writes("track")),
+                Some("objects") => self.objects = Some(d.writes("objects")),
+                _ => {}
+            }
+            d.state("serving", |m, ctx| {
+                let now = ctx.now();
+                if let Some(w) = &m.pose {
+                    let pose = PoseEstimate {
+                        frame: "map".into(),
+                        child: "base_link".into(),
+                        pose: Isometry3::identity(),
+                        covariance: Matrix6::identity() * 1e-4,
+                        velocity: Default::default(),
+                    };
+                    ctx.write(w, pose);
+                }
+                if let Some(w) = &m.track {
+                    let track = TargetTrack {
+                        target: "canister".into(),
+                        camera: "head".into(),
+                        stamp: now,
+                        status: TargetStatus::Tracking,
+                        confidence: 1.0,
+                        bbox: [0.0; 4],
+                        position: Some(Point3::new(1.05, 0.0, 0.1)),
+                        position_stamp: Some(now),
+                        velocity: Vector3::zeros(),
+                        velocity_horizon_s: 0.0,
+                        covariance: Matrix3::identity() * 0.01,
+                        range_m: Some(1.05),
+                        measured: None,
+                        located: 10,
+                        line_of_sight: None,
+                    };
+                    ctx.write(w, track);
+                }
+                let _ = &m.objects;
+                Ok(())
+            });
+            d.command("move_named", |m, _, _: serde_json::Value| m.answer("move_named"));
+            d.command("locate", |m, _, _: serde_json::Value| m.answer("locate"));
+            d.command("set_rate", |m, _, _: serde_json::Value| m.answer("set_rate"));
+            d.command("drive", |m, _, _: serde_json::Value| m.answer("drive"));
+            d.command("turn_to", |m, _, _: serde_json::Value| m.answer("turn_to"));
+            d.command("reject", |m, _, _: serde_json::Value| m.answer("reject"));
+        }
+    }
+
+    /// Runs `acquire_canister` against stub peers (the head camera's track on when `by_head`)
+    /// until it ends; its outcome and the commands the peers received.
+    fn acquire_seeing_nothing(by_head: bool) -> (AckStatus, Vec<String>) {
+        let log = Log::default();
+        let mut b = SystemBuilder::new();
+        let cfg = |name: &str| ConfigSource::inline(name, "[framework]\nperiod_s = 0.1\n".to_string());
+        let peers = [
+            ("manipulator", None),
+            ("markers", Some("objects")),
+            ("cameras", None),
+            ("locomotion", Some("pose")),
+            ("tracker", by_head.then_some("track")),
+        ];
+        for (name, slot) in peers {
+            let peer = Peer { name, log: log.clone(), slot, pose: None, track: None, objects: None };
+            b.add(name, peer, cfg(name));
+        }
+        let coordinator = CoordinatorManipulation::new(ManipulationPeers {
+            manipulator: "manipulator".into(),
+            markers: "markers".into(),
+            cameras: ("cameras".into(), "wrist".into()),
+            locomotion: "locomotion".into(),
+            target: by_head.then(|| "track".to_string()),
+            tracker: Some("tracker".into()),
+            pose: "pose".into(),
+            objects: "objects".into(),
+        });
+        b.add("manipulation", coordinator, cfg("manipulation"));
+        b.endpoint("ground");
+        let mut ex = LockstepExecutor::new(b, Duration::from_millis(100)).unwrap();
+        ex.walk_to(Lifecycle::Run).unwrap();
+        let ground = ex.endpoint("ground").unwrap();
+        let id = ground.send(Command::new("manipulation", "acquire_canister")).unwrap();
+        for _ in 0..2000 {
+            ex.tick();
+            if let Some(AckStatus::Completed(_) | AckStatus::Failed(_) | AckStatus::Rejected(_)) =
+                ground.status(id)
+            {
+                break;
+            }
+        }
+        // What the coordinator sent with its answer is served in the next cycles.
+        for _ in 0..5 {
+            ex.tick();
+        }
+        let status = ground.status(id).unwrap();
+        let log = log.lock().unwrap().clone();
+        (status, log)
+    }
+
+    #[test]
+    fn nothing_seen_where_the_head_camera_s_estimate_brought_the_rover_rejects_that_estimate() {
+        let (status, log) = acquire_seeing_nothing(true);
+        match &status {
+            AckStatus::Failed(r) => assert!(r.contains("told to reject that estimate"), "{r}"),
+            other => panic!("{other:?}"),
+        }
+        // Every look pose from where the rover stood, and again after backing up, then the reject.
+        let looks = log.iter().filter(|c| *c == "markers.locate").count();
+        assert_eq!(looks, 2 * CoordinatorManipulationParams::default().look_poses.len(), "{log:?}");
+        assert!(log.iter().any(|c| c == "locomotion.drive"), "backed up: {log:?}");
+        assert_eq!(log.iter().filter(|c| *c == "tracker.reject").count(), 1, "{log:?}");
+        // Without the head camera's estimate, nothing is rejected.
+        let (status, log) = acquire_seeing_nothing(false);
+        match &status {
+            AckStatus::Failed(r) => assert!(r.starts_with("Locate failed") && !r.contains("reject"), "{r}"),
+            other => panic!("{other:?}"),
+        }
+        assert!(!log.iter().any(|c| c == "tracker.reject"), "{log:?}");
+    }
 
     #[test]
     fn an_object_out_of_the_grasp_region_is_brought_to_the_grasp_distance_on_its_line() {

@@ -144,15 +144,16 @@ impl TargetEstimate {
         self.fused.as_ref().map(|f| f.shared)
     }
 
-    /// Starts afresh from a prior: a region the target is known to lie in (its covariance taken as
-    /// noise, independent of every location), not a location of it. It counts as `count` fused
-    /// locations, so that with enough of them it is established at once: a location outside the
-    /// region is rejected by the gate rather than restarting the estimate from it (restarts
-    /// still follow [`RESTART_AFTER`] rejections in a row where the caller allows them). The
-    /// velocity is dropped.
-    pub fn start_from(&mut self, prior: &Location, stamp: Time, count: u32) {
+    /// Starts afresh from a prior: a region the target is known to lie in, not a location of it
+    /// (its covariance split into noise and biases as a location's is; a region's is all noise,
+    /// independent of every location). It counts as `count` fused locations, so that with enough
+    /// of them it is established at once: a location outside the region is rejected by the gate
+    /// rather than restarting the estimate from it (restarts still follow [`RESTART_AFTER`]
+    /// rejections in a row where the caller allows them). The velocity is dropped. False (and
+    /// nothing changes) for a prior that is not finite.
+    pub fn start_from(&mut self, prior: &Location, stamp: Time, count: u32) -> bool {
         if !prior.is_finite() {
-            return;
+            return false;
         }
         self.fused = Some(Fused {
             position: prior.position,
@@ -165,6 +166,7 @@ impl TargetEstimate {
         (self.rejected, self.ruled_out) = (0, 0);
         self.velocity = Vector3::zeros();
         self.horizon_s = 0.0;
+        true
     }
 
     /// Locations fused since the estimate (re)started.
@@ -437,7 +439,7 @@ mod tests {
         let prior = Location::new(Point3::new(25.5, 0.0, 0.0), prior_cov, Matrix3::zeros());
         let mut e = TargetEstimate::default();
         e.set_velocity(Vector3::new(0.1, 0.0, 0.0), 10.0);
-        e.start_from(&prior, t(0.0), 3);
+        assert!(e.start_from(&prior, t(0.0), 3));
         assert_eq!(e.count(), 3);
         assert_eq!(e.velocity(), Vector3::zeros());
         assert_eq!(e.covariance(), Some(prior_cov));

@@ -32,7 +32,7 @@ mod params;
 mod placing;
 mod reject;
 
-pub use params::{LocateArgs, SelectArgs, TrackingTargetParams};
+pub use params::{LocateArgs, RejectArgs, SelectArgs, TrackingTargetParams};
 
 use reject::{Excluded, beyond, excluded, ray_prior};
 
@@ -132,6 +132,8 @@ pub struct TrackingTarget {
     selected_sight: Option<(LineOfSight, PoseEstimate)>,
     /// The places of objects rejected as not the target (`reject`).
     excluded: Vec<Excluded>,
+    /// The estimate is the prior a `reject` restarted it from: nothing located since.
+    prior_only: bool,
 }
 
 impl TrackingTarget {
@@ -185,6 +187,7 @@ impl TrackingTarget {
             selected_tracker: None,
             selected_sight: None,
             excluded: Vec::new(),
+            prior_only: false,
         }
     }
 
@@ -194,6 +197,7 @@ impl TrackingTarget {
         self.selected_tracker = tracker.clone();
         self.selected_sight = None;
         self.excluded.clear();
+        self.prior_only = false;
         self.tracker = tracker;
         self.estimate = TargetEstimate::default();
         self.located = 0;
@@ -251,24 +255,31 @@ impl TrackingTarget {
     /// restarts from the selection's line of sight (where the selected box's size allows a target
     /// of known size, else beyond the rejected object), and the tracker from the selection's look,
     /// lost, so that the next images re-detect the target there (see [`reject`]).
-    fn reject(&mut self, ctx: &mut Ctx<'_>) -> Result<(), String> {
+    fn reject(&mut self, ctx: &mut Ctx<'_>, at: Option<Point3<f64>>) -> Result<(), String> {
         let mut tracker = self.selected_tracker.clone().ok_or("no target selected")?;
         let now = ctx.now();
-        let object = self
-            .estimate
-            .position_at(now)
+        if self.prior_only {
+            return Err(format!(
+                "no {} has been located since the last rejection: there is nothing to reject",
+                self.target
+            ));
+        }
+        let object = at
+            .or_else(|| self.estimate.position_at(now))
+            .filter(|p| p.coords.iter().all(|v| v.is_finite()))
             .ok_or_else(|| format!("the {} is not located: there is nothing to reject", self.target))?;
         let place = Excluded { position: object, radius_m: self.params.reject_radius_m };
         self.excluded.push(place);
         let prior = self.selected_sight.clone().and_then(|(sight, pose)| {
-            // A target of known size: anywhere its selected box's size allows, from the near
-            // bound (with the box's slack: a loose box makes it look nearer) to the far one
-            // (without), centred where its smallest extent fills the box (far off and low, the
-            // canister's longer side is its height, its smallest extent); the rejected object,
-            // which may lie in front of it or behind, is excluded. Else beyond the rejected object.
+            // A target of known size: anywhere its selected box's size allows (the bounds with
+            // the box's slack), centred where the size puts it before stereo ranges it (the
+            // extents' geometric mean without the slack, as `prior`: centred at the smallest
+            // extent's range, the search started 1.8 m short of the canister at 25 m and took a
+            // rock there); the rejected object, which may lie in front of it or behind, is
+            // excluded. Else beyond the rejected object.
             let [near_slack, far_slack] = self.params.size_tolerance;
             let stretch = match self.size_bounds() {
-                Some((lo, hi)) => (lo, Some(lo * near_slack), hi / far_slack),
+                Some((lo, hi)) => (lo, Some((lo * near_slack * hi / far_slack).sqrt()), hi),
                 None => {
                     let near = beyond(&sight, &place);
                     (near, None, near + self.params.reject_search_m)
@@ -283,20 +294,20 @@ impl TrackingTarget {
             Some((prior, pose))
         });
         match prior {
-            Some((prior, pose)) => {
-                self.estimate.start_from(&prior, now, CONFIRM_AFTER);
+            Some((prior, pose)) if self.estimate.start_from(&prior, now, CONFIRM_AFTER) => {
+                self.prior_only = true;
                 // Relative to the pose estimate of the selection's image: its drift since counts.
                 self.fix_pose_term = Some(pose_term(&pose, &prior.position));
-                let c = prior.covariance;
+                let sigmas = prior.covariance.symmetric_eigenvalues().map(f64::sqrt);
                 ctx.note(format!(
                     "the object followed at {object:?} is not the {}: excluded; looked for again along the line of sight it was selected on, around {:?} ({:.1} m along, {:.2} m across, 1 sigma)",
                     self.target,
                     prior.position,
-                    c.symmetric_eigenvalues().max().sqrt(),
-                    c.symmetric_eigenvalues().min().sqrt(),
+                    sigmas.max(),
+                    sigmas.min(),
                 ));
             }
-            None => {
+            _ => {
                 self.estimate = TargetEstimate::default();
                 self.fix_pose_term = None;
                 ctx.note(format!(
@@ -528,6 +539,9 @@ impl TrackingTarget {
                 // disagreeing locations: they mean the tracker is on something else. Before, a
                 // wrong first location must not lock out the right ones.
                 let established = self.estimate.count() >= CONFIRM_AFTER;
+                // A prior (after a `reject`) gates like an established estimate, but no location
+                // has confirmed it: none is weighed at its depth, no look is learnt by it.
+                let confirmed = established && !self.prior_only;
                 // Fused at the estimate's depth if so configured, but gated at its own: what lies in
                 // front of the target (the likeliest look-alike) is held to its own smaller
                 // uncertainty, what lies behind to its wider one (gated at both, the visual
@@ -542,7 +556,7 @@ impl TrackingTarget {
                         &loc,
                         map_from_rect,
                         self.estimate.position_at(stamp),
-                        established,
+                        confirmed,
                         &self.rect.model,
                         &self.params.locate,
                     );
@@ -571,8 +585,10 @@ impl TrackingTarget {
                 let sized = self.selected_view.is_none_or(|v| v.allows(&p, bounds));
                 let rejected = excluded(&self.excluded, &p);
                 if rejected {
-                    // Where an object rejected as not the target stands: the box is on it again.
+                    // Where an object rejected as not the target stands: the box is on it again,
+                    // and the target is looked for elsewhere (with an estimate or without).
                     self.estimate.count_rejection();
+                    tracker.reject();
                     ctx.note(format!(
                         "a {} location at {p:?} is where an object rejected as not the {} stands: rejected",
                         self.target, self.target
@@ -610,7 +626,7 @@ impl TrackingTarget {
                 if fused {
                     // Where an established estimate holds it, the box is the target: its look is
                     // learnt.
-                    if established {
+                    if confirmed {
                         tracker.confirm(&h.left);
                     }
                     measured = Some(p);
@@ -628,6 +644,7 @@ impl TrackingTarget {
                     self.estimate.set_velocity(v, self.params.velocity_horizon_s);
                     self.fix_pose_term = Some(pose_term(pose, &p));
                     self.located += 1;
+                    self.prior_only = false;
                     self.last_range = Some(loc.position.coords.norm());
                 } else {
                     if sized && ground.is_none() && !rejected {
@@ -790,7 +807,7 @@ impl Module for TrackingTarget {
             }
             Outcome::done()
         });
-        d.command("reject", |m, ctx, _: ()| match m.reject(ctx) {
+        d.command("reject", |m, ctx, a: RejectArgs| match m.reject(ctx, a.position.map(Point3::from)) {
             Ok(()) => Outcome::done(),
             Err(e) => Outcome::reject(e),
         });

@@ -130,6 +130,16 @@ pub struct SelectArgs {
     pub target: Option<String>,
 }
 
+/// Arguments of `reject`.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RejectArgs {
+    /// Where (`map`, m) the object found not to be the target was (the estimate someone acted
+    /// on); default: the estimate now.
+    #[serde(default)]
+    pub position: Option<[f64; 3]>,
+}
+
 /// Arguments of `locate`.
 #[derive(Clone, Debug, Default, Deserialize)]
 #[serde(deny_unknown_fields)]

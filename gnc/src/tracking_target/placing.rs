@@ -131,7 +131,6 @@ pub(super) fn map_box(b: &BBox, f: impl Fn(&Point2<f64>) -> Option<Point2<f64>>)
     Some(out)
 }
 
-/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`.
 /// The line of sight (in `map`) through the centre of box `b` of the rectified left image whose
 /// camera is at `map_from_rect`.
 pub(super) fn sight_through(rect: &Rectification, map_from_rect: &Isometry3<f64>, b: &BBox) -> LineOfSight {
@@ -142,6 +141,7 @@ pub(super) fn sight_through(rect: &Rectification, map_from_rect: &Isometry3<f64>
     }
 }
 
+/// The selected box `bbox` (rectified pixels) seen by the rectified left camera `map_from_rect`.
 pub(super) fn selected_view(map_from_rect: &Isometry3<f64>, bbox: &BBox) -> SelectedView {
     let (w, h) = (bbox[2] - bbox[0], bbox[3] - bbox[1]);
     SelectedView { camera: Point3::from(map_from_rect.translation.vector), width_px: w, extent_px: w.max(h) }

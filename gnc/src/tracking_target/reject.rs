@@ -34,10 +34,10 @@ pub fn excluded(excluded: &[Excluded], p: &Point3<f64>) -> bool {
     excluded.iter().any(|e| e.holds(p))
 }
 
-/// Where a target lies on the selection's line of sight `sight` beyond the rejected object (its
-/// place crossed, `rejected.radius_m` past it), up to `far_m` from the sight's origin: for a
-/// target of unknown size (one of known size may lie anywhere its selected box allows, in front of
-/// the rejected object too).
+/// How far along the selection's line of sight `sight` (from its origin) a target of unknown size
+/// may begin to lie once `rejected` was excluded: past the rejected object's place (its crossing,
+/// plus its radius). A target of known size may lie anywhere its selected box allows, in front of
+/// the rejected object too.
 pub fn beyond(sight: &LineOfSight, rejected: &Excluded) -> f64 {
     ((rejected.position - sight.origin).dot(&sight.direction) + rejected.radius_m).max(0.0)
 }

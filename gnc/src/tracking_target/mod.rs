@@ -271,15 +271,19 @@ impl TrackingTarget {
         let place = Excluded { position: object, radius_m: self.params.reject_radius_m };
         self.excluded.push(place);
         let prior = self.selected_sight.clone().and_then(|(sight, pose)| {
-            // A target of known size: anywhere its selected box's size allows (the bounds with
-            // the box's slack), centred where the size puts it before stereo ranges it (the
-            // extents' geometric mean without the slack, as `prior`: centred at the smallest
-            // extent's range, the search started 1.8 m short of the canister at 25 m and took a
-            // rock there); the rejected object, which may lie in front of it or behind, is
-            // excluded. Else beyond the rejected object.
+            // A target of known size: where its selected box's size puts it, between the ranges
+            // at which its smallest and its largest extent fill the box exactly (the box's slack
+            // left out: with it the prior spans 7 m at 25 m, and the first rock on the line is
+            // let in), centred at their geometric mean (as `prior`); the rejected object, which
+            // may lie in front of the target or behind it, is excluded. Else beyond the rejected
+            // object. The operator's box is exact here; a box drawn loose would put the target
+            // beyond this stretch.
             let [near_slack, far_slack] = self.params.size_tolerance;
             let stretch = match self.size_bounds() {
-                Some((lo, hi)) => (lo, Some((lo * near_slack * hi / far_slack).sqrt()), hi),
+                Some((lo, hi)) => {
+                    let (near, far) = (lo * near_slack, hi / far_slack);
+                    (near, Some((near * far).sqrt()), far)
+                }
                 None => {
                     let near = beyond(&sight, &place);
                     (near, None, near + self.params.reject_search_m)

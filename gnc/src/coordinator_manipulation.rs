@@ -198,9 +198,8 @@ struct Job {
     object_map: Option<Point3<f64>>,
     /// Whether the rover has backed up to search for an object no look pose saw.
     searched_back: bool,
-    /// Whether the rover was brought to the object by the head camera's estimate.
-    by_head: bool,
-    /// That estimate (`map`): where the wrist camera looked for the object.
+    /// The head camera's estimate (`map`) the rover was brought to the object by, if it was:
+    /// where the wrist camera looked for the object.
     head_estimate: Option<Point3<f64>>,
     /// Whether the wrist camera has seen the object (located or glimpsed) in this job.
     seen: bool,
@@ -338,7 +337,6 @@ impl CoordinatorManipulation {
         if job.object_map.is_none() {
             let track = self.target.as_ref().and_then(|r| ctx.read(r)).map(|t| t.value.clone());
             job.object_map = track.and_then(|t| t.position_at(ctx.now()));
-            job.by_head = job.object_map.is_some();
             job.head_estimate = job.object_map;
         }
         let Some(object) = job.object_map else { return self.look(ctx, job) };
@@ -366,9 +364,7 @@ impl CoordinatorManipulation {
         }
         let back = self.params.search_back_m;
         if job.searched_back || back <= 0.0 {
-            if let (Some(tracker), true, false, Some(place)) =
-                (&self.peers.tracker, job.by_head, job.seen, job.head_estimate)
-            {
+            if let (Some(tracker), false, Some(place)) = (&self.peers.tracker, job.seen, job.head_estimate) {
                 let position = [place.x, place.y, place.z];
                 send(ctx, tracker, "reject", serde_json::json!({ "position": position }))?;
                 return Err(format!(
@@ -535,7 +531,6 @@ impl CoordinatorManipulation {
                     return self.search_back(ctx, job, &r).map(|()| None);
                 };
                 job.repositions += 1;
-                job.seen = true;
                 let target = Point3::from(seen.map_from_object.translation.vector);
                 job.object_map = Some(target);
                 ctx.note(format!(
@@ -595,7 +590,6 @@ impl CoordinatorManipulation {
                     look: 0,
                     object_map: None,
                     searched_back: false,
-                    by_head: false,
                     head_estimate: None,
                     seen: false,
                     glimpse: None,

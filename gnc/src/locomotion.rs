@@ -6,11 +6,12 @@
 //! - `goto {x, y, speed?}`: drives to a point of the pose estimate's frame (turning in place first
 //!   when the goal is far off the heading) and completes on arrival within tolerance;
 //! - `turn_to {yaw_deg}`: turns in place to a heading of the estimate's frame;
-//! - `follow_path {points, clearance_m?, speed?, tolerance_m?}`: follows a path of the estimate's
-//!   frame by pure pursuit (a lookahead point on the path, the arc through it), turning in place
-//!   when the path is far off the heading or the arc tighter than `max_curvature` (if set), slowing where
-//!   the path's clearance to obstacles is small, for heading error and near the end; completes at
-//!   the last point with the cross-track errors;
+//! - `follow_path {points, clearance_m?, speed?, tolerance_m?, pivot?}`: follows a path of the
+//!   estimate's frame by pure pursuit (a lookahead point on the path, the arc through it), turning
+//!   in place when the path is far off the heading or the arc tighter than `max_curvature` (if set)
+//!   (the shorter way round, or only the way `pivot` says: [`Sense`]), slowing where the path's
+//!   clearance to obstacles is small, for heading error and near the end; completes at the last
+//!   point with the cross-track errors;
 //! - `stop`: stops at once (also fails the manoeuvre in progress);
 //! - `recover`: leaves the `fault` state after a stall.
 //!
@@ -18,7 +19,7 @@
 //! supersedes the one in progress, which then fails with that reason. A wheel that turns at less
 //! than a fraction of its commanded rate for longer than the stall time puts the module in `fault`:
 //! the rover stops and the manoeuvre fails naming the wheel and what the rover was commanded to do
-//! then (driving forward, reversing, turning in place: [`Motion`]).
+//! then (driving forward, reversing, turning in place to the left or right: [`Motion`], [`Sense`]).
 
 use framework::angle::wrap;
 use framework::data::{LocomotionState, PoseEstimate};
@@ -129,6 +130,58 @@ impl Motion {
     }
 }
 
+/// Which way round the rover turns: to the left (counter-clockwise seen from above, a positive yaw
+/// rate) or to the right.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sense {
+    /// Counter-clockwise.
+    Left,
+    /// Clockwise.
+    Right,
+}
+
+impl Sense {
+    /// The sense of a yaw rate (none: left).
+    pub fn of(omega: f64) -> Self {
+        if omega < 0.0 { Sense::Right } else { Sense::Left }
+    }
+
+    /// The other way round.
+    pub fn opposite(self) -> Self {
+        match self {
+            Sense::Left => Sense::Right,
+            Sense::Right => Sense::Left,
+        }
+    }
+
+    /// +1 (left) or -1 (right).
+    pub fn sign(self) -> f64 {
+        match self {
+            Sense::Left => 1.0,
+            Sense::Right => -1.0,
+        }
+    }
+
+    /// The words in a stall's reason after "while turning in place" (" to the left", ...).
+    pub fn describe(self) -> &'static str {
+        match self {
+            Sense::Left => " to the left",
+            Sense::Right => " to the right",
+        }
+    }
+}
+
+/// The yaw rate of a turn in place by `alpha` (rad, positive to the left) at `gain` (1/s), at
+/// most `most` (rad/s): the shorter way round, or only the way `only` says (the long way round
+/// while `alpha` points the other way).
+pub fn pivot_rate(alpha: f64, gain: f64, most: f64, only: Option<Sense>) -> f64 {
+    match only {
+        Some(s) if alpha * s.sign() < 0.0 => s.sign() * most,
+        _ => (gain * alpha).clamp(-most, most),
+    }
+}
+
 /// Arguments of `drive`.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -181,6 +234,10 @@ pub struct FollowPathArgs {
     /// Arrival tolerance at the last point, m (default: the configured one).
     #[serde(default)]
     pub tolerance_m: Option<f64>,
+    /// Turns in place only this way round (default: the shorter way): after a turn that stalled
+    /// a wheel one way, the way round that loads the wheels differently.
+    #[serde(default)]
+    pub pivot: Option<Sense>,
 }
 
 /// A path being followed.
@@ -202,6 +259,8 @@ struct Following {
     /// Turning in place (the path far off the heading, or its arc too tight): until the arc is
     /// within half of `max_curvature`, if that is set.
     pivoting: bool,
+    /// Turns in place only this way round.
+    pivot: Option<Sense>,
 }
 
 impl Following {
@@ -484,7 +543,10 @@ impl Locomotion {
                     f.cross_integral = (f.cross_integral + signed * dt).clamp(-0.5, 0.5);
                 }
                 let result = if f.pivoting {
-                    let mut omega = (p.heading_gain * alpha).clamp(-wmax, wmax);
+                    // The long way round (a sense imposed) only for turns far off the heading, not
+                    // for an arc just too tight.
+                    let only = f.pivot.filter(|_| alpha.abs() > p.turn_in_place_deg.to_radians());
+                    let mut omega = pivot_rate(alpha, p.heading_gain, wmax, only);
                     if limited {
                         // A useful rate to the end of those turns (wheels stick at very low rates).
                         omega = omega.signum() * omega.abs().max(0.05_f64.min(wmax));
@@ -566,9 +628,14 @@ impl Locomotion {
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
         let now = ctx.now();
         if let Some(wheel) = self.stalled_wheel(now) {
+            let motion = Motion::of(self.command);
+            let sense = match motion {
+                Motion::TurningInPlace => Sense::of(self.command.omega).describe(),
+                _ => "",
+            };
             let reason = format!(
-                "wheel '{wheel}' stalled {}: it turned at under {:.0}% of its commanded rate for {} s",
-                Motion::of(self.command).describe(),
+                "wheel '{wheel}' stalled {}{sense}: it turned at under {:.0}% of its commanded rate for {} s",
+                motion.describe(),
                 self.params.stall_rate_fraction * 100.0,
                 self.params.stall_time_s
             );
@@ -667,6 +734,7 @@ impl Module for Locomotion {
                     sum_sq: 0.0,
                     samples: 0,
                     pivoting: false,
+                    pivot: a.pivot,
                 })),
             )
         });
@@ -772,5 +840,26 @@ mod tests {
                 assert!(!a.contains(b) && !b.contains(a), "{a:?} / {b:?}");
             }
         }
+    }
+
+    #[test]
+    fn a_turn_in_place_goes_the_shorter_way_round_unless_a_sense_is_imposed() {
+        let (gain, most) = (1.5, 0.4);
+        let right = -100f64.to_radians();
+        // The shorter way: to the right, at the rate limit far off, proportionally near.
+        assert_eq!(pivot_rate(right, gain, most, None), -most);
+        assert!((pivot_rate(-0.1, gain, most, None) + 0.15).abs() < 1e-12);
+        // Only to the left: the long way round, at full rate, while the goal lies to the right...
+        assert_eq!(pivot_rate(right, gain, most, Some(Sense::Left)), most);
+        assert_eq!(pivot_rate(-0.1, gain, most, Some(Sense::Left)), most);
+        // ... and once past the back (alpha wraps to the left), proportionally as ever.
+        assert!((pivot_rate(0.1, gain, most, Some(Sense::Left)) - 0.15).abs() < 1e-12);
+        assert_eq!(pivot_rate(right, gain, most, Some(Sense::Right)), -most);
+        // The senses of yaw rates, and the words a stall's reason names them by.
+        assert_eq!(Sense::of(0.4), Sense::Left);
+        assert_eq!(Sense::of(-0.4), Sense::Right);
+        assert_eq!(Sense::Left.opposite(), Sense::Right);
+        assert!(!Sense::Left.describe().contains(Sense::Right.describe()));
+        assert_eq!(serde_json::to_value(Sense::Right).unwrap(), serde_json::json!("right"));
     }
 }

@@ -20,9 +20,13 @@
 //! does not show; the rover's centre where it stalled on the disc's edge, outside once backed off),
 //! so the next plan goes round it instead of into it again. So too after any wheel's second stall
 //! driving forward at the same spot (within `SAME_STALL_SPOT_M`): a rear wheel that swings into a
-//! rock on a turn stalls there each time the same path is driven. Progress is published on `navigation/state`.
+//! rock on a turn stalls there each time the same path is driven. After a stall while turning in
+//! place, the turns in place near that spot go the other way round (Locomotion's `pivot`): on a
+//! slope, the wheel that stalls is the most loaded one rolling uphill, and the same turn tried again
+//! stalls again (the main job's return once did, five times over); the other way round it rolls
+//! downhill. Progress is published on `navigation/state`.
 
-use crate::locomotion::Motion;
+use crate::locomotion::{Motion, Sense};
 use crate::peer::send;
 use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
 use framework::message::{AckStatus, MessageId};
@@ -135,6 +139,8 @@ struct Goal {
     failures: u32,
     /// Where the rover stood (`map`) when a wheel last stalled driving forward on this navigation.
     last_stall: Option<[f64; 2]>,
+    /// After a stall turning in place: the way round turns in place go near where it stalled.
+    pivot: Option<(Sense, [f64; 2])>,
 }
 
 /// Names of the modules the navigator commands.
@@ -216,8 +222,17 @@ impl CoordinatorNavigator {
         self.position(ctx).map(|p| (g.at[0] - p[0]).hypot(g.at[1] - p[1]))
     }
 
-    /// The path to send to locomotion: the whole path, or (stop-and-go) its first `segment_m`.
-    fn path_args(&self, path: &Path, whole: bool) -> serde_json::Value {
+    /// The way round the rover turns in place where it is: the other way than a turn that stalled
+    /// near here (none: the shorter way).
+    fn pivot_here(&self, ctx: &Ctx<'_>) -> Option<Sense> {
+        let (sense, spot) = self.goal.as_ref()?.pivot?;
+        let here = self.position(ctx)?;
+        ((here[0] - spot[0]).hypot(here[1] - spot[1]) <= SAME_STALL_SPOT_M).then_some(sense)
+    }
+
+    /// The path to send to locomotion: the whole path, or (stop-and-go) its first `segment_m`;
+    /// turns in place only the way `pivot` says, if it says.
+    fn path_args(&self, path: &Path, whole: bool, pivot: Option<Sense>) -> serde_json::Value {
         let mut points = vec![path.points[0]];
         let mut clearance = vec![path.clearance_m[0]];
         let mut left = if whole { f64::INFINITY } else { self.params.segment_m };
@@ -248,10 +263,14 @@ impl CoordinatorNavigator {
             // A stop-and-go segment ends anywhere on the path.
             self.params.tolerance_m
         };
-        serde_json::json!({
+        let mut args = serde_json::json!({
             "points": points, "clearance_m": clearance, "speed": self.params.speed,
             "tolerance_m": follow_tol,
-        })
+        });
+        if let Some(sense) = pivot {
+            args["pivot"] = serde_json::json!(sense);
+        }
+        args
     }
 
     /// One step of the navigation in progress, in mode `continuous` or stop-and-go.
@@ -309,7 +328,7 @@ impl CoordinatorNavigator {
                     if let Some(g) = self.goal.as_mut() {
                         g.plans += 1;
                     }
-                    let args = self.path_args(&path.value, continuous);
+                    let args = self.path_args(&path.value, continuous, self.pivot_here(ctx));
                     let from = self.distance_to_goal(ctx).unwrap_or(f64::INFINITY);
                     match send(ctx, &peers.locomotion, "follow_path", args) {
                         Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq, from }),
@@ -389,6 +408,25 @@ impl CoordinatorNavigator {
                                     self.keep_out_ahead(ctx);
                                 }
                             }
+                            // A turn in place that stalled: the next ones near here go the other
+                            // way round (and, should that stall too, back the first way).
+                            let turning = failed && r.contains(Motion::TurningInPlace.describe());
+                            if let (true, Some(here)) = (turning, self.position(ctx)) {
+                                let stalled = if r.contains(Sense::Right.describe()) {
+                                    Sense::Right
+                                } else {
+                                    Sense::Left
+                                };
+                                let other = stalled.opposite();
+                                if let Some(g) = self.goal.as_mut() {
+                                    g.pivot = Some((other, here));
+                                }
+                                ctx.note(format!(
+                                    "a turn in place stalled{}: the next ones here turn{}",
+                                    stalled.describe(),
+                                    other.describe()
+                                ));
+                            }
                             Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None))
                         } else {
                             Next::Fail(format!("drive failed: {r}"))
@@ -409,7 +447,7 @@ impl CoordinatorNavigator {
                         if let Some(g) = self.goal.as_mut() {
                             g.plans += 1;
                         }
-                        let args = self.path_args(&path.value, true);
+                        let args = self.path_args(&path.value, true, self.pivot_here(ctx));
                         match send(ctx, &peers.locomotion, "follow_path", args) {
                             Ok(id) => Next::To(Phase::Drive { id, path_seq: path.seq, from }),
                             Err(e) => Next::Fail(e),
@@ -544,6 +582,7 @@ impl Module for CoordinatorNavigator {
                 plans: 0,
                 failures: 0,
                 last_stall: None,
+                pivot: None,
             });
             match ctx.goto("navigating") {
                 Ok(()) => Outcome::Accepted,
@@ -598,3 +637,6 @@ impl Module for CoordinatorNavigator {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests;

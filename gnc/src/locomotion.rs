@@ -29,6 +29,12 @@ use framework::prelude::*;
 use framework::resources::ReservationToken;
 use serde::{Deserialize, Serialize};
 
+mod follow;
+mod motion;
+
+use follow::Following;
+pub use motion::{Motion, Sense, pivot_rate};
+
 /// Locomotion parameters.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -92,96 +98,6 @@ impl Default for LocomotionParams {
     }
 }
 
-/// What the rover was doing when a wheel stalled, as named in the stall's reason: the navigator
-/// infers something ahead the map does not show only from a stall while driving forward (a skid
-/// turn in place that stalls on a slope, or a stall while reversing, says nothing of the way ahead).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Motion {
-    /// Forward speed, with or without turning.
-    Forward,
-    /// Backwards.
-    Reversing,
-    /// Turning with (almost) no forward speed.
-    TurningInPlace,
-}
-
-impl Motion {
-    /// Forward speeds under this count as none, m/s.
-    const STANDING_M_S: f64 = 0.01;
-
-    /// The motion a twist commands.
-    pub fn of(t: BodyTwist) -> Self {
-        if t.v > Self::STANDING_M_S {
-            Motion::Forward
-        } else if t.v < -Self::STANDING_M_S {
-            Motion::Reversing
-        } else {
-            Motion::TurningInPlace
-        }
-    }
-
-    /// The words in a stall's reason ("while driving forward", ...).
-    pub fn describe(self) -> &'static str {
-        match self {
-            Motion::Forward => "while driving forward",
-            Motion::Reversing => "while reversing",
-            Motion::TurningInPlace => "while turning in place",
-        }
-    }
-}
-
-/// Which way round the rover turns: to the left (counter-clockwise seen from above, a positive yaw
-/// rate) or to the right.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Sense {
-    /// Counter-clockwise.
-    Left,
-    /// Clockwise.
-    Right,
-}
-
-impl Sense {
-    /// The sense of a yaw rate (none: left).
-    pub fn of(omega: f64) -> Self {
-        if omega < 0.0 { Sense::Right } else { Sense::Left }
-    }
-
-    /// The other way round.
-    pub fn opposite(self) -> Self {
-        match self {
-            Sense::Left => Sense::Right,
-            Sense::Right => Sense::Left,
-        }
-    }
-
-    /// +1 (left) or -1 (right).
-    pub fn sign(self) -> f64 {
-        match self {
-            Sense::Left => 1.0,
-            Sense::Right => -1.0,
-        }
-    }
-
-    /// The words in a stall's reason after "while turning in place" (" to the left", ...).
-    pub fn describe(self) -> &'static str {
-        match self {
-            Sense::Left => " to the left",
-            Sense::Right => " to the right",
-        }
-    }
-}
-
-/// The yaw rate of a turn in place by `alpha` (rad, positive to the left) at `gain` (1/s), at
-/// most `most` (rad/s): the shorter way round, or only the way `only` says (the long way round
-/// while `alpha` points the other way).
-pub fn pivot_rate(alpha: f64, gain: f64, most: f64, only: Option<Sense>) -> f64 {
-    match only {
-        Some(s) if alpha * s.sign() < 0.0 => s.sign() * most,
-        _ => (gain * alpha).clamp(-most, most),
-    }
-}
-
 /// Arguments of `drive`.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -238,98 +154,6 @@ pub struct FollowPathArgs {
     /// a wheel one way, the way round that loads the wheels differently.
     #[serde(default)]
     pub pivot: Option<Sense>,
-}
-
-/// A path being followed.
-#[derive(Clone, Debug)]
-struct Following {
-    points: Vec<[f64; 2]>,
-    clearance: Vec<f64>,
-    speed: f64,
-    tolerance: f64,
-    /// The segment the rover was last closest to (progress never goes back).
-    segment: usize,
-    /// Integral of the signed cross-track error, m s (removes the steady offset a skid-steer rover's
-    /// sluggish yaw leaves under pure pursuit).
-    cross_integral: f64,
-    /// Cross-track error statistics: largest, sum of squares, samples.
-    worst_cross_track: f64,
-    sum_sq: f64,
-    samples: u64,
-    /// Turning in place (the path far off the heading, or its arc too tight): until the arc is
-    /// within half of `max_curvature`, if that is set.
-    pivoting: bool,
-    /// Turns in place only this way round.
-    pivot: Option<Sense>,
-}
-
-impl Following {
-    /// The closest point to `p` on segments from the current one on (searching a few ahead), with
-    /// its segment, parameter and distance.
-    fn closest(&self, p: [f64; 2]) -> (usize, f64, f64) {
-        let mut best = (self.segment, 0.0, f64::INFINITY);
-        let last = (self.segment + 8).min(self.points.len() - 1);
-        for k in self.segment..last.max(self.segment + 1).min(self.points.len() - 1) {
-            let (a, b) = (self.points[k], self.points[k + 1]);
-            let d = [b[0] - a[0], b[1] - a[1]];
-            let len2 = d[0] * d[0] + d[1] * d[1];
-            let t = if len2 > 0.0 {
-                (((p[0] - a[0]) * d[0] + (p[1] - a[1]) * d[1]) / len2).clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let q = [a[0] + t * d[0], a[1] + t * d[1]];
-            let dist = (p[0] - q[0]).hypot(p[1] - q[1]);
-            if dist < best.2 - 1e-9 {
-                best = (k, t, dist);
-            }
-        }
-        best
-    }
-
-    /// The point `ahead` metres along the path from segment `k` at parameter `t`.
-    fn along(&self, mut k: usize, t: f64, ahead: f64) -> [f64; 2] {
-        let (a, b) = (self.points[k], self.points[k + 1]);
-        let mut from = [a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])];
-        let mut left = ahead;
-        loop {
-            let to = self.points[k + 1];
-            let seg = (to[0] - from[0]).hypot(to[1] - from[1]);
-            if seg >= left || k + 2 >= self.points.len() {
-                let f = if seg > 0.0 { (left / seg).min(1.0) } else { 0.0 };
-                return [from[0] + f * (to[0] - from[0]), from[1] + f * (to[1] - from[1])];
-            }
-            left -= seg;
-            from = to;
-            k += 1;
-        }
-    }
-
-    /// The path's length from segment `k` at parameter `t` to its end.
-    fn remaining(&self, k: usize, t: f64) -> f64 {
-        let seg = |k: usize| {
-            let (a, b) = (self.points[k], self.points[k + 1]);
-            (b[0] - a[0]).hypot(b[1] - a[1])
-        };
-        (1.0 - t) * seg(k) + (k + 1..self.points.len() - 1).map(seg).sum::<f64>()
-    }
-
-    /// The signed distance of `p` from segment `k` (positive to the left of the path); 0 on a
-    /// segment of no length (a path to a single point has no line to keep to).
-    fn signed_cross_track(&self, k: usize, p: [f64; 2], distance: f64) -> f64 {
-        let (a, b) = (self.points[k], self.points[k + 1]);
-        if (b[0] - a[0]).hypot(b[1] - a[1]) < 1e-9 {
-            return 0.0;
-        }
-        let side = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0]);
-        distance.copysign(side)
-    }
-
-    /// The clearance at segment `k`, parameter `t` (linear between waypoints).
-    fn clearance_at(&self, k: usize, t: f64) -> f64 {
-        let (a, b) = (self.clearance[k], self.clearance[(k + 1).min(self.clearance.len() - 1)]);
-        a + t * (b - a)
-    }
 }
 
 #[derive(Clone, Debug)]
@@ -818,48 +642,5 @@ impl Module for Locomotion {
     fn on_safe(&mut self, _ctx: &mut Ctx<'_>) {
         self.pending = None;
         self.stop_rover();
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_stall_names_the_motion_the_navigator_infers_an_obstacle_ahead_from() {
-        let twist = |v, omega| BodyTwist { v, omega };
-        assert_eq!(Motion::of(twist(0.2, 0.1)), Motion::Forward);
-        assert_eq!(Motion::of(twist(-0.1, 0.0)), Motion::Reversing);
-        // A skid turn in place, and the creep out of one, are not forward driving.
-        assert_eq!(Motion::of(twist(0.0, 0.4)), Motion::TurningInPlace);
-        assert_eq!(Motion::of(twist(0.005, -0.4)), Motion::TurningInPlace);
-        // The three are told apart by their words, which the navigator looks for.
-        let words = [Motion::Forward, Motion::Reversing, Motion::TurningInPlace].map(Motion::describe);
-        for (i, a) in words.iter().enumerate() {
-            for b in &words[i + 1..] {
-                assert!(!a.contains(b) && !b.contains(a), "{a:?} / {b:?}");
-            }
-        }
-    }
-
-    #[test]
-    fn a_turn_in_place_goes_the_shorter_way_round_unless_a_sense_is_imposed() {
-        let (gain, most) = (1.5, 0.4);
-        let right = -100f64.to_radians();
-        // The shorter way: to the right, at the rate limit far off, proportionally near.
-        assert_eq!(pivot_rate(right, gain, most, None), -most);
-        assert!((pivot_rate(-0.1, gain, most, None) + 0.15).abs() < 1e-12);
-        // Only to the left: the long way round, at full rate, while the goal lies to the right...
-        assert_eq!(pivot_rate(right, gain, most, Some(Sense::Left)), most);
-        assert_eq!(pivot_rate(-0.1, gain, most, Some(Sense::Left)), most);
-        // ... and once past the back (alpha wraps to the left), proportionally as ever.
-        assert!((pivot_rate(0.1, gain, most, Some(Sense::Left)) - 0.15).abs() < 1e-12);
-        assert_eq!(pivot_rate(right, gain, most, Some(Sense::Right)), -most);
-        // The senses of yaw rates, and the words a stall's reason names them by.
-        assert_eq!(Sense::of(0.4), Sense::Left);
-        assert_eq!(Sense::of(-0.4), Sense::Right);
-        assert_eq!(Sense::Left.opposite(), Sense::Right);
-        assert!(!Sense::Left.describe().contains(Sense::Right.describe()));
-        assert_eq!(serde_json::to_value(Sense::Right).unwrap(), serde_json::json!("right"));
     }
 }

@@ -1,0 +1,198 @@
+//! CoordinatorManipulation against stub peers, and its geometry.
+
+use super::*;
+use framework::data::TargetStatus;
+use framework::{ConfigSource, Executor, LockstepExecutor, NoParams, SystemBuilder};
+use nalgebra::{Matrix3, Matrix6, Vector3};
+use std::sync::{Arc, Mutex};
+
+/// The commands every stub peer received, "peer.command" in order.
+type Log = Arc<Mutex<Vec<String>>>;
+
+/// A peer of the coordinator that completes every command at once but the wrist camera's
+/// `locate`, which fails (nothing seen); its blackboard slot (the pose, the head camera's
+/// track, the wrist camera's objects), if any, holds a rover at the origin facing +x and a
+/// canister estimate 1.05 m ahead of it.
+struct Peer {
+    name: &'static str,
+    log: Log,
+    slot: Option<&'static str>,
+    pose: Option<Writer<PoseEstimate>>,
+    track: Option<Writer<TargetTrack>>,
+    objects: Option<Writer<ObjectPoses>>,
+}
+
+impl Peer {
+    fn answer(&mut self, command: &str) -> Outcome {
+        self.log.lock().unwrap().push(format!("{}.{command}", self.name));
+        if command == "locate" { Outcome::fail("not located to 0.01 m within 8 s") } else { Outcome::done() }
+    }
+}
+
+impl Module for Peer {
+    type Params = NoParams;
+    const KIND: ModuleKind = ModuleKind::Resource;
+
+    fn declare(&mut self, d: &mut Declare<'_, Self>) {
+        match self.slot {
+            Some("pose") => self.pose = Some(d.writes("pose")),
+            Some("track") => self.track = Some(d.writes("track")),
+            Some("objects") => self.objects = Some(d.writes("objects")),
+            _ => {}
+        }
+        d.state("serving", |m, ctx| {
+            let now = ctx.now();
+            if let Some(w) = &m.pose {
+                let pose = PoseEstimate {
+                    frame: "map".into(),
+                    child: "base_link".into(),
+                    pose: Isometry3::identity(),
+                    covariance: Matrix6::identity() * 1e-4,
+                    velocity: Default::default(),
+                };
+                ctx.write(w, pose);
+            }
+            if let Some(w) = &m.track {
+                let track = TargetTrack {
+                    target: "canister".into(),
+                    camera: "head".into(),
+                    stamp: now,
+                    status: TargetStatus::Tracking,
+                    confidence: 1.0,
+                    bbox: [0.0; 4],
+                    position: Some(Point3::new(1.05, 0.0, 0.1)),
+                    position_stamp: Some(now),
+                    velocity: Vector3::zeros(),
+                    velocity_horizon_s: 0.0,
+                    covariance: Matrix3::identity() * 0.01,
+                    range_m: Some(1.05),
+                    measured: None,
+                    located: 10,
+                    line_of_sight: None,
+                };
+                ctx.write(w, track);
+            }
+            let _ = &m.objects;
+            Ok(())
+        });
+        d.command("move_named", |m, _, _: serde_json::Value| m.answer("move_named"));
+        d.command("locate", |m, _, _: serde_json::Value| m.answer("locate"));
+        d.command("set_rate", |m, _, _: serde_json::Value| m.answer("set_rate"));
+        d.command("drive", |m, _, _: serde_json::Value| m.answer("drive"));
+        d.command("turn_to", |m, _, _: serde_json::Value| m.answer("turn_to"));
+        d.command("reject", |m, _, _: serde_json::Value| m.answer("reject"));
+    }
+}
+
+/// Runs `acquire_canister` against stub peers (the head camera's track on when `by_head`)
+/// until it ends; its outcome and the commands the peers received.
+fn acquire_seeing_nothing(by_head: bool) -> (AckStatus, Vec<String>) {
+    let log = Log::default();
+    let mut b = SystemBuilder::new();
+    let cfg = |name: &str| ConfigSource::inline(name, "[framework]\nperiod_s = 0.1\n".to_string());
+    let peers = [
+        ("manipulator", None),
+        ("markers", Some("objects")),
+        ("cameras", None),
+        ("locomotion", Some("pose")),
+        ("tracker", by_head.then_some("track")),
+    ];
+    for (name, slot) in peers {
+        let peer = Peer { name, log: log.clone(), slot, pose: None, track: None, objects: None };
+        b.add(name, peer, cfg(name));
+    }
+    let coordinator = CoordinatorManipulation::new(ManipulationPeers {
+        manipulator: "manipulator".into(),
+        markers: "markers".into(),
+        cameras: ("cameras".into(), "wrist".into()),
+        locomotion: "locomotion".into(),
+        target: by_head.then(|| "track".to_string()),
+        tracker: Some("tracker".into()),
+        pose: "pose".into(),
+        objects: "objects".into(),
+    });
+    b.add("manipulation", coordinator, cfg("manipulation"));
+    b.endpoint("ground");
+    let mut ex = LockstepExecutor::new(b, Duration::from_millis(100)).unwrap();
+    ex.walk_to(Lifecycle::Run).unwrap();
+    let ground = ex.endpoint("ground").unwrap();
+    let id = ground.send(Command::new("manipulation", "acquire_canister")).unwrap();
+    for _ in 0..2000 {
+        ex.tick();
+        if let Some(AckStatus::Completed(_) | AckStatus::Failed(_) | AckStatus::Rejected(_)) =
+            ground.status(id)
+        {
+            break;
+        }
+    }
+    // What the coordinator sent with its answer is served in the next cycles.
+    for _ in 0..5 {
+        ex.tick();
+    }
+    let status = ground.status(id).unwrap();
+    let log = log.lock().unwrap().clone();
+    (status, log)
+}
+
+#[test]
+fn nothing_seen_where_the_head_camera_s_estimate_brought_the_rover_rejects_that_estimate() {
+    let (status, log) = acquire_seeing_nothing(true);
+    match &status {
+        AckStatus::Failed(r) => assert!(r.contains("told to reject that estimate"), "{r}"),
+        other => panic!("{other:?}"),
+    }
+    // Every look pose from where the rover stood, and again after backing up, then the reject.
+    let looks = log.iter().filter(|c| *c == "markers.locate").count();
+    assert_eq!(looks, 2 * CoordinatorManipulationParams::default().look_poses.len(), "{log:?}");
+    assert!(log.iter().any(|c| c == "locomotion.drive"), "backed up: {log:?}");
+    assert_eq!(log.iter().filter(|c| *c == "tracker.reject").count(), 1, "{log:?}");
+    // Without the head camera's estimate, nothing is rejected.
+    let (status, log) = acquire_seeing_nothing(false);
+    match &status {
+        AckStatus::Failed(r) => assert!(r.starts_with("Locate failed") && !r.contains("reject"), "{r}"),
+        other => panic!("{other:?}"),
+    }
+    assert!(!log.iter().any(|c| c == "tracker.reject"), "{log:?}");
+}
+
+#[test]
+fn an_object_out_of_the_grasp_region_is_brought_to_the_grasp_distance_on_its_line() {
+    let p = CoordinatorManipulationParams::default();
+    assert_eq!(reposition(&Point3::new(1.0, 0.05, -0.3), &p), None);
+    let to = reposition(&Point3::new(1.6, 0.3, -0.3), &p).unwrap();
+    let (dx, dy) = (1.6 - to[0], 0.3 - to[1]);
+    assert!((dx.hypot(dy) - p.grasp_x_m).abs() < 1e-12);
+    assert!((to[1] / to[0] - 0.3 / 1.6).abs() < 1e-12);
+    // Too near: backwards.
+    let back = reposition(&Point3::new(0.7, 0.0, -0.3), &p).unwrap();
+    assert!((back[0] + 0.3).abs() < 1e-12);
+}
+
+#[test]
+fn a_stalled_move_is_sent_again_for_what_is_left_of_it() {
+    // A drive of 0.4 m north-east that stalled 0.1 m along: 0.3 m left, from where the rover is.
+    let h = std::f64::consts::FRAC_PI_4;
+    let drive = Move::Drive { distance: 0.4, from: [1.0, 2.0], heading: h };
+    let at = [1.0 + 0.1 * h.cos(), 2.0 + 0.1 * h.sin()];
+    match drive.rest(at) {
+        Some(Move::Drive { distance, from, heading }) => {
+            assert!((distance - 0.3).abs() < 1e-9, "{distance}");
+            assert_eq!((from, heading), (at, h));
+        }
+        other => panic!("{other:?}"),
+    }
+    // Sideways slip is no way made good; nearly all the way (or past it): nothing left.
+    let slipped = [1.0 + 0.2 * (h + 1.5).cos(), 2.0 + 0.2 * (h + 1.5).sin()];
+    assert!(matches!(drive.rest(slipped), Some(Move::Drive { distance, .. }) if distance > 0.38));
+    assert_eq!(drive.rest([1.0 + 0.4 * h.cos(), 2.0 + 0.4 * h.sin()]), None);
+    assert_eq!(drive.rest([1.0 + 0.5 * h.cos(), 2.0 + 0.5 * h.sin()]), None);
+    // Backwards: the way made good is negative too.
+    let back = Move::Drive { distance: -0.35, from: [0.0, 0.0], heading: 0.0 };
+    assert!(
+        matches!(back.rest([-0.05, 0.0]), Some(Move::Drive { distance, .. }) if (distance + 0.3).abs() < 1e-9)
+    );
+    assert_eq!(back.rest([-0.345, 0.0]), None);
+    // A turn is to an absolute heading: sent as it was.
+    let turn = Move::Turn { yaw: 1.0 };
+    assert_eq!(turn.rest([5.0, 5.0]), Some(turn));
+}

@@ -39,6 +39,12 @@ impl Entity {
         }))
     }
 
+    /// The entity as it is published.
+    #[cfg(test)]
+    pub(super) fn json(&self) -> &Value {
+        &self.0
+    }
+
     /// Moves with its frame (for entities attached to a robot link).
     pub(super) fn frame_locked(mut self) -> Self {
         self.0["frame_locked"] = json!(true);

@@ -2,11 +2,13 @@
 //! `LineStrips2D` and labels, MCAP `foxglove.ImageAnnotations`; the regions searched at full
 //! resolution in grey), the object poses they give (Rerun
 //! transforms with axes under `world/estimate/objects`, MCAP `foxglove.PosesInFrame` in `map`), and
-//! the target track (its box over the image, its position in `map`).
+//! the target track (its box over the image, its position in `map`, the places ruled out for it:
+//! red discs, Rerun `world/estimate/excluded`, MCAP `/scene/excluded`).
 
 use super::Writer;
 use super::mcap_writer::{pose_json, stamp_json};
 use super::rerun_view::rr_transform;
+use super::scene::{self, Entity};
 use anyhow::Result;
 use framework::data::{ManipulationState, MarkerDetections, ObjectPoses, TargetStatus, TargetTrack};
 use serde_json::{Value, json};
@@ -39,6 +41,26 @@ fn annotation(stamp: framework::Time, corners: &[[f32; 2]], colour: [u8; 3], tex
         "font_size": 12.0, "text_color": rgba, "background_color": {"r": 0.0, "g": 0.0, "b": 0.0, "a": 0.6},
     });
     (outline, label)
+}
+
+/// The places ruled out for a target: red.
+const EXCLUDED: [u8; 3] = [230, 40, 40];
+
+/// The places ruled out for the target as one scene entity (`map`): a flat cylinder of the
+/// exclusion's radius and a label each; None when there are none.
+fn excluded_entity(t: &TargetTrack) -> Option<Entity> {
+    if t.excluded.is_empty() {
+        return None;
+    }
+    let label = format!("not the {}", t.target);
+    let mut e = Entity::new("excluded", "map", t.stamp).meta("target", &t.target);
+    for x in &t.excluded {
+        let p = x.position;
+        e = e
+            .cylinder(&nalgebra::Isometry3::translation(p.x, p.y, p.z), x.radius_m, 0.04, EXCLUDED, 0.5)
+            .text([p.x, p.y, p.z + 0.3], &label, EXCLUDED);
+    }
+    Some(e)
 }
 
 impl Writer {
@@ -214,6 +236,9 @@ impl Writer {
                 self.target_arrow = t.velocity.norm() > 0.0;
             }
         }
+        if t.excluded != self.excluded_shown {
+            self.excluded(t)?;
+        }
         if let Some(mc) = &mut self.mcap {
             let corners = [[u0, v0], [u1, v0], [u1, v1], [u0, v1]].map(|[x, y]| [x as f32, y as f32]);
             let (outline, text) = annotation(t.stamp, &corners, colour, &label);
@@ -228,5 +253,79 @@ impl Writer {
             }
         }
         Ok(())
+    }
+
+    /// The places ruled out for the target (objects found not to be it): a red disc each, flat
+    /// on the object's place, of the radius nothing is taken for the target within. Drawn when
+    /// they change; cleared when none are left.
+    fn excluded(&mut self, t: &TargetTrack) -> Result<()> {
+        const ENTITY: &str = "world/estimate/excluded";
+        if let Some(rec) = &self.rrd {
+            if t.excluded.is_empty() {
+                rec.log(ENTITY, &rerun::Clear::flat())?;
+            } else {
+                let centres = t
+                    .excluded
+                    .iter()
+                    .map(|e| [e.position.x as f32, e.position.y as f32, e.position.z as f32]);
+                let halves = t.excluded.iter().map(|e| [e.radius_m as f32, e.radius_m as f32, 0.02]);
+                rec.log(
+                    ENTITY,
+                    &rerun::Ellipsoids3D::from_centers_and_half_sizes(centres, halves)
+                        .with_colors([EXCLUDED])
+                        .with_labels([format!("not the {}", t.target)]),
+                )?;
+            }
+        }
+        if let Some(m) = &mut self.mcap {
+            match excluded_entity(t) {
+                Some(e) => scene::update(m, "/scene/excluded", t.stamp, vec![e], &[])?,
+                None => scene::update(m, "/scene/excluded", t.stamp, vec![], &["excluded"])?,
+            }
+        }
+        self.excluded_shown = t.excluded.clone();
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use framework::data::ExcludedPlace;
+    use nalgebra::{Matrix3, Point3, Vector3};
+
+    #[test]
+    fn each_place_ruled_out_for_the_target_is_a_disc_of_its_radius_in_the_scene() {
+        let mut t = TargetTrack {
+            target: "canister".into(),
+            camera: "head_stereo".into(),
+            stamp: framework::Time::from_secs_f64(3.0),
+            status: TargetStatus::Tracking,
+            confidence: 0.9,
+            bbox: [0.0; 4],
+            position: None,
+            position_stamp: None,
+            velocity: Vector3::zeros(),
+            velocity_horizon_s: 0.0,
+            covariance: Matrix3::zeros(),
+            range_m: None,
+            measured: None,
+            located: 0,
+            line_of_sight: None,
+            excluded: Vec::new(),
+        };
+        assert!(excluded_entity(&t).is_none());
+        t.excluded = vec![
+            ExcludedPlace { position: Point3::new(1.0, 2.0, 0.1), radius_m: 1.0 },
+            ExcludedPlace { position: Point3::new(4.0, 2.0, 0.3), radius_m: 0.5 },
+        ];
+        let e = excluded_entity(&t).unwrap();
+        let v = e.json();
+        assert_eq!(v["frame_id"], "map");
+        let cylinders = v["cylinders"].as_array().unwrap();
+        assert_eq!(cylinders.len(), 2);
+        assert_eq!(cylinders[1]["size"]["x"], 1.0);
+        assert_eq!(cylinders[1]["pose"]["position"]["x"], 4.0);
+        assert_eq!(v["texts"][0]["text"], "not the canister");
     }
 }

@@ -128,6 +128,6 @@ pub use localization::{AttitudeEstimate, VisualOdometry, VisualOdometryStatus};
 pub use manipulation::ManipulationState;
 pub use maps::{ElevationMap, GridGeometry, NavigationMap, Path, cost};
 pub use tracking::{
-    LineOfSight, MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, TargetStatus, TargetTrack,
-    VisualTrackingState, carried,
+    ExcludedPlace, LineOfSight, MarkerDetections, MarkerObservation, ObjectPose, ObjectPoses, TargetStatus,
+    TargetTrack, VisualTrackingState, carried,
 };

@@ -110,6 +110,24 @@ impl LineOfSight {
     }
 }
 
+/// A place ruled out for a target: an object there was found not to be it (the wrist camera saw
+/// no canister where the head camera's estimate brought the rover), so nothing located within
+/// `radius_m` of it (horizontally) is taken for the target again.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ExcludedPlace {
+    /// The object's place in `map`, m.
+    pub position: Point3<f64>,
+    /// How far round it (horizontally), m.
+    pub radius_m: f64,
+}
+
+impl ExcludedPlace {
+    /// Whether `p` (in `map`) lies within the excluded place.
+    pub fn holds(&self, p: &Point3<f64>) -> bool {
+        (p.xy() - self.position.xy()).norm() <= self.radius_m
+    }
+}
+
 /// An operator-selected target as a tracker follows it (seed 000, 8.1): where it is in the image,
 /// and where it is in the world as stereo locates it.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -150,6 +168,9 @@ pub struct TargetTrack {
     /// The line of sight through the box's centre (the last known one when lost); None while the
     /// camera cannot be placed. Where the target is seen before stereo can range it.
     pub line_of_sight: Option<LineOfSight>,
+    /// The places ruled out for the target (none until one is rejected).
+    #[serde(default)]
+    pub excluded: Vec<ExcludedPlace>,
 }
 
 /// A target at `position` at time `from`, moving at `velocity`, carried to `to`: never backwards,

@@ -69,6 +69,7 @@ impl Module for Peer {
                     measured: None,
                     located: 10,
                     line_of_sight: None,
+                    excluded: Vec::new(),
                 };
                 ctx.write(w, track);
             }

@@ -204,6 +204,17 @@ impl TargetEstimate {
         }
     }
 
+    /// Doubts the estimate along `direction` only (a line of sight: stereo's error from afar
+    /// lies along it, the bearing is known well): its bias covariance grows by `sigma_m`^2 that
+    /// way. Nothing without an estimate, or for a direction of no length.
+    pub fn widen_along(&mut self, sigma_m: f64, direction: &Vector3<f64>) {
+        if let (Some(f), Some(u)) = (&mut self.fused, direction.try_normalize(1e-12))
+            && sigma_m.is_finite()
+        {
+            f.bias += u * u.transpose() * sigma_m.powi(2);
+        }
+    }
+
     /// The velocity the estimate moves by between locations, m/s.
     pub fn velocity(&self) -> Vector3<f64> {
         self.velocity
@@ -362,6 +373,25 @@ mod tests {
 
     fn t(s: f64) -> Time {
         Time::from_secs_f64(s)
+    }
+
+    #[test]
+    fn doubted_along_a_line_of_sight_it_lets_in_locations_along_it_only() {
+        let cov = Matrix3::identity() * 0.04;
+        let mut e = TargetEstimate::default();
+        assert!(e.fuse(&Location::new(Point3::new(10.0, 0.0, 0.0), cov, cov * 0.5), t(0.0), 0.0, 3.0, false));
+        let along = Location::new(Point3::new(12.0, 0.0, 0.0), cov, cov * 0.5);
+        let across = Location::new(Point3::new(10.0, 2.0, 0.0), cov, cov * 0.5);
+        assert!(!e.agrees(&along, t(1.0), 0.0, 3.0) && !e.agrees(&across, t(1.0), 0.0, 3.0));
+        // Doubted by 1.5 m along the line of sight from a camera at the origin (along x).
+        e.widen_along(1.5, &Vector3::new(10.0, 0.0, 0.0));
+        assert!(e.agrees(&along, t(1.0), 0.0, 3.0));
+        assert!(!e.agrees(&across, t(1.0), 0.0, 3.0), "the bearing is still known");
+        let c = e.covariance().unwrap();
+        assert!((c[(0, 0)] - (0.04 + 2.25)).abs() < 1e-9 && (c[(1, 1)] - 0.04).abs() < 1e-9, "{c}");
+        // A direction of no length changes nothing.
+        e.widen_along(1.5, &Vector3::zeros());
+        assert_eq!(e.covariance().unwrap(), c);
     }
 
     #[test]

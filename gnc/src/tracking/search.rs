@@ -45,12 +45,22 @@ pub fn search_radius_px(
 pub struct LostSearch {
     searched_s: f64,
     last: Option<Time>,
+    /// The estimate was doubted in this search.
+    doubted: bool,
 }
 
 impl LostSearch {
     /// Seconds searched for so far.
     pub fn searched_s(&self) -> f64 {
         self.searched_s
+    }
+
+    /// True once a search (the first time it has lasted `after_s`): the time to doubt the
+    /// estimate it is searched with.
+    pub fn doubt_due(&mut self, after_s: f64) -> bool {
+        let due = !self.doubted && self.searched_s >= after_s;
+        self.doubted |= due;
+        due
     }
 
     /// A frame at `stamp`: the target `found` or not, after a search or not (`searched`).
@@ -109,5 +119,23 @@ mod tests {
         assert_eq!(s.searched_s(), 3.5);
         s.frame(t(15.0), true, true);
         assert_eq!(s, LostSearch::default());
+    }
+
+    #[test]
+    fn a_search_is_due_for_doubting_its_estimate_once() {
+        let t = Time::from_secs_f64;
+        let mut s = LostSearch::default();
+        s.frame(t(0.0), false, true);
+        s.frame(t(5.0), false, true);
+        assert!(!s.doubt_due(10.0));
+        s.frame(t(10.0), false, true);
+        assert!(s.doubt_due(10.0));
+        s.frame(t(20.0), false, true);
+        assert!(!s.doubt_due(10.0), "once a search");
+        // Found and lost again: a new search, due again once it has lasted as long.
+        s.frame(t(21.0), true, true);
+        s.frame(t(22.0), false, true);
+        s.frame(t(32.0), false, true);
+        assert!(s.doubt_due(10.0));
     }
 }

@@ -34,7 +34,8 @@ mod reject;
 
 pub use params::{LocateArgs, RejectArgs, SelectArgs, TrackingTargetParams};
 
-use reject::{Excluded, beyond, excluded, ray_prior};
+use framework::data::ExcludedPlace;
+use reject::{beyond, excluded, ray_prior};
 
 use placing::{
     at_expected_depth, in_map, inside, map_box, on_the_ground, pose_drift, pose_term, raw_to_rect,
@@ -131,7 +132,7 @@ pub struct TrackingTarget {
     /// the selection's image.
     selected_sight: Option<(LineOfSight, PoseEstimate)>,
     /// The places of objects rejected as not the target (`reject`).
-    excluded: Vec<Excluded>,
+    excluded: Vec<ExcludedPlace>,
     /// The estimate is the prior a `reject` restarted it from: nothing located since.
     prior_only: bool,
 }
@@ -268,7 +269,7 @@ impl TrackingTarget {
             .or_else(|| self.estimate.position_at(now))
             .filter(|p| p.coords.iter().all(|v| v.is_finite()))
             .ok_or_else(|| format!("the {} is not located: there is nothing to reject", self.target))?;
-        let place = Excluded { position: object, radius_m: self.params.reject_radius_m };
+        let place = ExcludedPlace { position: object, radius_m: self.params.reject_radius_m };
         self.excluded.push(place);
         let prior = self.selected_sight.clone().and_then(|(sight, pose)| {
             // A target of known size: where its selected box's size puts it, between the ranges
@@ -422,6 +423,33 @@ impl TrackingTarget {
         ctx.note(format!(
             "the {} estimate's place showed the ground in {GROUND_TO_DOUBT} of the last {GROUND_WINDOW} images it was looked at in: doubted by {sigma:.1} m",
             self.target
+        ));
+    }
+
+    /// Once a search where the established estimate projects has lasted `redetect_whole_after_s`
+    /// without finding the target, the estimate is suspect (the whole image is searched): it is
+    /// doubted along the line of sight from the `camera`, by `doubt_lost_fraction` of its range,
+    /// so that the target's re-detection, metres from a wrong estimate along that line, agrees
+    /// with it. (An estimate stuck on look-alikes' locations metres short otherwise rejects the
+    /// target's own locations, then every re-detection of it, until `locate` gives up: sweep run
+    /// 7.) A prior after a `reject` is not doubted: it spans the ranges the target may be at.
+    fn doubt_when_lost(&mut self, ctx: &mut Ctx<'_>, stamp: Time, camera: &Point3<f64>) {
+        let fraction = self.params.doubt_lost_fraction;
+        let established = self.estimate.count() >= CONFIRM_AFTER && !self.prior_only;
+        if fraction <= 0.0 || !established {
+            return;
+        }
+        let Some(at) = self.estimate.position_at(stamp) else { return };
+        if !self.searched_lost.doubt_due(self.params.redetect_whole_after_s) {
+            return;
+        }
+        let sight = at - camera;
+        let sigma = fraction * sight.norm();
+        self.estimate.widen_along(sigma, &sight);
+        ctx.note(format!(
+            "the {} was searched for {:.0} s where its estimate projects and not found: the estimate is doubted by {sigma:.1} m along the line of sight",
+            self.target,
+            self.searched_lost.searched_s()
         ));
     }
 
@@ -680,6 +708,9 @@ impl TrackingTarget {
         {
             self.doubt_on_ground(ctx, stamp, &Point3::from(map_from_rect.translation.vector), at_estimate);
         }
+        if let Ok((map_from_rect, _)) = &placed {
+            self.doubt_when_lost(ctx, stamp, &Point3::from(map_from_rect.translation.vector));
+        }
         if result.status != TrackStatus::Lost
             && let Ok((map_from_rect, _)) = &placed
         {
@@ -708,6 +739,7 @@ impl TrackingTarget {
             measured,
             located: self.located,
             line_of_sight: self.sight,
+            excluded: self.excluded.clone(),
         };
         if let Some(w) = &self.out {
             ctx.write_stamped(w, out, stamp);

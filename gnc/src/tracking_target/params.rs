@@ -52,6 +52,12 @@ pub struct TrackingTargetParams {
     /// time again if the ground keeps showing; a location of the target near the estimate shrinks
     /// it back. 0: never (the default for now: see the mission's configuration).
     pub doubt_range_fraction: f64,
+    /// A target searched for where its established estimate projects for `redetect_whole_after_s`
+    /// and not found there: the estimate is suspect, and the whole image is searched; its
+    /// uncertainty along the line of sight (where stereo from afar errs: metres short or long)
+    /// then grows by this fraction of its range (1 sigma), once a search, so that the target's own
+    /// re-detection is not rejected by the wrong estimate it is searched with. 0: never.
+    pub doubt_lost_fraction: f64,
     /// `locate` fails when the target has been lost this long, s.
     pub lost_timeout_s: f64,
     /// How long the pose and joint histories reach back, s (more than the camera's latency).
@@ -102,6 +108,7 @@ impl Default for TrackingTargetParams {
             ground_tilt_deg: -90.0,
             ground_tilt_sigmas: 2.0,
             doubt_range_fraction: 0.0,
+            doubt_lost_fraction: 0.0,
             lost_timeout_s: 20.0,
             history_s: 4.0,
             max_extrapolation_s: 0.15,
@@ -208,8 +215,12 @@ impl TrackingTargetParams {
         if !(p.ground_tilt_sigmas.is_finite() && p.ground_tilt_sigmas >= 0.0) {
             return Err(format!("ground_tilt_sigmas must be >= 0, got {}", p.ground_tilt_sigmas));
         }
-        if !(p.doubt_range_fraction.is_finite() && p.doubt_range_fraction >= 0.0) {
-            return Err(format!("doubt_range_fraction must be >= 0, got {}", p.doubt_range_fraction));
+        for (k, v) in
+            [("doubt_range_fraction", p.doubt_range_fraction), ("doubt_lost_fraction", p.doubt_lost_fraction)]
+        {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(format!("{k} must be >= 0, got {v}"));
+            }
         }
         if !(p.max_target_speed_mps.is_finite() && p.max_target_speed_mps >= 0.0) {
             return Err(format!("max_target_speed_mps must be >= 0, got {}", p.max_target_speed_mps));

@@ -11,26 +11,11 @@
 //! fused, no re-detection there taken), and the tracker starts again from the selection's look.
 
 use crate::tracking::estimate::Location;
-use framework::data::LineOfSight;
+use framework::data::{ExcludedPlace, LineOfSight};
 use nalgebra::{Matrix3, Point3};
 
-/// A rejected object's place, in `map`: no location within `radius_m` of it (horizontally) is
-/// the target.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Excluded {
-    pub position: Point3<f64>,
-    pub radius_m: f64,
-}
-
-impl Excluded {
-    /// Whether `p` (in `map`) lies within the excluded place.
-    pub fn holds(&self, p: &Point3<f64>) -> bool {
-        (p.xy() - self.position.xy()).norm() <= self.radius_m
-    }
-}
-
 /// Whether any of `excluded` holds `p`.
-pub fn excluded(excluded: &[Excluded], p: &Point3<f64>) -> bool {
+pub fn excluded(excluded: &[ExcludedPlace], p: &Point3<f64>) -> bool {
     excluded.iter().any(|e| e.holds(p))
 }
 
@@ -38,7 +23,7 @@ pub fn excluded(excluded: &[Excluded], p: &Point3<f64>) -> bool {
 /// may begin to lie once `rejected` was excluded: past the rejected object's place (its crossing,
 /// plus its radius). A target of known size may lie anywhere its selected box allows, in front of
 /// the rejected object too.
-pub fn beyond(sight: &LineOfSight, rejected: &Excluded) -> f64 {
+pub fn beyond(sight: &LineOfSight, rejected: &ExcludedPlace) -> f64 {
     ((rejected.position - sight.origin).dot(&sight.direction) + rejected.radius_m).max(0.0)
 }
 
@@ -83,7 +68,7 @@ mod tests {
 
     #[test]
     fn the_prior_spans_the_stretch_of_the_line_of_sight() {
-        let rock = Excluded { position: Point3::new(20.0, 0.3, 0.2), radius_m: 0.75 };
+        let rock = ExcludedPlace { position: Point3::new(20.0, 0.3, 0.2), radius_m: 0.75 };
         let near = beyond(&sight(), &rock);
         assert!((near - 20.75).abs() < 1e-9);
         let prior = ray_prior(&sight(), (near, None, 30.0), |_| 0.25, 2.5).unwrap();
@@ -102,13 +87,13 @@ mod tests {
         let clamped = ray_prior(&sight(), (near, Some(15.0), 30.0), |_| 0.25, 2.5).unwrap();
         assert!((clamped.position - Point3::new(20.75, 0.0, 1.5)).norm() < 1e-9);
         // Nothing left: the rejected object at or past the far end.
-        let far_rock = Excluded { position: Point3::new(29.5, 0.0, 0.0), radius_m: 0.75 };
+        let far_rock = ExcludedPlace { position: Point3::new(29.5, 0.0, 0.0), radius_m: 0.75 };
         assert!(ray_prior(&sight(), (beyond(&sight(), &far_rock), None, 30.0), |_| 0.25, 2.5).is_none());
     }
 
     #[test]
     fn the_excluded_place_is_horizontal() {
-        let rock = Excluded { position: Point3::new(5.0, 5.0, 0.0), radius_m: 0.5 };
+        let rock = ExcludedPlace { position: Point3::new(5.0, 5.0, 0.0), radius_m: 0.5 };
         assert!(rock.holds(&Point3::new(5.3, 5.3, 2.0)));
         assert!(!rock.holds(&Point3::new(5.4, 5.4, 0.0)));
         assert!(excluded(&[rock], &Point3::new(4.6, 5.0, 0.0)));

@@ -10,13 +10,16 @@
 //! published as `localization/pose` in `map`, stamped with the data's time. Each sighting of a
 //! surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
 //! reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
-//! with respect to a fixed object).
+//! with respect to a fixed object); where the estimate has drifted beyond what its covariance
+//! says, the gate refuses every sighting: `landmark_drift_sightings` refused in a row that agree
+//! with each other on where the rover is (within `landmark_drift_agree_m`, each within
+//! `landmark_drift_gate`) relocalize it on the landmark ([`PoseFilter::relocalize`]).
 //!
 //! The wheels' noise here is the fusion's own model of slip (per metre, along, across and up), not
 //! the wheel odometry's: it is what lets vision correct a slipping drive.
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
-use crate::localization::landmark::LandmarkFix;
+use crate::localization::landmark::{DriftEvidence, LandmarkFix};
 use crate::params::require_positive;
 use framework::data::{AttitudeEstimate, ObjectPoses, PoseEstimate, VisualOdometry};
 use framework::hal::BodyTwist;
@@ -67,7 +70,18 @@ pub struct FusionParams {
     /// Landmark fixes beyond this squared Mahalanobis distance (4 dof) are refused: a wrong
     /// sighting, not a drifted estimate (which its covariance may understate by a few times).
     pub landmark_gate: f64,
+    /// Sightings of a surveyed landmark refused in a row (within 10 s) that show the estimate
+    /// drifted: this many agreeing with each other relocalize the pose on the landmark (0: never).
+    pub landmark_drift_sightings: u32,
+    /// ... agreeing: the rover's positions they imply within this of their mean, m ...
+    pub landmark_drift_agree_m: f64,
+    /// ... and each within this squared Mahalanobis distance (farther: a wrong sighting, never
+    /// evidence of drift).
+    pub landmark_drift_gate: f64,
 }
+
+/// Refused sightings of a landmark further apart than this are not in a row, s.
+const DRIFT_WINDOW_S: f64 = 10.0;
 
 /// A landmark: an object whose place in `map` the operator surveyed.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -99,6 +113,9 @@ impl Default for FusionParams {
             silent_after_s: 0.2,
             landmarks: Vec::new(),
             landmark_gate: 100.0,
+            landmark_drift_sightings: 0,
+            landmark_drift_agree_m: 0.25,
+            landmark_drift_gate: 1000.0,
         }
     }
 }
@@ -114,6 +131,8 @@ pub struct FusionCounts {
     pub landmarks_applied: u64,
     /// Landmark fixes refused (too old, beyond the gate).
     pub landmarks_refused: u64,
+    /// Relocalizations on a landmark the estimate had drifted from.
+    pub relocalized: u64,
 }
 
 /// The data fusion module.
@@ -137,6 +156,8 @@ pub struct LocalizationDataFusion {
     gyro_resync: bool,
     counts: FusionCounts,
     velocity: BodyTwist,
+    /// Per landmark, the refused sightings that may show the estimate drifted from it.
+    drift: std::collections::BTreeMap<String, DriftEvidence>,
 }
 
 impl LocalizationDataFusion {
@@ -161,6 +182,7 @@ impl LocalizationDataFusion {
             gyro_resync: false,
             counts: FusionCounts::default(),
             velocity: BodyTwist::default(),
+            drift: std::collections::BTreeMap::new(),
         }
     }
 
@@ -195,14 +217,39 @@ impl LocalizationDataFusion {
             };
             let Some(filter) = self.filter.as_mut() else { return };
             let before = filter.state().pose.translation.vector;
-            match filter.landmark(fix) {
+            let drift = self.drift.entry(l.object.clone()).or_default();
+            match filter.landmark(fix.clone()) {
                 Ok(d2) => {
+                    drift.clear();
                     self.counts.landmarks_applied += 1;
                     let moved = (filter.state().pose.translation.vector - before).norm();
                     if self.counts.landmarks_applied.is_power_of_two() {
                         ctx.note(format!(
                             "fixed on the surveyed {} ({} so far): squared distance {d2:.1}, the position moved {moved:.2} m",
                             l.object, self.counts.landmarks_applied
+                        ));
+                    }
+                }
+                Err(RelativeError::Gated(d2))
+                    if self.params.landmark_drift_sightings > 0 && d2 <= self.params.landmark_drift_gate =>
+                {
+                    self.counts.landmarks_refused += 1;
+                    let rotation = filter.state_at(fix.stamp).unwrap_or_else(|| filter.state()).pose.rotation;
+                    let p = &self.params;
+                    let n = p.landmark_drift_sightings as usize;
+                    if drift.refused(
+                        fix.stamp,
+                        fix.implied_position(&rotation),
+                        DRIFT_WINDOW_S,
+                        n,
+                        p.landmark_drift_agree_m,
+                    ) && let Ok(d2) = filter.relocalize(fix)
+                    {
+                        self.counts.relocalized += 1;
+                        let moved = (filter.state().pose.translation.vector - before).norm();
+                        ctx.note(format!(
+                            "relocalized on the surveyed {}: {n} sightings in a row agreed with each other, not with the estimate (squared distance {d2:.0}): the position moved {moved:.2} m",
+                            l.object
                         ));
                     }
                 }
@@ -432,6 +479,8 @@ impl Module for LocalizationDataFusion {
             ("visual_gate", p.visual_gate),
             ("silent_after_s", p.silent_after_s),
             ("landmark_gate", p.landmark_gate),
+            ("landmark_drift_agree_m", p.landmark_drift_agree_m),
+            ("landmark_drift_gate", p.landmark_drift_gate),
         ])?;
         for l in &p.landmarks {
             let values: Vec<f64> = l.pose.iter().chain(&l.sigma).copied().collect();

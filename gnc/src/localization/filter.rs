@@ -148,8 +148,10 @@ impl State {
 #[derive(Clone, Debug)]
 struct Step {
     input: Increment,
-    /// Landmark fixes applied at this step (again at each re-run).
-    fixes: Vec<LandmarkFix>,
+    /// Landmark fixes applied at this step (again at each re-run), each with whether the
+    /// estimate was found drifted first (`relocalize`: its covariance widened by the fix's
+    /// disagreement before the fix).
+    fixes: Vec<(LandmarkFix, bool)>,
     posterior: State,
 }
 
@@ -336,6 +338,32 @@ impl Augmented {
         self.update(&y, &h, &m.covariance, Some((3, gate)))
     }
 
+    /// The squared Mahalanobis distance of a landmark fix from the current state.
+    fn distance(&self, fix: &LandmarkFix) -> f64 {
+        let (y, h6, n) = fix.model(&self.pose);
+        let p6 = self.p.fixed_view::<6, 6>(0, 0).into_owned();
+        let s = h6 * p6 * h6.transpose() + n;
+        s.try_inverse().map_or(f64::INFINITY, |inv| (y.transpose() * inv * y)[0])
+    }
+
+    /// Widens the position and heading covariance by a landmark fix's disagreement with the
+    /// current state: the position by the drift the sighting implies (along it), the heading by
+    /// its heading error. The drift built up long before: a clone's (an earlier image's state)
+    /// shares it in full, so that a relative measurement from then on agrees with the fix.
+    fn widen_for(&mut self, fix: &LandmarkFix) {
+        let (y, _, _) = fix.model(&self.pose);
+        let r = self.pose.rotation.to_rotation_matrix().into_inner();
+        let drift = r * Vector3::new(y.x, y.y, y.z);
+        let states: &[usize] = if self.clone.is_some() { &[0, N] } else { &[0] };
+        let mut g_position = SVector::<f64, 18>::zeros();
+        let mut g_heading = SVector::<f64, 18>::zeros();
+        for &o in states {
+            g_position.fixed_rows_mut::<3>(o).copy_from(&drift);
+            g_heading[o + 5] = y.w;
+        }
+        self.p += g_position * g_position.transpose() + g_heading * g_heading.transpose();
+    }
+
     /// A landmark fix on the current state, refused beyond `gate` (squared Mahalanobis distance)
     /// when one is given.
     fn landmark(&mut self, fix: &LandmarkFix, gate: Option<f64>) -> Result<f64, f64> {
@@ -458,19 +486,43 @@ impl PoseFilter {
         match a.landmark(&fix, Some(self.params.landmark_gate)) {
             Ok(d2) => {
                 self.store(k, &a);
-                self.steps[k].fixes.push(fix);
+                self.steps[k].fixes.push((fix, false));
                 Ok(d2)
             }
             Err(d2) => Err(RelativeError::Gated(d2)),
         }
     }
 
+    /// Applies a sighting of a surveyed landmark the gate would refuse, once the estimate is
+    /// known to have drifted from it (sightings refused in a row agreed with each other): the
+    /// position and heading covariance first grow by the sighting's disagreement with the
+    /// estimate, as if the filter had known that little, then the fix is applied (at every re-run
+    /// of its step too). Returns the squared Mahalanobis distance before the widening.
+    pub fn relocalize(&mut self, fix: LandmarkFix) -> Result<f64, RelativeError> {
+        let Some(then) = self.state_at(fix.stamp) else {
+            return Err(RelativeError::TooOld((self.base.stamp - fix.stamp).as_secs_f64()));
+        };
+        let Some(k) = self.steps.len().checked_sub(1) else { return Err(RelativeError::NoStep) };
+        let now = self.steps[k].posterior;
+        let fix = fix.carried(&(now.pose.inverse() * then.pose), now.stamp);
+        let mut a = Augmented::new(&now);
+        let d2 = a.distance(&fix);
+        a.widen_for(&fix);
+        let _ = a.landmark(&fix, None);
+        self.store(k, &a);
+        self.steps[k].fixes.push((fix, true));
+        Ok(d2)
+    }
+
     /// Advances `a` by step `k`: its prediction, then its landmark fixes.
     fn advance_step(&self, a: &mut Augmented, k: usize) {
         let step = &self.steps[k];
         a.advance(&step.input, self.step_dt(k), &self.params);
-        for fix in &step.fixes {
+        for (fix, drifted) in &step.fixes {
             // Taken when first applied: applied again whatever the distance.
+            if *drifted {
+                a.widen_for(fix);
+            }
             let _ = a.landmark(fix, None);
         }
     }

@@ -84,6 +84,55 @@ impl LandmarkFix {
     }
 }
 
+impl LandmarkFix {
+    /// Where this sighting alone puts the body (`map`, m), for the body's orientation `rotation`.
+    pub fn implied_position(&self, rotation: &UnitQuaternion<f64>) -> Vector3<f64> {
+        self.surveyed - rotation * self.in_body
+    }
+}
+
+/// Evidence that the pose estimate has drifted from a surveyed landmark by more than its
+/// covariance allows: sightings of it the gate refused, one after another, that agree with each
+/// other on where the body is. A wrong sighting (another object, a misread marker) is refused
+/// once, or scatters; a drifted estimate is refused by every sighting, and they agree.
+#[derive(Clone, Debug, Default)]
+pub struct DriftEvidence {
+    /// The refused sightings kept: capture time and the body's position each implies (`map`).
+    seen: Vec<(Time, Vector3<f64>)>,
+}
+
+impl DriftEvidence {
+    /// Counts a refused sighting at `stamp` placing the body at `implied` (forgetting those more
+    /// than `window_s` older); true once the last `count` lie within `agree_m` of their mean (the
+    /// evidence is then used up).
+    pub fn refused(
+        &mut self,
+        stamp: Time,
+        implied: Vector3<f64>,
+        window_s: f64,
+        count: usize,
+        agree_m: f64,
+    ) -> bool {
+        self.seen.retain(|(t, _)| (stamp - *t).as_secs_f64() <= window_s);
+        self.seen.push((stamp, implied));
+        if count == 0 || self.seen.len() < count {
+            return false;
+        }
+        let last = &self.seen[self.seen.len() - count..];
+        let mean = last.iter().map(|(_, p)| p).sum::<Vector3<f64>>() / count as f64;
+        let agree = last.iter().all(|(_, p)| (p - mean).norm() <= agree_m);
+        if agree {
+            self.seen.clear();
+        }
+        agree
+    }
+
+    /// Forgets the refused sightings (one was accepted: the estimate agrees again).
+    pub fn clear(&mut self) {
+        self.seen.clear();
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -200,6 +249,66 @@ mod tests {
     }
 
     #[test]
+    fn an_overconfident_drifted_filter_refuses_the_landmark_but_is_relocalized_on_it() {
+        use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
+        use nalgebra::Matrix6;
+        let t = Time::from_secs_f64;
+        let landmark = Isometry3::from_parts(
+            Translation3::new(-11.0, -8.0, 0.1),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, -std::f64::consts::FRAC_PI_2),
+        );
+        let truth = Isometry3::from_parts(
+            Translation3::new(-11.0, -11.0, 0.3),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+        );
+        // 1.5 m and 3 degrees off, believed to 0.1 m and 0.5 degree: the gate refuses the table.
+        let drifted = Isometry3::from_parts(
+            Translation3::new(-12.2, -10.1, 0.3),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2 + 3f64.to_radians()),
+        );
+        let mut cov = Matrix6::from_diagonal(&Vector6::new(0.01, 0.01, 0.01, 1e-4, 1e-4, 0.0));
+        cov[(5, 5)] = 0.5f64.to_radians().powi(2);
+        let mut f = PoseFilter::new(t(0.0), drifted, cov, FilterParams::default());
+        let still = |s: f64| Increment {
+            stamp: t(s),
+            translation: Vector3::zeros(),
+            rotation: UnitQuaternion::identity(),
+            translation_covariance: Matrix3::identity() * 1e-8,
+            rotation_covariance: Matrix3::identity() * 1e-10,
+            gyro_dt: 0.1,
+            gravity: Some(Vector3::z()),
+        };
+        for k in 1..=5 {
+            f.predict(still(0.1 * f64::from(k)));
+        }
+        let mut fix = sighting(&truth, &landmark);
+        fix.stamp = t(0.45);
+        assert!(matches!(f.landmark(fix.clone()), Err(RelativeError::Gated(d2)) if d2 > 100.0));
+        let err = |f: &PoseFilter| {
+            let s = f.state().pose;
+            let yaw = (s.rotation.inverse() * truth.rotation).euler_angles().2.abs().to_degrees();
+            ((s.translation.vector - truth.translation.vector).xy().norm(), yaw)
+        };
+        let d2 = f.relocalize(fix).unwrap();
+        assert!(d2 > 100.0, "{d2}");
+        let (dp, dyaw) = err(&f);
+        assert!(dp < 0.2 && dyaw < 1.0, "{dp:.3} m, {dyaw:.2} deg off after relocalizing");
+        // A relative measurement over the fix's step re-runs it: the relocalization stays.
+        for k in 6..=10 {
+            f.predict(still(0.1 * f64::from(k)));
+        }
+        let rel = RelativePose {
+            from: t(0.2),
+            to: t(0.9),
+            delta: Isometry3::identity(),
+            covariance: Matrix6::identity() * 1e-6,
+        };
+        assert!(f.relative(rel).is_ok());
+        let (dp2, dyaw2) = err(&f);
+        assert!((dp2 - dp).abs() < 0.02 && dyaw2 < 1.0, "{dp2:.3} m, {dyaw2:.2} deg after the re-run");
+    }
+
+    #[test]
     fn a_sighting_carried_to_a_later_body_is_what_that_body_would_see() {
         let landmark = Isometry3::from_parts(
             Translation3::new(-11.0, -8.0, 0.1),
@@ -220,5 +329,42 @@ mod tests {
         assert!((carried.relative_yaw - direct.relative_yaw).abs() < 1e-12);
         assert_eq!(carried.stamp, Time::from_secs_f64(2.0));
         assert!(carried.model(&now).0.norm() < 1e-12);
+    }
+
+    #[test]
+    fn refused_sightings_that_agree_with_each_other_are_evidence_of_drift() {
+        let t = Time::from_secs_f64;
+        let at = |x: f64| Vector3::new(x, 2.0, 0.0);
+        let mut d = DriftEvidence::default();
+        assert!(!d.refused(t(0.0), at(1.0), 10.0, 3, 0.25));
+        assert!(!d.refused(t(1.0), at(1.1), 10.0, 3, 0.25));
+        assert!(d.refused(t(2.0), at(1.05), 10.0, 3, 0.25), "three in a row agree");
+        // Used up: it takes three more.
+        assert!(!d.refused(t(3.0), at(1.0), 10.0, 3, 0.25));
+        // One far off (a wrong sighting) among them: no agreement until three agree again.
+        assert!(!d.refused(t(4.0), at(4.0), 10.0, 3, 0.25));
+        assert!(!d.refused(t(5.0), at(1.0), 10.0, 3, 0.25));
+        assert!(!d.refused(t(6.0), at(1.0), 10.0, 3, 0.25));
+        assert!(d.refused(t(7.0), at(1.0), 10.0, 3, 0.25));
+        // Too far apart in time: forgotten.
+        assert!(!d.refused(t(10.0), at(1.0), 10.0, 3, 0.25));
+        assert!(!d.refused(t(30.0), at(1.0), 10.0, 3, 0.25));
+        assert!(!d.refused(t(41.0), at(1.0), 10.0, 3, 0.25));
+        d.clear();
+        assert!(!d.refused(t(31.0), at(1.0), 10.0, 3, 0.25));
+        // The body's position a sighting implies: the landmark's place less the sighting, turned.
+        let fix = LandmarkFix {
+            stamp: t(0.0),
+            in_body: Vector3::new(2.0, 0.0, 0.0),
+            in_body_covariance: Matrix3::identity(),
+            relative_yaw: 0.0,
+            relative_yaw_var: 0.0,
+            surveyed: Vector3::new(5.0, 5.0, 0.0),
+            surveyed_covariance: Matrix3::zeros(),
+            surveyed_yaw: 0.0,
+            surveyed_yaw_var: 0.0,
+        };
+        let facing_north = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);
+        assert!((fix.implied_position(&facing_north) - Vector3::new(5.0, 3.0, 0.0)).norm() < 1e-12);
     }
 }

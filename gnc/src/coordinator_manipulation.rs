@@ -203,9 +203,15 @@ struct Job {
     head_estimate: Option<Point3<f64>>,
     /// Whether the wrist camera has seen the object (located or glimpsed) in this job.
     seen: bool,
-    /// The wrist camera's latest glimpse of the object in this round of look poses (its pose
-    /// not located to the accuracy asked), looked for every cycle: any image of any pose counts.
+    /// The wrist camera's latest glimpse of the object in this job not yet moved towards (its
+    /// pose not located to the accuracy asked), looked for every cycle: any image counts, of
+    /// any look pose, and of the drives between them (the stowed wrist camera looks ahead).
     glimpse: Option<ObjectPose>,
+    /// The capture time of the image the last glimpse was taken from (none: none yet): an image
+    /// glimpses once.
+    glimpse_stamp: Option<Time>,
+    /// When the job began: images from before it are not of its object's search.
+    started: Time,
     /// Locates that ran (and failed) in this round of look poses: none, and the arm never
     /// reached a look pose.
     round_locates: u32,
@@ -216,8 +222,6 @@ struct Job {
     result: serde_json::Value,
     /// When the step awaited began.
     since: Time,
-    /// When the locate from the first look pose of this round began.
-    look_since: Time,
 }
 
 /// What the rover should do so that an object at `object` (in `base_link`, m) can be grasped:
@@ -387,15 +391,18 @@ impl CoordinatorManipulation {
     }
 
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
-        // A glimpse in any image of this round's look poses (the newest image alone, at the
-        // round's end, may be of another pose that sees nothing).
-        if matches!(job.step, Step::Look | Step::Locate)
-            && let Some(o) = self.objects.as_ref().and_then(|o| ctx.read(o))
-            && o.value.stamp >= job.look_since
+        // A glimpse in any image since the job began: of any look pose (the newest image alone,
+        // at a round's end, may be of another pose that sees nothing), or of a drive (the object
+        // passing through the stowed wrist camera's view; sweep run 8 saw its markers for 20 s
+        // driving to the working distance, then from no look pose).
+        if let Some(o) = self.objects.as_ref().and_then(|o| ctx.read(o))
+            && o.value.stamp >= job.started
+            && job.glimpse_stamp != Some(o.value.stamp)
             && let Some(seen) = o.value.objects.iter().find(|x| x.object == self.params.object)
         {
             job.seen = true;
             job.glimpse = Some(seen.clone());
+            job.glimpse_stamp = Some(o.value.stamp);
         }
         let status = match ctx.ack_status(job.id) {
             Some(AckStatus::Completed(v)) => Ok(v),
@@ -427,8 +434,6 @@ impl CoordinatorManipulation {
                 job.since = ctx.now();
                 if job.look == 0 {
                     // A new round of look poses.
-                    job.look_since = job.since;
-                    job.glimpse = None;
                     job.round_locates = 0;
                 }
             }
@@ -593,12 +598,13 @@ impl CoordinatorManipulation {
                     head_estimate: None,
                     seen: false,
                     glimpse: None,
+                    glimpse_stamp: None,
+                    started: ctx.now(),
                     round_locates: 0,
                     stalls: 0,
                     last_move: None,
                     result: serde_json::Value::Null,
                     since: ctx.now(),
-                    look_since: ctx.now(),
                 });
                 Outcome::Accepted
             }

@@ -19,7 +19,7 @@
 //! the wheel odometry's: it is what lets vision correct a slipping drive.
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
-use crate::localization::landmark::{DriftEvidence, LandmarkFix};
+use crate::localization::landmark::{Disagreement, DriftEvidence, LandmarkFix};
 use crate::params::require_positive;
 use framework::data::{AttitudeEstimate, ObjectPoses, PoseEstimate, VisualOdometry};
 use framework::hal::BodyTwist;
@@ -73,8 +73,11 @@ pub struct FusionParams {
     /// Sightings of a surveyed landmark refused in a row (within 10 s) that show the estimate
     /// drifted: this many agreeing with each other relocalize the pose on the landmark (0: never).
     pub landmark_drift_sightings: u32,
-    /// ... agreeing: the rover's positions they imply within this of their mean, m ...
+    /// ... agreeing: how far they put the rover from the estimate within this of their mean, m,
+    /// and its heading within `landmark_drift_agree_deg` ...
     pub landmark_drift_agree_m: f64,
+    /// See `landmark_drift_agree_m`, degrees.
+    pub landmark_drift_agree_deg: f64,
     /// ... and each within this squared Mahalanobis distance (farther: a wrong sighting, never
     /// evidence of drift).
     pub landmark_drift_gate: f64,
@@ -115,6 +118,7 @@ impl Default for FusionParams {
             landmark_gate: 100.0,
             landmark_drift_sightings: 0,
             landmark_drift_agree_m: 0.25,
+            landmark_drift_agree_deg: 3.0,
             landmark_drift_gate: 1000.0,
         }
     }
@@ -234,16 +238,13 @@ impl LocalizationDataFusion {
                     if self.params.landmark_drift_sightings > 0 && d2 <= self.params.landmark_drift_gate =>
                 {
                     self.counts.landmarks_refused += 1;
-                    let rotation = filter.state_at(fix.stamp).unwrap_or_else(|| filter.state()).pose.rotation;
+                    let then = filter.state_at(fix.stamp).unwrap_or_else(|| filter.state()).pose;
                     let p = &self.params;
                     let n = p.landmark_drift_sightings as usize;
-                    if drift.refused(
-                        fix.stamp,
-                        fix.implied_position(&rotation),
-                        DRIFT_WINDOW_S,
-                        n,
-                        p.landmark_drift_agree_m,
-                    ) && let Ok(d2) = filter.relocalize(fix)
+                    let (agree_m, agree_rad) =
+                        (p.landmark_drift_agree_m, p.landmark_drift_agree_deg.to_radians());
+                    if drift.refused(Disagreement::of(&fix, &then), DRIFT_WINDOW_S, n, agree_m, agree_rad)
+                        && let Ok(d2) = filter.relocalize(fix)
                     {
                         self.counts.relocalized += 1;
                         let moved = (filter.state().pose.translation.vector - before).norm();
@@ -254,6 +255,8 @@ impl LocalizationDataFusion {
                     }
                 }
                 Err(e) => {
+                    // A wrong sighting (or one too old): the run of agreeing ones is broken.
+                    drift.clear();
                     self.counts.landmarks_refused += 1;
                     if self.counts.landmarks_refused.is_power_of_two() {
                         ctx.note(format!(
@@ -480,8 +483,18 @@ impl Module for LocalizationDataFusion {
             ("silent_after_s", p.silent_after_s),
             ("landmark_gate", p.landmark_gate),
             ("landmark_drift_agree_m", p.landmark_drift_agree_m),
+            ("landmark_drift_agree_deg", p.landmark_drift_agree_deg),
             ("landmark_drift_gate", p.landmark_drift_gate),
         ])?;
+        if p.landmark_drift_sightings == 1 {
+            return Err("landmark_drift_sightings must be 0 (never) or at least 2: one refused sighting is no evidence of drift".into());
+        }
+        if p.landmark_drift_sightings > 0 && p.landmark_drift_gate <= p.landmark_gate {
+            return Err(format!(
+                "landmark_drift_gate ({}) must exceed landmark_gate ({}): the sightings it lets count as drift are those the gate refuses",
+                p.landmark_drift_gate, p.landmark_gate
+            ));
+        }
         for l in &p.landmarks {
             let values: Vec<f64> = l.pose.iter().chain(&l.sigma).copied().collect();
             crate::params::require_finite(&format!("landmark '{}'", l.object), &values)?;

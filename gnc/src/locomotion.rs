@@ -9,7 +9,8 @@
 //! - `follow_path {points, clearance_m?, speed?, tolerance_m?, pivot?}`: follows a path of the
 //!   estimate's frame by pure pursuit (a lookahead point on the path, the arc through it), turning
 //!   in place when the path is far off the heading or the arc tighter than `max_curvature` (if set)
-//!   (the shorter way round, or only the way `pivot` says: [`Sense`]), slowing where the path's
+//!   (the shorter way round, or for its first such turn only the way `pivot` says: [`Sense`]),
+//!   slowing where the path's
 //!   clearance to obstacles is small, for heading error and near the end; completes at the last
 //!   point with the cross-track errors;
 //! - `stop`: stops at once (also fails the manoeuvre in progress);
@@ -150,8 +151,9 @@ pub struct FollowPathArgs {
     /// Arrival tolerance at the last point, m (default: the configured one).
     #[serde(default)]
     pub tolerance_m: Option<f64>,
-    /// Turns in place only this way round (default: the shorter way): after a turn that stalled
-    /// a wheel one way, the way round that loads the wheels differently.
+    /// Its first turn in place goes only this way round (default: the shorter way), the long way
+    /// if need be (a turn far off the heading, over `turn_in_place_deg`): after a turn that
+    /// stalled a wheel one way there, the way round that loads the wheels differently.
     #[serde(default)]
     pub pivot: Option<Sense>,
 }
@@ -360,7 +362,13 @@ impl Locomotion {
                 let limited = p.max_curvature > 0.0;
                 let limit = if f.pivoting { 0.5 } else { 1.0 } * p.max_curvature;
                 let too_tight = limited && judged.abs() > limit;
+                let was_pivoting = f.pivoting;
                 f.pivoting = alpha.abs() > p.turn_in_place_deg.to_radians() || too_tight;
+                if was_pivoting && !f.pivoting {
+                    // The sense imposed was for the first turn in place (where one stalled the
+                    // other way): the path's later turns go the shorter way.
+                    f.pivot = None;
+                }
                 // The cross-track integral corrects the arcs; the long turns in place to within half
                 // the arc limit would wind it up. (Without the limit, the follower is as it was.)
                 if !(f.pivoting && limited) {

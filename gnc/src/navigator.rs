@@ -24,7 +24,9 @@
 //! place, the turns in place near that spot go the other way round (Locomotion's `pivot`): on a
 //! slope, the wheel that stalls is the most loaded one rolling uphill, and the same turn tried again
 //! stalls again (the main job's return once did, five times over); the other way round it rolls
-//! downhill. Progress is published on `navigation/state`.
+//! downhill. (The long way round if need be: the paths sent from within `SAME_STALL_SPOT_M` of
+//! the spot have their first turn in place, if over Locomotion's `turn_in_place_deg`, made that
+//! way; a later one of the same path goes the shorter way.) Progress is published on `navigation/state`.
 
 use crate::locomotion::{Motion, Sense};
 use crate::peer::send;

@@ -12,7 +12,9 @@ type Log = Arc<Mutex<Vec<String>>>;
 /// A peer of the coordinator that completes every command at once but the wrist camera's
 /// `locate`, which fails (nothing seen); its blackboard slot (the pose, the head camera's
 /// track, the wrist camera's objects), if any, holds a rover at the origin facing +x and a
-/// canister estimate 1.05 m ahead of it.
+/// canister estimate 1.05 m ahead of it; the wrist camera's objects, when `glimpse`, a glimpse of
+/// the canister 1.5 m ahead and 0.5 m to the left, once, after locomotion's first `drive` (the
+/// rover backing up between two rounds of look poses: no look pose's image).
 struct Peer {
     name: &'static str,
     log: Log,
@@ -20,11 +22,19 @@ struct Peer {
     pose: Option<Writer<PoseEstimate>>,
     track: Option<Writer<TargetTrack>>,
     objects: Option<Writer<ObjectPoses>>,
+    glimpse: bool,
+    /// Set by locomotion's first `drive`.
+    driven: Arc<std::sync::atomic::AtomicBool>,
+    /// A `drive` under way (it takes a second), and when it ends.
+    driving: Option<(framework::module::Request, Time)>,
 }
 
 impl Peer {
     fn answer(&mut self, command: &str) -> Outcome {
         self.log.lock().unwrap().push(format!("{}.{command}", self.name));
+        if command == "drive" {
+            self.driven.store(true, std::sync::atomic::Ordering::SeqCst);
+        }
         if command == "locate" { Outcome::fail("not located to 0.01 m within 8 s") } else { Outcome::done() }
     }
 }
@@ -42,6 +52,9 @@ impl Module for Peer {
         }
         d.state("serving", |m, ctx| {
             let now = ctx.now();
+            if let Some((r, _)) = m.driving.take_if(|(_, until)| now >= *until) {
+                ctx.reply(&r, Outcome::done());
+            }
             if let Some(w) = &m.pose {
                 let pose = PoseEstimate {
                     frame: "map".into(),
@@ -73,22 +86,52 @@ impl Module for Peer {
                 };
                 ctx.write(w, track);
             }
-            let _ = &m.objects;
+            if let Some(w) = &m.objects
+                && m.glimpse
+                && m.driven.load(std::sync::atomic::Ordering::SeqCst)
+            {
+                m.glimpse = false;
+                let at = Isometry3::translation(1.5, 0.5, -0.3);
+                let seen = ObjectPose {
+                    object: "canister".into(),
+                    markers: vec![0],
+                    stamp: now,
+                    base_from_object: at,
+                    base_covariance: Matrix6::identity() * 1e-2,
+                    map_from_object: at,
+                    map_covariance: Matrix6::identity() * 1e-2,
+                    rmse_px: 0.5,
+                    seen_frames: 1,
+                };
+                ctx.write(w, ObjectPoses { camera: "wrist".into(), stamp: now, objects: vec![seen] });
+            }
             Ok(())
         });
         d.command("move_named", |m, _, _: serde_json::Value| m.answer("move_named"));
         d.command("locate", |m, _, _: serde_json::Value| m.answer("locate"));
         d.command("set_rate", |m, _, _: serde_json::Value| m.answer("set_rate"));
-        d.command("drive", |m, _, _: serde_json::Value| m.answer("drive"));
+        // A drive takes a second (the wrist camera's images meanwhile are of no look pose).
+        d.command("drive", |m, ctx, _: serde_json::Value| {
+            m.answer("drive");
+            match ctx.request() {
+                Some(r) => {
+                    m.driving = Some((r, ctx.now() + Duration::from_secs_f64(1.0)));
+                    Outcome::Accepted
+                }
+                None => Outcome::done(),
+            }
+        });
         d.command("turn_to", |m, _, _: serde_json::Value| m.answer("turn_to"));
         d.command("reject", |m, _, _: serde_json::Value| m.answer("reject"));
     }
 }
 
-/// Runs `acquire_canister` against stub peers (the head camera's track on when `by_head`)
-/// until it ends; its outcome and the commands the peers received.
-fn acquire_seeing_nothing(by_head: bool) -> (AckStatus, Vec<String>) {
+/// Runs `acquire_canister` against stub peers (the head camera's track on when `by_head`, the
+/// wrist camera's glimpse when `glimpse`) until it ends; its outcome and the commands the peers
+/// received.
+fn acquire_seeing_nothing(by_head: bool, glimpse: bool) -> (AckStatus, Vec<String>) {
     let log = Log::default();
+    let driven = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let mut b = SystemBuilder::new();
     let cfg = |name: &str| ConfigSource::inline(name, "[framework]\nperiod_s = 0.1\n".to_string());
     let peers = [
@@ -99,7 +142,18 @@ fn acquire_seeing_nothing(by_head: bool) -> (AckStatus, Vec<String>) {
         ("tracker", by_head.then_some("track")),
     ];
     for (name, slot) in peers {
-        let peer = Peer { name, log: log.clone(), slot, pose: None, track: None, objects: None };
+        let driven = driven.clone();
+        let peer = Peer {
+            name,
+            log: log.clone(),
+            slot,
+            pose: None,
+            track: None,
+            objects: None,
+            glimpse,
+            driven,
+            driving: None,
+        };
         b.add(name, peer, cfg(name));
     }
     let coordinator = CoordinatorManipulation::new(ManipulationPeers {
@@ -137,7 +191,7 @@ fn acquire_seeing_nothing(by_head: bool) -> (AckStatus, Vec<String>) {
 
 #[test]
 fn nothing_seen_where_the_head_camera_s_estimate_brought_the_rover_rejects_that_estimate() {
-    let (status, log) = acquire_seeing_nothing(true);
+    let (status, log) = acquire_seeing_nothing(true, false);
     match &status {
         AckStatus::Failed(r) => assert!(r.contains("told to reject that estimate"), "{r}"),
         other => panic!("{other:?}"),
@@ -148,12 +202,30 @@ fn nothing_seen_where_the_head_camera_s_estimate_brought_the_rover_rejects_that_
     assert!(log.iter().any(|c| c == "locomotion.drive"), "backed up: {log:?}");
     assert_eq!(log.iter().filter(|c| *c == "tracker.reject").count(), 1, "{log:?}");
     // Without the head camera's estimate, nothing is rejected.
-    let (status, log) = acquire_seeing_nothing(false);
+    let (status, log) = acquire_seeing_nothing(false, false);
     match &status {
         AckStatus::Failed(r) => assert!(r.starts_with("Locate failed") && !r.contains("reject"), "{r}"),
         other => panic!("{other:?}"),
     }
     assert!(!log.iter().any(|c| c == "tracker.reject"), "{log:?}");
+}
+
+#[test]
+fn a_glimpse_of_the_object_while_driving_is_moved_towards_when_no_look_pose_locates_it() {
+    // The wrist camera glimpsed the canister once, while the rover backed up after a round of
+    // look poses that located nothing: after the next round locates nothing either, the rover
+    // moves towards the glimpse and looks again; the object was seen, so the head camera's
+    // estimate is not rejected.
+    let (status, log) = acquire_seeing_nothing(true, true);
+    match &status {
+        AckStatus::Failed(r) => assert!(!r.contains("reject"), "{r}"),
+        other => panic!("{other:?}"),
+    }
+    assert!(!log.iter().any(|c| c == "tracker.reject"), "{log:?}");
+    // A round from where the rover stood, one after backing up, one after moving towards the
+    // glimpse: a round more than without it, and no reject.
+    let looks = log.iter().filter(|c| *c == "markers.locate").count();
+    assert_eq!(looks, 3 * CoordinatorManipulationParams::default().look_poses.len(), "{log:?}");
 }
 
 #[test]

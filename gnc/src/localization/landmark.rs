@@ -89,45 +89,85 @@ impl LandmarkFix {
     pub fn implied_position(&self, rotation: &UnitQuaternion<f64>) -> Vector3<f64> {
         self.surveyed - rotation * self.in_body
     }
+
+    /// The body's heading this sighting alone gives (`map`, rad).
+    pub fn implied_yaw(&self) -> f64 {
+        wrap(self.surveyed_yaw - self.relative_yaw)
+    }
+}
+
+/// What one refused sighting says of the estimate's drift: where it puts the body relative to
+/// where the estimate put it then (m, `map`), and its heading less the estimate's (rad).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Disagreement {
+    /// The image's capture time.
+    pub stamp: Time,
+    /// The body's position by the sighting less the estimate's at `stamp`, m.
+    pub offset: Vector3<f64>,
+    /// The body's heading by the sighting less the estimate's at `stamp`, rad.
+    pub heading: f64,
+}
+
+impl Disagreement {
+    /// What `fix` says of the estimate `estimate` (the body's pose at the fix's capture time).
+    pub fn of(fix: &LandmarkFix, estimate: &Isometry3<f64>) -> Disagreement {
+        Disagreement {
+            stamp: fix.stamp,
+            offset: fix.implied_position(&estimate.rotation) - estimate.translation.vector,
+            heading: wrap(fix.implied_yaw() - yaw(&estimate.rotation)),
+        }
+    }
 }
 
 /// Evidence that the pose estimate has drifted from a surveyed landmark by more than its
 /// covariance allows: sightings of it the gate refused, one after another, that agree with each
-/// other on where the body is. A wrong sighting (another object, a misread marker) is refused
-/// once, or scatters; a drifted estimate is refused by every sighting, and they agree.
+/// other on how far and which way the estimate is off (in position and heading: the offset
+/// stays while the rover moves, the drift does not change over seconds). A wrong sighting
+/// (another object, a misread marker) is refused once, or scatters; a drifted estimate is
+/// refused by every sighting, and they agree.
 #[derive(Clone, Debug, Default)]
 pub struct DriftEvidence {
-    /// The refused sightings kept: capture time and the body's position each implies (`map`).
-    seen: Vec<(Time, Vector3<f64>)>,
+    /// The refused sightings kept.
+    seen: Vec<Disagreement>,
 }
 
 impl DriftEvidence {
-    /// Counts a refused sighting at `stamp` placing the body at `implied` (forgetting those more
-    /// than `window_s` older); true once the last `count` lie within `agree_m` of their mean (the
-    /// evidence is then used up).
+    /// Counts a refused sighting's disagreement `d` (forgetting those more than `window_s` older;
+    /// an image counted already counts once); true once the last `count` of them lie within
+    /// `agree_m` and `agree_rad` of their mean (the evidence is then used up).
     pub fn refused(
         &mut self,
-        stamp: Time,
-        implied: Vector3<f64>,
+        d: Disagreement,
         window_s: f64,
         count: usize,
         agree_m: f64,
+        agree_rad: f64,
     ) -> bool {
-        self.seen.retain(|(t, _)| (stamp - *t).as_secs_f64() <= window_s);
-        self.seen.push((stamp, implied));
+        if self.seen.last().is_some_and(|l| l.stamp == d.stamp) {
+            return false;
+        }
+        self.seen.retain(|s| (d.stamp - s.stamp).as_secs_f64() <= window_s);
+        self.seen.push(d);
         if count == 0 || self.seen.len() < count {
             return false;
         }
         let last = &self.seen[self.seen.len() - count..];
-        let mean = last.iter().map(|(_, p)| p).sum::<Vector3<f64>>() / count as f64;
-        let agree = last.iter().all(|(_, p)| (p - mean).norm() <= agree_m);
+        let n = count as f64;
+        let mean = last.iter().map(|s| s.offset).sum::<Vector3<f64>>() / n;
+        // Headings about the first's (wrapped): a mean that does not jump at +-pi.
+        let h0 = last[0].heading;
+        let mean_h = h0 + last.iter().map(|s| wrap(s.heading - h0)).sum::<f64>() / n;
+        let agree = last
+            .iter()
+            .all(|s| (s.offset - mean).norm() <= agree_m && wrap(s.heading - mean_h).abs() <= agree_rad);
         if agree {
             self.seen.clear();
         }
         agree
     }
 
-    /// Forgets the refused sightings (one was accepted: the estimate agrees again).
+    /// Forgets the refused sightings (one was accepted, or refused as a wrong sighting: the
+    /// run is broken).
     pub fn clear(&mut self) {
         self.seen.clear();
     }
@@ -334,37 +374,56 @@ mod tests {
     #[test]
     fn refused_sightings_that_agree_with_each_other_are_evidence_of_drift() {
         let t = Time::from_secs_f64;
-        let at = |x: f64| Vector3::new(x, 2.0, 0.0);
+        let off = |s: f64, x: f64, deg: f64| Disagreement {
+            stamp: t(s),
+            offset: Vector3::new(x, 2.0, 0.0),
+            heading: deg.to_radians(),
+        };
+        let agree_rad = 3f64.to_radians();
         let mut d = DriftEvidence::default();
-        assert!(!d.refused(t(0.0), at(1.0), 10.0, 3, 0.25));
-        assert!(!d.refused(t(1.0), at(1.1), 10.0, 3, 0.25));
-        assert!(d.refused(t(2.0), at(1.05), 10.0, 3, 0.25), "three in a row agree");
+        let mut refused = |o: Disagreement| d.refused(o, 10.0, 3, 0.25, agree_rad);
+        assert!(!refused(off(0.0, 1.0, 2.0)));
+        // The same image again counts once.
+        assert!(!refused(off(0.0, 1.0, 2.0)));
+        assert!(!refused(off(1.0, 1.1, 2.5)));
+        assert!(refused(off(2.0, 1.05, 1.5)), "three in a row agree");
         // Used up: it takes three more.
-        assert!(!d.refused(t(3.0), at(1.0), 10.0, 3, 0.25));
+        assert!(!refused(off(3.0, 1.0, 2.0)));
         // One far off (a wrong sighting) among them: no agreement until three agree again.
-        assert!(!d.refused(t(4.0), at(4.0), 10.0, 3, 0.25));
-        assert!(!d.refused(t(5.0), at(1.0), 10.0, 3, 0.25));
-        assert!(!d.refused(t(6.0), at(1.0), 10.0, 3, 0.25));
-        assert!(d.refused(t(7.0), at(1.0), 10.0, 3, 0.25));
+        assert!(!refused(off(4.0, 4.0, 2.0)));
+        assert!(!refused(off(5.0, 1.0, 2.0)));
+        assert!(!refused(off(6.0, 1.0, 2.0)));
+        assert!(refused(off(7.0, 1.0, 2.0)));
+        // Agreeing in position, not in heading (a flipped tag's pose): no evidence.
+        assert!(!refused(off(8.0, 1.0, 2.0)));
+        assert!(!refused(off(9.0, 1.0, 12.0)));
+        assert!(!refused(off(10.0, 1.0, 2.0)));
+        // Headings either side of +-180 degrees agree.
+        assert!(!refused(off(20.0, 1.0, 179.0)));
+        assert!(!refused(off(21.0, 1.0, -179.0)));
+        assert!(refused(off(22.0, 1.0, 180.0)));
         // Too far apart in time: forgotten.
-        assert!(!d.refused(t(10.0), at(1.0), 10.0, 3, 0.25));
-        assert!(!d.refused(t(30.0), at(1.0), 10.0, 3, 0.25));
-        assert!(!d.refused(t(41.0), at(1.0), 10.0, 3, 0.25));
+        assert!(!refused(off(40.0, 1.0, 2.0)));
+        assert!(!refused(off(60.0, 1.0, 2.0)));
+        assert!(!refused(off(71.0, 1.0, 2.0)));
         d.clear();
-        assert!(!d.refused(t(31.0), at(1.0), 10.0, 3, 0.25));
-        // The body's position a sighting implies: the landmark's place less the sighting, turned.
+        // What a sighting says of an estimate: where it puts the body less where the estimate
+        // does, and its heading less the estimate's.
         let fix = LandmarkFix {
             stamp: t(0.0),
             in_body: Vector3::new(2.0, 0.0, 0.0),
             in_body_covariance: Matrix3::identity(),
-            relative_yaw: 0.0,
+            relative_yaw: 0.1,
             relative_yaw_var: 0.0,
             surveyed: Vector3::new(5.0, 5.0, 0.0),
             surveyed_covariance: Matrix3::zeros(),
-            surveyed_yaw: 0.0,
+            surveyed_yaw: std::f64::consts::FRAC_PI_2 + 0.1,
             surveyed_yaw_var: 0.0,
         };
         let facing_north = UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2);
         assert!((fix.implied_position(&facing_north) - Vector3::new(5.0, 3.0, 0.0)).norm() < 1e-12);
+        let estimate = Isometry3::from_parts(Translation3::new(5.0, 2.5, 0.0), facing_north);
+        let o = Disagreement::of(&fix, &estimate);
+        assert!((o.offset - Vector3::new(0.0, 0.5, 0.0)).norm() < 1e-12 && o.heading.abs() < 1e-12, "{o:?}");
     }
 }

@@ -22,7 +22,7 @@ pub(super) struct Following {
     /// Turning in place (the path far off the heading, or its arc too tight): until the arc is
     /// within half of `max_curvature`, if that is set.
     pub(super) pivoting: bool,
-    /// Turns in place only this way round.
+    /// Its first turn in place only this way round (cleared once that turn ends).
     pub(super) pivot: Option<Sense>,
 }
 

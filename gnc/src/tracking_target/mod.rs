@@ -432,7 +432,10 @@ impl TrackingTarget {
     /// so that the target's re-detection, metres from a wrong estimate along that line, agrees
     /// with it. (An estimate stuck on look-alikes' locations metres short otherwise rejects the
     /// target's own locations, then every re-detection of it, until `locate` gives up: sweep run
-    /// 7.) A prior after a `reject` is not doubted: it spans the ranges the target may be at.
+    /// 7.) A prior after a `reject` is not doubted: it spans the ranges the target may be at. The
+    /// trade-offs: the line is the current camera's, not those of the views that located the
+    /// estimate (near enough once the rover drives at the target); a look-alike on it within the
+    /// widened gate is let in as the target would be; the published covariance grows with it.
     fn doubt_when_lost(&mut self, ctx: &mut Ctx<'_>, stamp: Time, camera: &Point3<f64>) {
         let fraction = self.params.doubt_lost_fraction;
         let established = self.estimate.count() >= CONFIRM_AFTER && !self.prior_only;

@@ -472,17 +472,23 @@ impl PoseFilter {
         }
     }
 
-    /// Applies a sighting of a surveyed landmark: carried by the filter's motion from its
-    /// capture time to the newest step and applied there (and at every re-run of that step).
-    /// Returns the squared Mahalanobis distance.
-    pub fn landmark(&mut self, fix: LandmarkFix) -> Result<f64, RelativeError> {
+    /// A landmark sighting carried by the filter's motion from its capture time to the newest
+    /// step: that step's index, the sighting as the body saw it then, and the step's state.
+    fn at_newest(&self, fix: LandmarkFix) -> Result<(usize, LandmarkFix, Augmented), RelativeError> {
         let Some(then) = self.state_at(fix.stamp) else {
             return Err(RelativeError::TooOld((self.base.stamp - fix.stamp).as_secs_f64()));
         };
         let Some(k) = self.steps.len().checked_sub(1) else { return Err(RelativeError::NoStep) };
         let now = self.steps[k].posterior;
         let fix = fix.carried(&(now.pose.inverse() * then.pose), now.stamp);
-        let mut a = Augmented::new(&now);
+        Ok((k, fix, Augmented::new(&now)))
+    }
+
+    /// Applies a sighting of a surveyed landmark: carried by the filter's motion from its
+    /// capture time to the newest step and applied there (and at every re-run of that step).
+    /// Returns the squared Mahalanobis distance.
+    pub fn landmark(&mut self, fix: LandmarkFix) -> Result<f64, RelativeError> {
+        let (k, fix, mut a) = self.at_newest(fix)?;
         match a.landmark(&fix, Some(self.params.landmark_gate)) {
             Ok(d2) => {
                 self.store(k, &a);
@@ -499,13 +505,7 @@ impl PoseFilter {
     /// estimate, as if the filter had known that little, then the fix is applied (at every re-run
     /// of its step too). Returns the squared Mahalanobis distance before the widening.
     pub fn relocalize(&mut self, fix: LandmarkFix) -> Result<f64, RelativeError> {
-        let Some(then) = self.state_at(fix.stamp) else {
-            return Err(RelativeError::TooOld((self.base.stamp - fix.stamp).as_secs_f64()));
-        };
-        let Some(k) = self.steps.len().checked_sub(1) else { return Err(RelativeError::NoStep) };
-        let now = self.steps[k].posterior;
-        let fix = fix.carried(&(now.pose.inverse() * then.pose), now.stamp);
-        let mut a = Augmented::new(&now);
+        let (k, fix, mut a) = self.at_newest(fix)?;
         let d2 = a.distance(&fix);
         a.widen_for(&fix);
         let _ = a.landmark(&fix, None);

@@ -176,7 +176,8 @@ impl DriftEvidence {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Translation3, Vector6};
+    use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
+    use nalgebra::{Matrix6, Translation3, Vector6};
 
     fn sighting(body: &Isometry3<f64>, landmark: &Isometry3<f64>) -> LandmarkFix {
         let seen = body.inverse() * landmark;
@@ -218,11 +219,8 @@ mod tests {
         assert!((y_off - h * dx).norm() < 0.01 * (h * dx).norm(), "{y_off} vs {}", h * dx);
     }
 
-    #[test]
-    fn a_drifted_filter_is_fixed_on_a_landmark_and_keeps_the_fix_through_a_late_relative_measurement() {
-        use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
-        use nalgebra::Matrix6;
-        let t = Time::from_secs_f64;
+    /// The yard's marker table and the rover's true pose 3 m south of it, facing it.
+    fn table_and_truth() -> (Isometry3<f64>, Isometry3<f64>) {
         let landmark = Isometry3::from_parts(
             Translation3::new(-11.0, -8.0, 0.1),
             UnitQuaternion::from_euler_angles(0.0, 0.0, -std::f64::consts::FRAC_PI_2),
@@ -231,26 +229,64 @@ mod tests {
             Translation3::new(-11.0, -11.0, 0.3),
             UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
         );
-        // The filter believes the rover 1.5 m off and 4 degrees turned (the drift of a return),
-        // and knows it only that well.
+        (landmark, truth)
+    }
+
+    /// A filter that believes the rover 1.5 m off and `yaw_deg` turned (the drift of a return),
+    /// to `sigma_m` and `sigma_deg`.
+    fn drifted_filter(yaw_deg: f64, sigma_m: f64, sigma_deg: f64) -> PoseFilter {
         let drifted = Isometry3::from_parts(
             Translation3::new(-12.2, -10.1, 0.3),
-            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2 + 4f64.to_radians()),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2 + yaw_deg.to_radians()),
         );
-        let mut cov = Matrix6::from_diagonal(&Vector6::new(1.0, 1.0, 0.01, 1e-4, 1e-4, 0.0));
-        cov[(5, 5)] = 5f64.to_radians().powi(2);
-        let mut f = PoseFilter::new(t(0.0), drifted, cov, FilterParams::default());
-        let still = |s: f64| Increment {
-            stamp: t(s),
+        let mut cov =
+            Matrix6::from_diagonal(&Vector6::new(sigma_m.powi(2), sigma_m.powi(2), 0.01, 1e-4, 1e-4, 0.0));
+        cov[(5, 5)] = sigma_deg.to_radians().powi(2);
+        PoseFilter::new(Time::ZERO, drifted, cov, FilterParams::default())
+    }
+
+    /// Standing still until `s`.
+    fn still(s: f64) -> Increment {
+        Increment {
+            stamp: Time::from_secs_f64(s),
             translation: Vector3::zeros(),
             rotation: UnitQuaternion::identity(),
             translation_covariance: Matrix3::identity() * 1e-8,
             rotation_covariance: Matrix3::identity() * 1e-10,
             gyro_dt: 0.1,
             gravity: Some(Vector3::z()),
+        }
+    }
+
+    /// The filter's position (horizontal, m) and heading (degrees) errors.
+    fn pose_error(f: &PoseFilter, truth: &Isometry3<f64>) -> (f64, f64) {
+        let s = f.state().pose;
+        let yaw = (s.rotation.inverse() * truth.rotation).euler_angles().2.abs().to_degrees();
+        ((s.translation.vector - truth.translation.vector).xy().norm(), yaw)
+    }
+
+    /// Standing still from 0.6 s to 1 s, then a visual measurement of no motion from 0.2 s to
+    /// 0.9 s: it arrives late, over the fix's step at 0.5 s, which is run again.
+    fn late_relative_measurement(f: &mut PoseFilter) {
+        for k in 6..=10 {
+            f.predict(still(0.1 * f64::from(k)));
+        }
+        let rel = RelativePose {
+            from: Time::from_secs_f64(0.2),
+            to: Time::from_secs_f64(0.9),
+            delta: Isometry3::identity(),
+            covariance: Matrix6::identity() * 1e-6,
         };
+        assert!(f.relative(rel).is_ok());
+    }
+
+    #[test]
+    fn a_drifted_filter_is_fixed_on_a_landmark_and_keeps_the_fix_through_a_late_relative_measurement() {
+        let (landmark, truth) = table_and_truth();
+        // Known only that well: 1 m and 5 degrees.
+        let mut f = drifted_filter(4.0, 1.0, 5.0);
         let mut fix = sighting(&truth, &landmark);
-        fix.stamp = t(0.45);
+        fix.stamp = Time::from_secs_f64(0.45);
         assert_eq!(f.landmark(fix.clone()), Err(RelativeError::NoStep));
         for k in 1..=5 {
             f.predict(still(0.1 * f64::from(k)));
@@ -261,28 +297,14 @@ mod tests {
         wrong.in_body += Vector3::new(0.0, 15.0, 0.0);
         assert!(matches!(f.landmark(wrong), Err(RelativeError::Gated(_))));
         // The table's: the pose is fixed on it.
-        let err = |f: &PoseFilter| {
-            let s = f.state().pose;
-            let yaw = (s.rotation.inverse() * truth.rotation).euler_angles().2.abs().to_degrees();
-            ((s.translation.vector - truth.translation.vector).xy().norm(), yaw)
-        };
-        assert!(f.landmark(fix.clone()).is_ok());
-        let (dp, dyaw) = err(&f);
+        assert!(f.landmark(fix).is_ok());
+        let (dp, dyaw) = pose_error(&f, &truth);
         // One sighting takes 1.5 m and 4 degrees of drift to about a tenth of a metre (the rest is the
         // linearization's, about the drifted pose).
         assert!(dp < 0.15 && dyaw < 1.0, "{dp:.3} m, {dyaw:.2} deg off after the fix");
-        for k in 6..=10 {
-            f.predict(still(0.1 * f64::from(k)));
-        }
-        // A relative measurement over the fix's step re-runs it: the fix stays.
-        let rel = RelativePose {
-            from: t(0.2),
-            to: t(0.9),
-            delta: Isometry3::identity(),
-            covariance: Matrix6::identity() * 1e-6,
-        };
-        assert!(f.relative(rel).is_ok());
-        let (dp2, dyaw2) = err(&f);
+        // The re-run of the fix's step keeps it.
+        late_relative_measurement(&mut f);
+        let (dp2, dyaw2) = pose_error(&f, &truth);
         assert!(dp2 < 0.15 && dyaw2 < 1.0, "{dp2:.3} m, {dyaw2:.2} deg off after the re-run");
         // Without the fix kept with its step, the re-run would have gone back to the drift.
         assert!((dp2 - dp).abs() < 0.02, "the re-run moved the pose from {dp:.3} m off to {dp2:.3} m");
@@ -290,61 +312,23 @@ mod tests {
 
     #[test]
     fn an_overconfident_drifted_filter_refuses_the_landmark_but_is_relocalized_on_it() {
-        use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
-        use nalgebra::Matrix6;
-        let t = Time::from_secs_f64;
-        let landmark = Isometry3::from_parts(
-            Translation3::new(-11.0, -8.0, 0.1),
-            UnitQuaternion::from_euler_angles(0.0, 0.0, -std::f64::consts::FRAC_PI_2),
-        );
-        let truth = Isometry3::from_parts(
-            Translation3::new(-11.0, -11.0, 0.3),
-            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
-        );
+        let (landmark, truth) = table_and_truth();
         // 1.5 m and 3 degrees off, believed to 0.1 m and 0.5 degree: the gate refuses the table.
-        let drifted = Isometry3::from_parts(
-            Translation3::new(-12.2, -10.1, 0.3),
-            UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2 + 3f64.to_radians()),
-        );
-        let mut cov = Matrix6::from_diagonal(&Vector6::new(0.01, 0.01, 0.01, 1e-4, 1e-4, 0.0));
-        cov[(5, 5)] = 0.5f64.to_radians().powi(2);
-        let mut f = PoseFilter::new(t(0.0), drifted, cov, FilterParams::default());
-        let still = |s: f64| Increment {
-            stamp: t(s),
-            translation: Vector3::zeros(),
-            rotation: UnitQuaternion::identity(),
-            translation_covariance: Matrix3::identity() * 1e-8,
-            rotation_covariance: Matrix3::identity() * 1e-10,
-            gyro_dt: 0.1,
-            gravity: Some(Vector3::z()),
-        };
+        let mut f = drifted_filter(3.0, 0.1, 0.5);
         for k in 1..=5 {
             f.predict(still(0.1 * f64::from(k)));
         }
         let mut fix = sighting(&truth, &landmark);
-        fix.stamp = t(0.45);
+        fix.stamp = Time::from_secs_f64(0.45);
         assert!(matches!(f.landmark(fix.clone()), Err(RelativeError::Gated(d2)) if d2 > 100.0));
-        let err = |f: &PoseFilter| {
-            let s = f.state().pose;
-            let yaw = (s.rotation.inverse() * truth.rotation).euler_angles().2.abs().to_degrees();
-            ((s.translation.vector - truth.translation.vector).xy().norm(), yaw)
-        };
         let d2 = f.relocalize(fix).unwrap();
         assert!(d2 > 100.0, "{d2}");
-        let (dp, dyaw) = err(&f);
+        let (dp, dyaw) = pose_error(&f, &truth);
         assert!(dp < 0.2 && dyaw < 1.0, "{dp:.3} m, {dyaw:.2} deg off after relocalizing");
-        // A relative measurement over the fix's step re-runs it: the relocalization stays.
-        for k in 6..=10 {
-            f.predict(still(0.1 * f64::from(k)));
-        }
-        let rel = RelativePose {
-            from: t(0.2),
-            to: t(0.9),
-            delta: Isometry3::identity(),
-            covariance: Matrix6::identity() * 1e-6,
-        };
-        assert!(f.relative(rel).is_ok());
-        let (dp2, dyaw2) = err(&f);
+        // The re-run of the fix's step keeps the relocalization (the widening is applied again,
+        // the clone's too: the relative measurement from before the fix agrees with it).
+        late_relative_measurement(&mut f);
+        let (dp2, dyaw2) = pose_error(&f, &truth);
         assert!((dp2 - dp).abs() < 0.02 && dyaw2 < 1.0, "{dp2:.3} m, {dyaw2:.2} deg after the re-run");
     }
 

@@ -238,6 +238,12 @@ impl LocalizationDataFusion {
                     if self.params.landmark_drift_sightings > 0 && d2 <= self.params.landmark_drift_gate =>
                 {
                     self.counts.landmarks_refused += 1;
+                    if self.counts.landmarks_refused.is_power_of_two() {
+                        ctx.note(format!(
+                            "a sighting of the surveyed {} refused ({} so far): squared distance {d2:.1}, beyond the gate; evidence of drift if more agree",
+                            l.object, self.counts.landmarks_refused
+                        ));
+                    }
                     let then = filter.state_at(fix.stamp).unwrap_or_else(|| filter.state()).pose;
                     let p = &self.params;
                     let n = p.landmark_drift_sightings as usize;

@@ -183,6 +183,10 @@ enum Step {
     CameraOff,
 }
 
+/// A glimpse this far from the place the rover is driving to the working distance from is of
+/// the object elsewhere: the rover goes there instead, m.
+const GLIMPSE_ELSEWHERE_M: f64 = 0.5;
+
 struct Job {
     request: Request,
     kind: Kind,
@@ -403,6 +407,24 @@ impl CoordinatorManipulation {
             job.seen = true;
             job.glimpse = Some(seen.clone());
             job.glimpse_stamp = Some(o.value.stamp);
+            // On the way to the working distance from the head camera's estimate (a prior metres
+            // long after a reject: run 8 drove over the canister on its way), the object where the
+            // wrist camera sees it is the one to go to.
+            let at = Point3::from(seen.map_from_object.translation.vector);
+            let elsewhere = job.object_map.is_none_or(|o| (o - at).xy().norm() > GLIMPSE_ELSEWHERE_M);
+            if job.step == Step::Prepare && elsewhere {
+                ctx.note(format!(
+                    "{}: the wrist camera glimpsed the {} at ({:.2}, {:.2}) on the way: going there instead",
+                    job.kind.name(),
+                    self.params.object,
+                    at.x,
+                    at.y
+                ));
+                job.object_map = Some(at);
+                job.glimpse = None;
+                self.prepare(ctx, job)?;
+                return Ok(None);
+            }
         }
         let status = match ctx.ack_status(job.id) {
             Some(AckStatus::Completed(v)) => Ok(v),

@@ -13,8 +13,9 @@ type Log = Arc<Mutex<Vec<String>>>;
 /// `locate`, which fails (nothing seen); its blackboard slot (the pose, the head camera's
 /// track, the wrist camera's objects), if any, holds a rover at the origin facing +x and a
 /// canister estimate 1.05 m ahead of it; the wrist camera's objects, when `glimpse`, a glimpse of
-/// the canister 1.5 m ahead and 0.5 m to the left, once, after locomotion's first `drive` (the
-/// rover backing up between two rounds of look poses: no look pose's image).
+/// the canister 1 m ahead and 1 m to the left, once, after locomotion's first `drive` (the rover
+/// driving to the working distance, or backing up between two rounds of look poses: no look
+/// pose's image).
 struct Peer {
     name: &'static str,
     log: Log,
@@ -25,6 +26,8 @@ struct Peer {
     glimpse: bool,
     /// Set by locomotion's first `drive`.
     driven: Arc<std::sync::atomic::AtomicBool>,
+    /// How far ahead the head camera's estimate puts the canister, m.
+    estimate_m: f64,
     /// A `drive` under way (it takes a second), and when it ends.
     driving: Option<(framework::module::Request, Time)>,
 }
@@ -73,12 +76,12 @@ impl Module for Peer {
                     status: TargetStatus::Tracking,
                     confidence: 1.0,
                     bbox: [0.0; 4],
-                    position: Some(Point3::new(1.05, 0.0, 0.1)),
+                    position: Some(Point3::new(m.estimate_m, 0.0, 0.1)),
                     position_stamp: Some(now),
                     velocity: Vector3::zeros(),
                     velocity_horizon_s: 0.0,
                     covariance: Matrix3::identity() * 0.01,
-                    range_m: Some(1.05),
+                    range_m: Some(m.estimate_m),
                     measured: None,
                     located: 10,
                     line_of_sight: None,
@@ -91,7 +94,7 @@ impl Module for Peer {
                 && m.driven.load(std::sync::atomic::Ordering::SeqCst)
             {
                 m.glimpse = false;
-                let at = Isometry3::translation(1.5, 0.5, -0.3);
+                let at = Isometry3::translation(1.0, 1.0, -0.3);
                 let seen = ObjectPose {
                     object: "canister".into(),
                     markers: vec![0],
@@ -130,6 +133,11 @@ impl Module for Peer {
 /// wrist camera's glimpse when `glimpse`) until it ends; its outcome and the commands the peers
 /// received.
 fn acquire_seeing_nothing(by_head: bool, glimpse: bool) -> (AckStatus, Vec<String>) {
+    acquire_with(by_head, glimpse, 1.05)
+}
+
+/// As [`acquire_seeing_nothing`], the head camera's estimate `estimate_m` ahead.
+fn acquire_with(by_head: bool, glimpse: bool, estimate_m: f64) -> (AckStatus, Vec<String>) {
     let log = Log::default();
     let driven = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let mut b = SystemBuilder::new();
@@ -152,6 +160,7 @@ fn acquire_seeing_nothing(by_head: bool, glimpse: bool) -> (AckStatus, Vec<Strin
             objects: None,
             glimpse,
             driven,
+            estimate_m,
             driving: None,
         };
         b.add(name, peer, cfg(name));
@@ -226,6 +235,20 @@ fn a_glimpse_of_the_object_while_driving_is_moved_towards_when_no_look_pose_loca
     // glimpse: a round more than without it, and no reject.
     let looks = log.iter().filter(|c| *c == "markers.locate").count();
     assert_eq!(looks, 3 * CoordinatorManipulationParams::default().look_poses.len(), "{log:?}");
+}
+
+#[test]
+fn a_glimpse_on_the_way_to_the_working_distance_is_where_the_rover_goes_instead() {
+    // The head camera's estimate 3 m straight ahead: the rover drives towards it; the wrist
+    // camera glimpses the canister 1 m ahead and 1 m to the left on the way: the rover turns to
+    // it before any look pose, rather than driving on to the estimate.
+    let turned_first = |glimpse: bool| {
+        let (_, log) = acquire_with(true, glimpse, 3.0);
+        let first_look = log.iter().position(|c| c == "markers.locate").expect("looked");
+        log[..first_look].iter().any(|c| c == "locomotion.turn_to")
+    };
+    assert!(turned_first(true));
+    assert!(!turned_first(false), "the estimate is straight ahead: no turn");
 }
 
 #[test]

@@ -5,12 +5,13 @@
 //!   object (from the head camera's target estimate, `tracking/target`: facing it at the working
 //!   distance); raises the arm to its look pose and has the wrist camera's TrackingMarker locate
 //!   the object by its markers; if the located object is outside the arm's grasp region, moves the
-//!   rover by what is missing and looks again (when no look pose saw anything of it, the object may
-//!   lie nearer than the views reach: the rover backs up `search_back_m` once and looks again;
-//!   seen from none then, where the head camera's estimate brought the rover, that estimate is of
-//!   something else and TrackingTarget is told to `reject` it); then has the manipulator grasp it
-//!   under visual
-//!   servoing. A move of the rover that stalls a wheel is recovered from (locomotion's `recover`)
+//!   rover by what is missing and looks again. When no look pose saw anything of it, the object
+//!   may lie beside or behind the rover (the head camera followed a rock beyond it): the wrist
+//!   camera looks all round from `scan_pose` while the rover turns a full circle in place, and a
+//!   glimpse is gone to; seen nowhere, it may lie nearer than the views reach: the rover backs up
+//!   `search_back_m` once and looks again; seen from none then, where the head camera's estimate
+//!   brought the rover, that estimate is of something else and TrackingTarget is told to `reject`
+//!   it. Then the manipulator grasps it under visual servoing. A move of the rover that stalls a wheel is recovered from (locomotion's `recover`)
 //!   and sent again, what is left of it (a turn to its heading, a drive its remaining distance),
 //!   twice at most. A grasp that fails (the fingers closed beside the handle, the servo loop did not
 //!   converge) is tried again from the look, up to `max_attempts`. Completes once the manipulator
@@ -27,65 +28,9 @@ use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
 use framework::prelude::*;
 use nalgebra::{Isometry3, Point3};
-use serde::{Deserialize, Serialize};
 
-/// CoordinatorManipulation parameters.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct CoordinatorManipulationParams {
-    /// The object kind acquired and stowed (as the marker tracker names it).
-    pub object: String,
-    /// The wrist camera's frame rate while acquiring, Hz.
-    pub camera_hz: f64,
-    /// The rover stands with the object this far from `base_link` (horizontally) to look at it, m.
-    pub work_distance_m: f64,
-    /// ... and moves there first when farther than this from it ...
-    pub work_tolerance_m: f64,
-    /// ... or when it is more than this off the heading, deg.
-    pub max_bearing_deg: f64,
-    /// The arm grasps an object whose centre lies within this box of `base_link` (x min, x max,
-    /// largest |y|), m; elsewhere the rover moves first.
-    pub grasp_region_m: [f64; 3],
-    /// Where in that box the rover puts the object when it moves (x), m.
-    pub grasp_x_m: f64,
-    /// Accuracy the markers must locate the object to (1 sigma), m and deg.
-    pub locate_sigma_m: f64,
-    /// ... deg.
-    pub locate_angle_deg: f64,
-    /// The manipulator's poses the wrist camera looks from, tried in turn until one locates the
-    /// object (the nearest view first).
-    pub look_poses: Vec<String>,
-    /// Longest wait for the markers to locate the object from one look pose, s.
-    pub locate_timeout_s: f64,
-    /// Grasps tried before the command fails.
-    pub max_attempts: u32,
-    /// Rover moves after looking before the command fails (the back-up search counts as one).
-    pub max_repositions: u32,
-    /// When no look pose saw anything of the object (it may lie nearer than the wrist camera's
-    /// views reach, or beside them), the rover backs up this far once and looks again, m (0: never).
-    pub search_back_m: f64,
-}
-
-impl Default for CoordinatorManipulationParams {
-    fn default() -> Self {
-        CoordinatorManipulationParams {
-            object: "canister".into(),
-            camera_hz: 5.0,
-            work_distance_m: 1.05,
-            work_tolerance_m: 0.15,
-            max_bearing_deg: 10.0,
-            grasp_region_m: [0.85, 1.2, 0.2],
-            grasp_x_m: 1.0,
-            locate_sigma_m: 0.01,
-            locate_angle_deg: 2.0,
-            look_poses: vec!["look_near".into(), "look".into()],
-            locate_timeout_s: 8.0,
-            max_attempts: 3,
-            max_repositions: 3,
-            search_back_m: 0.35,
-        }
-    }
-}
+mod params;
+pub use params::CoordinatorManipulationParams;
 
 /// Names of the modules the coordinator commands and the slots it reads.
 #[derive(Clone, Debug)]
@@ -120,6 +65,8 @@ const MAX_SEARCH_BACK_M: f64 = 1.0;
 const MAX_PREPARE_MOVES: u32 = 3;
 /// Moves of one job that may stall a wheel, each recovered from and tried again, before it fails.
 const MAX_STALL_RECOVERIES: u32 = 2;
+/// The turns of the look all round: quarter turns, a full circle.
+const SCAN_TURNS: u32 = 4;
 
 /// A move of the rover, as sent to locomotion.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -173,14 +120,36 @@ enum Step {
     Locate,
     /// Driving to put the located object in the grasp region.
     Reposition,
-    /// Clearing locomotion's fault after a wheel stalled in a move (`prepare` when that move was
-    /// towards the working distance): then what is left of the move is sent again.
+    /// The arm to the scan pose, for the look all round.
+    ScanPose,
+    /// A quarter turn of the look all round.
+    Scan,
+    /// Clearing locomotion's fault after a wheel stalled in a move (the step it was made in):
+    /// then what is left of the move is sent again.
     Recover {
-        prepare: bool,
+        then: Moving,
     },
     Grasp,
     Place,
     CameraOff,
+}
+
+/// The step a move of the rover is made in, to go on with after a stall.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Moving {
+    Prepare,
+    Reposition,
+    Scan,
+}
+
+impl Moving {
+    fn step(self) -> Step {
+        match self {
+            Moving::Prepare => Step::Prepare,
+            Moving::Reposition => Step::Reposition,
+            Moving::Scan => Step::Scan,
+        }
+    }
 }
 
 /// A glimpse this far from the place the rover is driving to the working distance from is of
@@ -202,6 +171,11 @@ struct Job {
     object_map: Option<Point3<f64>>,
     /// Whether the rover has backed up to search for an object no look pose saw.
     searched_back: bool,
+    /// Whether the wrist camera has looked all round (or is looking), and the rover's heading
+    /// (`map`, rad) it began from.
+    scan_from: Option<f64>,
+    /// Quarter turns of the look all round sent.
+    scan_turns: u32,
     /// The head camera's estimate (`map`) the rover was brought to the object by, if it was:
     /// where the wrist camera looked for the object.
     head_estimate: Option<Point3<f64>>,
@@ -358,9 +332,10 @@ impl CoordinatorManipulation {
         self.look(ctx, job)
     }
 
-    /// No look pose saw anything of the object: the rover backs up `search_back_m` (once) so that
-    /// the views reach nearer, and looks again from the first pose; the second time, the locate
-    /// fails with `reason`. If the rover came by the head camera's estimate and the wrist camera
+    /// No look pose saw anything of the object: the wrist camera looks all round from the scan
+    /// pose while the rover turns a full circle in place (once; a glimpse is gone to); seen
+    /// nowhere, the rover backs up `search_back_m` (once) so that the views reach nearer, and
+    /// looks again from the first pose; after that, the locate fails with `reason`. If the rover came by the head camera's estimate and the wrist camera
     /// never saw the object, what the head camera follows is not the object: its tracker is told
     /// (`reject`, with the estimate the rover came by), so that a retry after a new approach goes
     /// to where it looks for it again. A round in which the arm reached no look pose looked for
@@ -369,6 +344,20 @@ impl CoordinatorManipulation {
         if job.round_locates == 0 {
             // The arm reached no look pose: nothing was looked for.
             return Err(format!("Look failed: {reason}"));
+        }
+        if job.scan_from.is_none() && !self.params.scan_pose.is_empty() {
+            ctx.note(format!(
+                "{}: not located and not seen from any look pose ({reason}): looking all round from '{}'",
+                job.kind.name(),
+                self.params.scan_pose
+            ));
+            job.scan_from = Some(self.pose(ctx)?.rotation.euler_angles().2);
+            job.scan_turns = 0;
+            job.glimpse = None;
+            let args = serde_json::json!({ "pose": self.params.scan_pose });
+            job.id = send(ctx, &self.peers.manipulator, "move_named", args)?;
+            job.step = Step::ScanPose;
+            return Ok(());
         }
         let back = self.params.search_back_m;
         if job.searched_back || back <= 0.0 {
@@ -391,6 +380,36 @@ impl CoordinatorManipulation {
         self.drive_straight(ctx, job, -back)?;
         job.look = 0;
         job.step = Step::Reposition;
+        Ok(())
+    }
+
+    /// The look all round goes on: after a quarter turn in which the wrist camera glimpsed the
+    /// object, the rover goes to the working distance from where it was seen and looks from the
+    /// look poses; else the next quarter turn; after a full circle seeing nothing, on with the
+    /// search (`search_back`).
+    fn scan(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
+        if let Some(seen) = job.glimpse.take() {
+            let at = Point3::from(seen.map_from_object.translation.vector);
+            ctx.note(format!(
+                "{}: looking all round, the wrist camera glimpsed the {} at ({:.2}, {:.2}): going there",
+                job.kind.name(),
+                self.params.object,
+                at.x,
+                at.y
+            ));
+            job.object_map = Some(at);
+            job.prepares = 0;
+            job.look = 0;
+            return self.prepare(ctx, job);
+        }
+        let from = job.scan_from.ok_or("no scan under way")?;
+        if job.scan_turns >= SCAN_TURNS {
+            return self.search_back(ctx, job, "not seen all round either");
+        }
+        job.scan_turns += 1;
+        let yaw = from + f64::from(job.scan_turns) * std::f64::consts::FRAC_PI_2;
+        self.move_rover(ctx, job, Move::Turn { yaw })?;
+        job.step = Step::Scan;
         Ok(())
     }
 
@@ -438,6 +457,14 @@ impl CoordinatorManipulation {
                     self.params.locate_sigma_m, self.params.locate_timeout_s
                 ))
             }
+            _ if job.step == Step::Locate
+                && self.params.glimpse_timeout_s > 0.0
+                && (ctx.now() - job.since).as_secs_f64() > self.params.glimpse_timeout_s
+                && job.glimpse_stamp.is_none_or(|s| s < job.since) =>
+            {
+                let _ = ctx.send(Command::new(&self.peers.markers, "stop"));
+                Err(format!("nothing of it in view for {} s", self.params.glimpse_timeout_s))
+            }
             _ => return Ok(None),
         };
         if job.step == Step::Locate && status.is_err() {
@@ -445,6 +472,7 @@ impl CoordinatorManipulation {
         }
         match (job.step, status) {
             (Step::CameraOn, Ok(_)) | (Step::Prepare, Ok(_)) => self.prepare(ctx, job)?,
+            (Step::ScanPose | Step::Scan, Ok(_)) => self.scan(ctx, job)?,
             (Step::Look, Ok(_)) => {
                 let args = serde_json::json!({
                     "object": self.params.object,
@@ -506,27 +534,33 @@ impl CoordinatorManipulation {
             }
             // A move that stalled a wheel (a skid turn on a slope, a rock beside a wheel) leaves
             // locomotion in fault: cleared, the rover's move is tried again from where it is.
-            (step @ (Step::Prepare | Step::Reposition), Err(r))
+            (step @ (Step::Prepare | Step::Reposition | Step::Scan), Err(r))
                 if r.contains("stalled") && job.stalls < MAX_STALL_RECOVERIES =>
             {
                 job.stalls += 1;
                 ctx.note(format!("{}: the move stalled ({r}): recovering and trying again", job.kind.name()));
                 job.id = send(ctx, &self.peers.locomotion, "recover", serde_json::Value::Null)?;
-                job.step = Step::Recover { prepare: step == Step::Prepare };
+                let then = match step {
+                    Step::Prepare => Moving::Prepare,
+                    Step::Scan => Moving::Scan,
+                    _ => Moving::Reposition,
+                };
+                job.step = Step::Recover { then };
             }
             // Locomotion out of fault (`recover` completes when it was not in fault too): what is
             // left of the move, from where the rover is (a drive is open loop, its way made good
             // taken from the pose estimate), or on as if it had completed when nothing is.
-            (Step::Recover { prepare }, Ok(_)) => {
+            (Step::Recover { then }, Ok(_)) => {
                 let pose = self.pose(ctx)?;
                 let rest = job.last_move.and_then(|m| m.rest([pose.translation.x, pose.translation.y]));
-                match rest {
-                    Some(m) => {
+                match (rest, then) {
+                    (Some(m), _) => {
                         self.move_rover(ctx, job, m)?;
-                        job.step = if prepare { Step::Prepare } else { Step::Reposition };
+                        job.step = then.step();
                     }
-                    None if prepare => self.prepare(ctx, job)?,
-                    None => {
+                    (None, Moving::Prepare) => self.prepare(ctx, job)?,
+                    (None, Moving::Scan) => self.scan(ctx, job)?,
+                    (None, Moving::Reposition) => {
                         job.look = 0;
                         self.look(ctx, job)?;
                     }
@@ -617,6 +651,8 @@ impl CoordinatorManipulation {
                     look: 0,
                     object_map: None,
                     searched_back: false,
+                    scan_from: None,
+                    scan_turns: 0,
                     head_estimate: None,
                     seen: false,
                     glimpse: None,
@@ -640,8 +676,10 @@ impl CoordinatorManipulation {
             let _ = self.camera(ctx, 0.0);
         }
         let to = match job.step {
-            Step::Prepare | Step::Reposition | Step::Recover { .. } => Some(&self.peers.locomotion),
-            Step::Look | Step::Grasp | Step::Place => Some(&self.peers.manipulator),
+            Step::Prepare | Step::Reposition | Step::Scan | Step::Recover { .. } => {
+                Some(&self.peers.locomotion)
+            }
+            Step::Look | Step::ScanPose | Step::Grasp | Step::Place => Some(&self.peers.manipulator),
             Step::Locate => Some(&self.peers.markers),
             Step::CameraOn | Step::CameraOff => None,
         };
@@ -711,6 +749,9 @@ impl Module for CoordinatorManipulation {
             ("locate_timeout_s", p.locate_timeout_s),
             ("max_attempts", p.max_attempts as f64),
         ])?;
+        if p.glimpse_timeout_s.is_nan() || p.glimpse_timeout_s < 0.0 {
+            return Err(format!("glimpse_timeout_s {} must be 0 or more", p.glimpse_timeout_s));
+        }
         if !(0.0..=MAX_SEARCH_BACK_M).contains(&p.search_back_m) {
             return Err(format!(
                 "search_back_m {} must be between 0 and {MAX_SEARCH_BACK_M} m (the back-up is driven blind)",

@@ -9,13 +9,40 @@ use std::sync::{Arc, Mutex};
 /// The commands every stub peer received, "peer.command" in order.
 type Log = Arc<Mutex<Vec<String>>>;
 
+/// A glimpse of the canister by the wrist camera, once, after locomotion's first `after`
+/// command (`drive`: the rover driving to the working distance, or backing up between two rounds
+/// of look poses; `turn_to`: the rover turning: no look pose's image), at `at` (`base_link` and
+/// `map` x, y: the rover stands at the origin).
+#[derive(Clone, Copy)]
+struct Glimpse {
+    after: &'static str,
+    at: [f64; 2],
+}
+
+/// What the stub peers do.
+#[derive(Clone, Copy)]
+struct Setup {
+    /// The head camera's track on.
+    by_head: bool,
+    /// How far ahead the head camera's estimate puts the canister, m.
+    estimate_m: f64,
+    glimpse: Option<Glimpse>,
+    /// The wrist camera's `locate` never answers (rather than failing at once).
+    locate_hangs: bool,
+    /// The coordinator's parameters (TOML) over its defaults.
+    params: &'static str,
+}
+
+impl Default for Setup {
+    fn default() -> Self {
+        Setup { by_head: true, estimate_m: 1.05, glimpse: None, locate_hangs: false, params: "" }
+    }
+}
+
 /// A peer of the coordinator that completes every command at once but the wrist camera's
-/// `locate`, which fails (nothing seen); its blackboard slot (the pose, the head camera's
-/// track, the wrist camera's objects), if any, holds a rover at the origin facing +x and a
-/// canister estimate 1.05 m ahead of it; the wrist camera's objects, when `glimpse`, a glimpse of
-/// the canister 1 m ahead and 1 m to the left, once, after locomotion's first `drive` (the rover
-/// driving to the working distance, or backing up between two rounds of look poses: no look
-/// pose's image).
+/// `locate`, which fails (nothing seen) or hangs; its blackboard slot (the pose, the head
+/// camera's track, the wrist camera's objects), if any, holds a rover at the origin facing +x and
+/// a canister estimate `estimate_m` ahead of it; the wrist camera's objects the setup's glimpse.
 struct Peer {
     name: &'static str,
     log: Log,
@@ -23,11 +50,9 @@ struct Peer {
     pose: Option<Writer<PoseEstimate>>,
     track: Option<Writer<TargetTrack>>,
     objects: Option<Writer<ObjectPoses>>,
-    glimpse: bool,
-    /// Set by locomotion's first `drive`.
-    driven: Arc<std::sync::atomic::AtomicBool>,
-    /// How far ahead the head camera's estimate puts the canister, m.
-    estimate_m: f64,
+    setup: Setup,
+    /// Set by locomotion's first command the glimpse comes after.
+    moved: Arc<std::sync::atomic::AtomicBool>,
     /// A `drive` under way (it takes a second), and when it ends.
     driving: Option<(framework::module::Request, Time)>,
 }
@@ -35,10 +60,14 @@ struct Peer {
 impl Peer {
     fn answer(&mut self, command: &str) -> Outcome {
         self.log.lock().unwrap().push(format!("{}.{command}", self.name));
-        if command == "drive" {
-            self.driven.store(true, std::sync::atomic::Ordering::SeqCst);
+        if self.setup.glimpse.is_some_and(|g| g.after == command) {
+            self.moved.store(true, std::sync::atomic::Ordering::SeqCst);
         }
-        if command == "locate" { Outcome::fail("not located to 0.01 m within 8 s") } else { Outcome::done() }
+        match command {
+            "locate" if self.setup.locate_hangs => Outcome::Accepted,
+            "locate" => Outcome::fail("not located to 0.01 m within 8 s"),
+            _ => Outcome::done(),
+        }
     }
 }
 
@@ -76,12 +105,12 @@ impl Module for Peer {
                     status: TargetStatus::Tracking,
                     confidence: 1.0,
                     bbox: [0.0; 4],
-                    position: Some(Point3::new(m.estimate_m, 0.0, 0.1)),
+                    position: Some(Point3::new(m.setup.estimate_m, 0.0, 0.1)),
                     position_stamp: Some(now),
                     velocity: Vector3::zeros(),
                     velocity_horizon_s: 0.0,
                     covariance: Matrix3::identity() * 0.01,
-                    range_m: Some(m.estimate_m),
+                    range_m: Some(m.setup.estimate_m),
                     measured: None,
                     located: 10,
                     line_of_sight: None,
@@ -90,11 +119,11 @@ impl Module for Peer {
                 ctx.write(w, track);
             }
             if let Some(w) = &m.objects
-                && m.glimpse
-                && m.driven.load(std::sync::atomic::Ordering::SeqCst)
+                && let Some(g) = m.setup.glimpse
+                && m.moved.load(std::sync::atomic::Ordering::SeqCst)
             {
-                m.glimpse = false;
-                let at = Isometry3::translation(1.0, 1.0, -0.3);
+                m.setup.glimpse = None;
+                let at = Isometry3::translation(g.at[0], g.at[1], -0.3);
                 let seen = ObjectPose {
                     object: "canister".into(),
                     markers: vec![0],
@@ -126,20 +155,25 @@ impl Module for Peer {
         });
         d.command("turn_to", |m, _, _: serde_json::Value| m.answer("turn_to"));
         d.command("reject", |m, _, _: serde_json::Value| m.answer("reject"));
+        d.command("stop", |m, _, _: serde_json::Value| m.answer("stop"));
     }
 }
 
 /// Runs `acquire_canister` against stub peers (the head camera's track on when `by_head`, the
-/// wrist camera's glimpse when `glimpse`) until it ends; its outcome and the commands the peers
-/// received.
+/// wrist camera's glimpse 1 m ahead and 1 m to the left after the first drive when `glimpse`)
+/// until it ends; its outcome and the commands the peers received.
 fn acquire_seeing_nothing(by_head: bool, glimpse: bool) -> (AckStatus, Vec<String>) {
-    acquire_with(by_head, glimpse, 1.05)
+    let glimpse = glimpse.then_some(Glimpse { after: "drive", at: [1.0, 1.0] });
+    let (status, log, _) = acquire_with(Setup { by_head, glimpse, ..Default::default() });
+    (status, log)
 }
 
-/// As [`acquire_seeing_nothing`], the head camera's estimate `estimate_m` ahead.
-fn acquire_with(by_head: bool, glimpse: bool, estimate_m: f64) -> (AckStatus, Vec<String>) {
+/// Runs `acquire_canister` against stub peers set up as `setup` until it ends; its outcome, the
+/// commands the peers received and the simulated time it took.
+fn acquire_with(setup: Setup) -> (AckStatus, Vec<String>, f64) {
+    let Setup { by_head, .. } = setup;
     let log = Log::default();
-    let driven = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let moved = Arc::new(std::sync::atomic::AtomicBool::new(false));
     let mut b = SystemBuilder::new();
     let cfg = |name: &str| ConfigSource::inline(name, "[framework]\nperiod_s = 0.1\n".to_string());
     let peers = [
@@ -150,7 +184,6 @@ fn acquire_with(by_head: bool, glimpse: bool, estimate_m: f64) -> (AckStatus, Ve
         ("tracker", by_head.then_some("track")),
     ];
     for (name, slot) in peers {
-        let driven = driven.clone();
         let peer = Peer {
             name,
             log: log.clone(),
@@ -158,9 +191,8 @@ fn acquire_with(by_head: bool, glimpse: bool, estimate_m: f64) -> (AckStatus, Ve
             pose: None,
             track: None,
             objects: None,
-            glimpse,
-            driven,
-            estimate_m,
+            setup,
+            moved: moved.clone(),
             driving: None,
         };
         b.add(name, peer, cfg(name));
@@ -175,14 +207,17 @@ fn acquire_with(by_head: bool, glimpse: bool, estimate_m: f64) -> (AckStatus, Ve
         pose: "pose".into(),
         objects: "objects".into(),
     });
-    b.add("manipulation", coordinator, cfg("manipulation"));
+    let own = format!("[framework]\nperiod_s = 0.1\n[params]\n{}\n", setup.params);
+    b.add("manipulation", coordinator, ConfigSource::inline("manipulation", own));
     b.endpoint("ground");
     let mut ex = LockstepExecutor::new(b, Duration::from_millis(100)).unwrap();
     ex.walk_to(Lifecycle::Run).unwrap();
     let ground = ex.endpoint("ground").unwrap();
     let id = ground.send(Command::new("manipulation", "acquire_canister")).unwrap();
-    for _ in 0..2000 {
+    let mut ticks = 0;
+    for _ in 0..5000 {
         ex.tick();
+        ticks += 1;
         if let Some(AckStatus::Completed(_) | AckStatus::Failed(_) | AckStatus::Rejected(_)) =
             ground.status(id)
         {
@@ -195,7 +230,7 @@ fn acquire_with(by_head: bool, glimpse: bool, estimate_m: f64) -> (AckStatus, Ve
     }
     let status = ground.status(id).unwrap();
     let log = log.lock().unwrap().clone();
-    (status, log)
+    (status, log, f64::from(ticks) * 0.1)
 }
 
 #[test]
@@ -205,9 +240,12 @@ fn nothing_seen_where_the_head_camera_s_estimate_brought_the_rover_rejects_that_
         AckStatus::Failed(r) => assert!(r.contains("told to reject that estimate"), "{r}"),
         other => panic!("{other:?}"),
     }
-    // Every look pose from where the rover stood, and again after backing up, then the reject.
+    // Every look pose from where the rover stood, a full circle looking all round, again every
+    // look pose after backing up, then the reject.
     let looks = log.iter().filter(|c| *c == "markers.locate").count();
     assert_eq!(looks, 2 * CoordinatorManipulationParams::default().look_poses.len(), "{log:?}");
+    let turns = log.iter().filter(|c| *c == "locomotion.turn_to").count();
+    assert_eq!(turns as u32, SCAN_TURNS, "a full circle in quarter turns: {log:?}");
     assert!(log.iter().any(|c| c == "locomotion.drive"), "backed up: {log:?}");
     assert_eq!(log.iter().filter(|c| *c == "tracker.reject").count(), 1, "{log:?}");
     // Without the head camera's estimate, nothing is rejected.
@@ -243,7 +281,8 @@ fn a_glimpse_on_the_way_to_the_working_distance_is_where_the_rover_goes_instead(
     // camera glimpses the canister 1 m ahead and 1 m to the left on the way: the rover turns to
     // it before any look pose, rather than driving on to the estimate.
     let turned_first = |glimpse: bool| {
-        let (_, log) = acquire_with(true, glimpse, 3.0);
+        let glimpse = glimpse.then_some(Glimpse { after: "drive", at: [1.0, 1.0] });
+        let (_, log, _) = acquire_with(Setup { estimate_m: 3.0, glimpse, ..Default::default() });
         let first_look = log.iter().position(|c| c == "markers.locate").expect("looked");
         log[..first_look].iter().any(|c| c == "locomotion.turn_to")
     };
@@ -291,4 +330,47 @@ fn a_stalled_move_is_sent_again_for_what_is_left_of_it() {
     // A turn is to an absolute heading: sent as it was.
     let turn = Move::Turn { yaw: 1.0 };
     assert_eq!(turn.rest([5.0, 5.0]), Some(turn));
+}
+
+#[test]
+fn looking_all_round_finds_an_object_behind_the_rover_and_goes_to_it() {
+    // No look pose sees the canister: it lies behind the rover, 1.3 m off, where the head
+    // camera's estimate (of a rock beyond it) brought the rover past it. Looking all round, the
+    // wrist camera glimpses it in the first quarter turn: the rover goes to it and looks again
+    // (a round more than without the glimpse), and nothing is rejected.
+    let behind = Some(Glimpse { after: "turn_to", at: [-1.2, 0.5] });
+    let (status, log, _) = acquire_with(Setup { glimpse: behind, ..Default::default() });
+    match &status {
+        AckStatus::Failed(r) => assert!(!r.contains("reject"), "{r}"),
+        other => panic!("{other:?}"),
+    }
+    assert!(!log.iter().any(|c| c == "tracker.reject"), "{log:?}");
+    let rounds = |log: &[String]| log.iter().filter(|c| *c == "markers.locate").count();
+    let poses = CoordinatorManipulationParams::default().look_poses.len();
+    assert_eq!(rounds(&log), 3 * poses, "{log:?}");
+    // No scan: straight to the back-up, two rounds, and the estimate rejected.
+    let (status, log, _) =
+        acquire_with(Setup { glimpse: behind, params: "scan_pose = \"\"", ..Default::default() });
+    match &status {
+        AckStatus::Failed(r) => assert!(r.contains("reject"), "{r}"),
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(rounds(&log), 2 * poses, "{log:?}");
+    assert!(!log.iter().any(|c| c == "locomotion.turn_to"), "{log:?}");
+}
+
+#[test]
+fn a_look_pose_from_which_nothing_is_seen_is_left_before_the_locate_times_out() {
+    // The wrist camera's locate never answers and nothing of the canister is in view: each look
+    // pose is left after `glimpse_timeout_s` (its locate stopped) instead of `locate_timeout_s`.
+    let hangs = Setup { locate_hangs: true, ..Default::default() };
+    let (status, log, quick) = acquire_with(hangs);
+    assert!(matches!(status, AckStatus::Failed(_)), "{status:?}");
+    let locates = log.iter().filter(|c| *c == "markers.locate").count();
+    assert_eq!(log.iter().filter(|c| *c == "markers.stop").count(), locates, "{log:?}");
+    let (_, _, slow) = acquire_with(Setup { params: "glimpse_timeout_s = 0.0", ..hangs });
+    let p = CoordinatorManipulationParams::default();
+    // Two rounds of look poses, each pose a locate's timeout shorter.
+    let saved = (p.locate_timeout_s - p.glimpse_timeout_s) * locates as f64;
+    assert!((slow - quick - saved).abs() < 0.5 * locates as f64, "{quick} s, {slow} s, {saved} s");
 }

@@ -567,6 +567,18 @@ impl CoordinatorManipulation {
                 }
             }
             (Step::Recover { .. }, Err(r)) => return Err(format!("cannot clear locomotion's fault: {r}")),
+            // The look all round cut short (the arm refused the scan pose, a turn refused or
+            // stalled past the recoveries): the search goes on without it (the back-up, then
+            // the reject), rather than the job failing with the head camera's estimate kept.
+            (Step::ScanPose | Step::Scan, Err(r)) => {
+                ctx.note(format!(
+                    "{}: the look all round failed ({r}): searching on without it",
+                    job.kind.name()
+                ));
+                job.scan_turns = SCAN_TURNS;
+                job.glimpse = None;
+                self.search_back(ctx, job, &r)?;
+            }
             (Step::Grasp, Ok(v)) => {
                 if v["holding"].as_str() != Some(self.params.object.as_str()) {
                     return Err(format!("the grasp completed without holding the {}", self.params.object));

@@ -42,7 +42,7 @@ pub struct CoordinatorManipulationParams {
     /// head camera's estimate was of a rock beyond it) is glimpsed and gone to ("": no scan).
     pub scan_pose: String,
     /// A locate from a look pose ends early when the wrist camera has seen nothing of the object
-    /// for this long, s (0: it runs its `locate_timeout_s`).
+    /// in this long since it began, s (0: it runs its `locate_timeout_s`).
     pub glimpse_timeout_s: f64,
 }
 

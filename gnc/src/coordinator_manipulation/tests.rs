@@ -29,13 +29,15 @@ struct Setup {
     glimpse: Option<Glimpse>,
     /// The wrist camera's `locate` never answers (rather than failing at once).
     locate_hangs: bool,
+    /// A command every peer fails.
+    fails: Option<&'static str>,
     /// The coordinator's parameters (TOML) over its defaults.
     params: &'static str,
 }
 
 impl Default for Setup {
     fn default() -> Self {
-        Setup { by_head: true, estimate_m: 1.05, glimpse: None, locate_hangs: false, params: "" }
+        Setup { by_head: true, estimate_m: 1.05, glimpse: None, locate_hangs: false, fails: None, params: "" }
     }
 }
 
@@ -64,6 +66,7 @@ impl Peer {
             self.moved.store(true, std::sync::atomic::Ordering::SeqCst);
         }
         match command {
+            _ if self.setup.fails == Some(command) => Outcome::fail(format!("{command} refused")),
             "locate" if self.setup.locate_hangs => Outcome::Accepted,
             "locate" => Outcome::fail("not located to 0.01 m within 8 s"),
             _ => Outcome::done(),
@@ -348,6 +351,26 @@ fn looking_all_round_finds_an_object_behind_the_rover_and_goes_to_it() {
     let rounds = |log: &[String]| log.iter().filter(|c| *c == "markers.locate").count();
     let poses = CoordinatorManipulationParams::default().look_poses.len();
     assert_eq!(rounds(&log), 3 * poses, "{log:?}");
+    // Gone to from the quarter turn that glimpsed it (or the next: the stub answers a turn at
+    // once, before the glimpse's image is read): the turns towards it (the stub's rover never
+    // moves: three, the most a preparation makes) before the next round, not the full circle,
+    // and no back-up.
+    let first_round_end = log.iter().position(|c| c == "locomotion.turn_to").unwrap();
+    let second_round =
+        first_round_end + log[first_round_end..].iter().position(|c| c == "markers.locate").unwrap();
+    let between = &log[first_round_end..second_round];
+    let turns = between.iter().filter(|c| *c == "locomotion.turn_to").count() as u32;
+    assert!(turns <= 2 + MAX_PREPARE_MOVES, "{between:?}");
+    assert!(!between.iter().any(|c| c == "locomotion.drive"), "{between:?}");
+    // A look all round that fails (its first turn refused): the back-up and the reject, as
+    // without it.
+    let (status, log, _) = acquire_with(Setup { fails: Some("turn_to"), ..Default::default() });
+    match &status {
+        AckStatus::Failed(r) => assert!(r.contains("reject"), "{r}"),
+        other => panic!("{other:?}"),
+    }
+    assert!(log.iter().any(|c| c == "locomotion.drive"), "backed up: {log:?}");
+    assert_eq!(rounds(&log), 2 * poses, "{log:?}");
     // No scan: straight to the back-up, two rounds, and the estimate rejected.
     let (status, log, _) =
         acquire_with(Setup { glimpse: behind, params: "scan_pose = \"\"", ..Default::default() });
@@ -373,4 +396,11 @@ fn a_look_pose_from_which_nothing_is_seen_is_left_before_the_locate_times_out() 
     // Two rounds of look poses, each pose a locate's timeout shorter.
     let saved = (p.locate_timeout_s - p.glimpse_timeout_s) * locates as f64;
     assert!((slow - quick - saved).abs() < 0.5 * locates as f64, "{quick} s, {slow} s, {saved} s");
+    // A glimpse in the first locate (straight ahead, in the grasp region, not located to the
+    // accuracy asked): that locate runs its full timeout, the others end early as before.
+    let glimpse = Some(Glimpse { after: "locate", at: [1.0, 0.0] });
+    let (_, _, seen) = acquire_with(Setup { glimpse, ..hangs });
+    let longer = seen - quick;
+    let one = p.locate_timeout_s - p.glimpse_timeout_s;
+    assert!(longer > 0.5 * one, "{quick} s without the glimpse, {seen} s with it");
 }

@@ -5,7 +5,8 @@
 //! - `drive {v, omega, duration_s}`: drives open-loop for a time, then stops and completes;
 //! - `goto {x, y, speed?}`: drives to a point of the pose estimate's frame (turning in place first
 //!   when the goal is far off the heading) and completes on arrival within tolerance;
-//! - `turn_to {yaw_deg}`: turns in place to a heading of the estimate's frame;
+//! - `turn_to {yaw_deg}` or `turn_to {facing: [x, y]}`: turns in place to a heading of the
+//!   estimate's frame, or to face a point of it from where the estimate puts the rover;
 //! - `follow_path {points, clearance_m?, speed?, tolerance_m?, pivot?}`: follows a path of the
 //!   estimate's frame by pure pursuit (a lookahead point on the path, the arc through it), turning
 //!   in place when the path is far off the heading or the arc tighter than `max_curvature` (if set)
@@ -128,12 +129,17 @@ pub struct GotoArgs {
     pub tolerance_m: Option<f64>,
 }
 
-/// Arguments of `turn_to`.
+/// Arguments of `turn_to`: one of the two.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct TurnToArgs {
     /// Goal heading in the pose estimate's frame, degrees.
-    pub yaw_deg: f64,
+    #[serde(default)]
+    pub yaw_deg: Option<f64>,
+    /// A point of the pose estimate's frame (x, y, m) to face, from where the estimate puts the
+    /// rover when the command arrives (a surveyed landmark to look at).
+    #[serde(default)]
+    pub facing: Option<[f64; 2]>,
 }
 
 /// Arguments of `follow_path`.
@@ -571,10 +577,21 @@ impl Module for Locomotion {
             )
         });
         d.command("turn_to", |m, ctx, a: TurnToArgs| {
-            if !a.yaw_deg.is_finite() {
-                return Outcome::reject("yaw_deg must be finite");
-            }
-            m.start(ctx, Manoeuvre::TurnTo { yaw: wrap(a.yaw_deg.to_radians()) })
+            let yaw = match (a.yaw_deg, a.facing) {
+                (Some(yaw), None) if yaw.is_finite() => yaw.to_radians(),
+                (None, Some([x, y])) if x.is_finite() && y.is_finite() => {
+                    let Some(pose) = m.pose.as_ref().and_then(|r| ctx.read(r)) else {
+                        return Outcome::reject("turn_to facing a point needs a pose estimate: none yet");
+                    };
+                    let at = pose.value.pose.translation.vector;
+                    if (x - at.x).hypot(y - at.y) < 1e-3 {
+                        return Outcome::reject(format!("the rover stands on ({x}, {y}): no way to face it"));
+                    }
+                    (y - at.y).atan2(x - at.x)
+                }
+                _ => return Outcome::reject("turn_to needs yaw_deg or facing = [x, y], one of them, finite"),
+            };
+            m.start(ctx, Manoeuvre::TurnTo { yaw: wrap(yaw) })
         });
         d.command("stop", |m, ctx, _: ()| {
             if let Some(old) = m.pending.take() {

@@ -302,7 +302,31 @@ fn interrupt_flag() -> Arc<AtomicBool> {
     flag
 }
 
+/// Mesa's software Vulkan driver (lavapipe, the cameras' renderer on a machine without a GPU)
+/// prints "error: XDG_RUNTIME_DIR is invalid or not set in the environment" when the session has
+/// no runtime directory (a CI job, a container, a shell without a login session): a private one is
+/// provided instead, as `scripts/test.sh` does, so that a run that goes well prints no error.
+fn ensure_runtime_dir() {
+    use std::os::unix::fs::PermissionsExt;
+    if std::env::var_os("XDG_RUNTIME_DIR").is_some_and(|d| std::path::Path::new(&d).is_dir()) {
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("rover-twin-xdg-{}", nix::unistd::getuid()));
+    if std::fs::create_dir_all(&dir).is_err()
+        || std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(0o700)).is_err()
+    {
+        return;
+    }
+    #[allow(unsafe_code)]
+    // SAFETY: called first thing in `main`, before any thread is started: nothing else reads or
+    // writes the environment meanwhile.
+    unsafe {
+        std::env::set_var("XDG_RUNTIME_DIR", &dir);
+    }
+}
+
 fn main() {
+    ensure_runtime_dir();
     tracing_subscriber::fmt()
         .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
         .with_writer(std::io::stderr)

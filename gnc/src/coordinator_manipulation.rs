@@ -389,18 +389,10 @@ impl CoordinatorManipulation {
     /// search (`search_back`).
     fn scan(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
         if let Some(seen) = job.glimpse.take() {
-            let at = Point3::from(seen.map_from_object.translation.vector);
-            ctx.note(format!(
-                "{}: looking all round, the wrist camera glimpsed the {} at ({:.2}, {:.2}): going there",
-                job.kind.name(),
-                self.params.object,
-                at.x,
-                at.y
-            ));
-            job.object_map = Some(at);
             job.prepares = 0;
             job.look = 0;
-            return self.prepare(ctx, job);
+            let at = Point3::from(seen.map_from_object.translation.vector);
+            return self.go_to_glimpse(ctx, job, at, "looking all round");
         }
         let from = job.scan_from.ok_or("no scan under way")?;
         if job.scan_turns >= SCAN_TURNS {
@@ -411,6 +403,27 @@ impl CoordinatorManipulation {
         self.move_rover(ctx, job, Move::Turn { yaw })?;
         job.step = Step::Scan;
         Ok(())
+    }
+
+    /// The rover to the working distance from `at` (`map`), where the wrist camera glimpsed the
+    /// object `when` (said in the note), and the look from there.
+    fn go_to_glimpse(
+        &self,
+        ctx: &mut Ctx<'_>,
+        job: &mut Job,
+        at: Point3<f64>,
+        when: &str,
+    ) -> Result<(), String> {
+        ctx.note(format!(
+            "{}: {when}, the wrist camera glimpsed the {} at ({:.2}, {:.2}): going there",
+            job.kind.name(),
+            self.params.object,
+            at.x,
+            at.y
+        ));
+        job.object_map = Some(at);
+        job.glimpse = None;
+        self.prepare(ctx, job)
     }
 
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
@@ -432,16 +445,7 @@ impl CoordinatorManipulation {
             let at = Point3::from(seen.map_from_object.translation.vector);
             let elsewhere = job.object_map.is_none_or(|o| (o - at).xy().norm() > GLIMPSE_ELSEWHERE_M);
             if job.step == Step::Prepare && elsewhere {
-                ctx.note(format!(
-                    "{}: the wrist camera glimpsed the {} at ({:.2}, {:.2}) on the way: going there instead",
-                    job.kind.name(),
-                    self.params.object,
-                    at.x,
-                    at.y
-                ));
-                job.object_map = Some(at);
-                job.glimpse = None;
-                self.prepare(ctx, job)?;
+                self.go_to_glimpse(ctx, job, at, "on the way to the working distance")?;
                 return Ok(None);
             }
         }
@@ -575,7 +579,6 @@ impl CoordinatorManipulation {
                     "{}: the look all round failed ({r}): searching on without it",
                     job.kind.name()
                 ));
-                job.scan_turns = SCAN_TURNS;
                 job.glimpse = None;
                 self.search_back(ctx, job, &r)?;
             }

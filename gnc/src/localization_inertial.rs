@@ -26,7 +26,7 @@ use serde::{Deserialize, Serialize};
 pub const SLOT: &str = "localization/inertial";
 
 /// Standard gravity, m/s^2.
-const G: f64 = 9.80665;
+pub const G: f64 = 9.80665;
 
 /// Inertial parameters.
 #[derive(Clone, Debug, Serialize, Deserialize)]

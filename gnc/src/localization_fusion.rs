@@ -5,8 +5,9 @@
 //! [`PoseFilter`]: the wheels' body-frame displacement since the previous reading, the gyro's
 //! rotation over the same interval (`localization/inertial`, or the wheels' heading change with its
 //! much larger noise while the IMU is silent), and the accelerometer's gravity direction for roll
-//! and pitch, with the turn's centripetal acceleration taken out ([`gravity_direction`]). Each closed visual odometry keyframe (`localization/visual`) is a relative pose
-//! measurement applied at its images' capture times, however late it arrives. The estimate is
+//! and pitch, with the turn's centripetal acceleration taken out ([`gravity_direction`]). Each
+//! closed visual odometry keyframe (`localization/visual`) is a relative pose measurement applied
+//! at its images' capture times, however late it arrives. The estimate is
 //! published as `localization/pose` in `map`, stamped with the data's time. Each sighting of a
 //! surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
 //! reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
@@ -20,6 +21,7 @@
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
 use crate::localization::landmark::{Disagreement, DriftEvidence, LandmarkFix};
+use crate::localization_inertial::G;
 use crate::params::require_positive;
 use framework::data::{AttitudeEstimate, ObjectPoses, PoseEstimate, VisualOdometry};
 use framework::hal::BodyTwist;
@@ -336,6 +338,7 @@ impl LocalizationDataFusion {
         let (last_t, last_pose) = self.last_mech.expect("set with the filter");
         if mech.stamp > last_t {
             let d = last_pose.inverse() * mech.value.pose;
+            let mech_dt = (mech.stamp - last_t).as_secs_f64();
             let ds = d.translation.vector.norm();
             let translation = d.translation.vector;
             let turn = (p.wheel_sigma_per_rad * d.rotation.angle()).powi(2);
@@ -355,11 +358,13 @@ impl LocalizationDataFusion {
                     let dt = (a.stamp - t0).as_secs_f64().max(0.0);
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
                     let var = a.value.gyro_noise.powi(2) * dt;
-                    let gravity = a
-                        .value
-                        .gravity
-                        .and_then(|f| gravity_direction(&f, &a.value.angular_rate, mech.value.velocity.v));
-                    (g0.inverse() * a.value.gyro_attitude, Matrix3::identity() * var, gravity, dt)
+                    let rotation = g0.inverse() * a.value.gyro_attitude;
+                    // The motion over the interval the vertical was averaged over (the gyro's mean
+                    // rate, the wheels' mean velocity), not the last samples of it.
+                    let rate = if dt > 0.0 { rotation.scaled_axis() / dt } else { a.value.angular_rate };
+                    let velocity = if mech_dt > 0.0 { translation / mech_dt } else { Vector3::zeros() };
+                    let gravity = a.value.gravity.and_then(|f| gravity_direction(&f, &rate, &velocity));
+                    (rotation, Matrix3::identity() * var, gravity, dt)
                 }
                 (Some(a), _) => {
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
@@ -522,15 +527,17 @@ impl Module for LocalizationDataFusion {
 }
 
 /// The body-frame up direction from the accelerometer's unit specific force `f`, with the
-/// centripetal acceleration of a body driving at `speed` (m/s, along body x) while turning at
-/// `rate` (rad/s, body frame) taken out: a = ω × v = (0, ω_z v, -ω_y v). Uncompensated, a turn at
+/// centripetal acceleration a = ω × v of a body moving at `velocity` (m/s, body frame: the wheels'
+/// displacement over the step, which also has the sideways motion of a turn about a centre off
+/// `base_link`) while turning at `rate` (rad/s, body frame) taken out. Uncompensated, a turn at
 /// 0.3 m/s and 0.5 rad/s tilts the measured vertical by 0.9 degrees sideways for as long as it
-/// lasts; the filter took that for tilt drift and, through the tilt's correlation with the body-z
-/// gyro bias on sloped ground, learnt a wrong heading rate from it (6 degrees of heading in 200 s
-/// of a traverse without vision, against 3 for the gyro alone).
-pub fn gravity_direction(f: &Vector3<f64>, rate: &Vector3<f64>, speed: f64) -> Option<Vector3<f64>> {
-    let centripetal = Vector3::new(0.0, rate.z * speed, -rate.y * speed);
-    (f.normalize() * crate::localization_inertial::G - centripetal).try_normalize(1e-9)
+/// lasts, and a turn in place at 0.5 rad/s about a centre 0.2 m ahead by 0.3 degrees forward.
+pub fn gravity_direction(
+    f: &Vector3<f64>,
+    rate: &Vector3<f64>,
+    velocity: &Vector3<f64>,
+) -> Option<Vector3<f64>> {
+    (f.normalize() * G - rate.cross(velocity)).try_normalize(1e-9)
 }
 
 #[cfg(test)]
@@ -539,11 +546,18 @@ mod tests {
 
     #[test]
     fn gravity_has_the_centripetal_acceleration_of_a_turn_taken_out() {
-        // Turning left at 0.5 rad/s, 0.3 m/s forward, on level ground: the accelerometer feels
-        // 0.15 m/s^2 to the left on top of gravity (0.9 degrees of false roll).
-        let f = Vector3::new(0.0, 0.15, crate::localization_inertial::G).normalize();
-        assert!(f.y > 0.015);
-        let up = gravity_direction(&f, &Vector3::new(0.0, 0.0, 0.5), 0.3).unwrap();
+        // Turning left at 0.5 rad/s, 0.3 m/s forward, about a centre 0.2 m ahead (base_link moves
+        // 0.1 m/s to the right), on level ground: the accelerometer feels 0.15 m/s^2 to the left
+        // and 0.05 m/s^2 forward on top of gravity (0.9 and 0.3 degrees of false roll and pitch).
+        let rate = Vector3::new(0.0, 0.0, 0.5);
+        let velocity = Vector3::new(0.3, -0.1, 0.0);
+        let f = Vector3::new(0.05, 0.15, G).normalize();
+        assert!(f.y > 0.015 && f.x > 0.005);
+        let up = gravity_direction(&f, &rate, &velocity).unwrap();
         assert!(up.xy().norm() < 1e-5, "{up:?}");
+        // Driving straight over a crest (pitching down at 0.2 rad/s): 0.06 m/s^2 less up.
+        let f = Vector3::new(0.0, 0.0, G - 0.06).normalize();
+        let up = gravity_direction(&f, &Vector3::new(0.0, 0.2, 0.0), &Vector3::new(0.3, 0.0, 0.0)).unwrap();
+        assert!((up - Vector3::z()).norm() < 1e-12);
     }
 }

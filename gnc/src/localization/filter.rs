@@ -173,9 +173,9 @@ pub struct PoseFilter {
 const N: usize = 9;
 type M18 = SMatrix<f64, 18, 18>;
 
-/// The states a gravity update does not correct: the heading (δθ_z, also the clone's) and the
-/// gyro bias.
-const CONSIDERED_BY_GRAVITY: [usize; 5] = [5, 6, 7, 8, N + 5];
+/// The states a gravity update does not correct: the heading (δθ_z) and the gyro bias, the
+/// clone's too (its bias rows are a copy nothing reads).
+const CONSIDERED_BY_GRAVITY: [usize; 8] = [5, 6, 7, 8, N + 5, N + 6, N + 7, N + 8];
 
 /// The state being re-run, with an optional clone of an earlier pose (stochastic cloning).
 struct Augmented {
@@ -295,13 +295,13 @@ impl Augmented {
     /// the body-z bias, only through correlations built by the bias on sloped ground, so that the
     /// vertical's errors that are no white noise (vibration in skid turns, what is left of the
     /// centripetal and linear accelerations, the accelerometer's bias) were learnt as a heading
-    /// rate: 6 degrees in 100 s of a traverse without vision, the gyro alone drifting 1.
+    /// rate: in a traverse without vision the fused heading was 9 degrees off after 320 s where
+    /// the gyro alone was 3 off.
     fn gravity(&mut self, measured: &Vector3<f64>, sigma: f64) {
         let Some(m) = measured.try_normalize(1e-9) else { return };
         let rt = self.pose.rotation.to_rotation_matrix().into_inner().transpose();
         let predicted = rt * Vector3::z();
-        // H is zero but for the rotation block: the products take only the columns it touches
-        // (a third of the generic update's cost, at every step of every re-run).
+        // H is zero but for the rotation block: the products take only the columns it touches.
         let hb = rt * Vector3::z().cross_matrix();
         let n = Matrix3::identity() * sigma * sigma;
         let pht: SMatrix<f64, 18, 3> = self.p.fixed_columns::<3>(3) * hb.transpose();
@@ -742,31 +742,32 @@ mod tests {
     }
 
     /// An accelerometer vertical that is off by a constant 1 degree (what a turn's vibration or an
-    /// accelerometer bias gives: no white noise) moves the tilt, never the heading or the gyro
-    /// bias, even on a slope where the body-z bias and the tilt are correlated (before the heading
-    /// and the bias were consider states of the update, the bias learnt 8e-5 rad/s in these 5 s).
+    /// accelerometer bias gives: no white noise), on a slope while turning, moves the tilt and
+    /// teaches nothing of the gyro bias (the filter before learnt a bias from it, which it then
+    /// took for a heading rate).
     #[test]
-    fn a_biased_vertical_moves_the_tilt_not_the_heading() {
-        let tilt = UnitQuaternion::from_euler_angles(0.08, -0.15, 0.7);
-        let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 0.3), tilt);
+    fn a_biased_vertical_moves_the_tilt_not_the_gyro_bias() {
+        let start = UnitQuaternion::from_euler_angles(0.08, -0.15, 0.7);
+        let turn = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3 * DT);
         let off = UnitQuaternion::from_euler_angles(1f64.to_radians(), 0.0, 0.0);
+        let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 0.3), start);
         let mut f = PoseFilter::new(stamp(0), pose, Matrix6::identity() * 1e-4, params());
+        let mut truth = start;
         for i in 1..=500 {
+            truth *= turn;
             f.predict(Increment {
                 stamp: stamp(i),
                 translation: Vector3::zeros(),
-                rotation: UnitQuaternion::identity(),
+                rotation: turn,
                 translation_covariance: Matrix3::identity() * 1e-8,
                 rotation_covariance: Matrix3::identity() * 1e-8,
                 gyro_dt: DT,
-                gravity: Some(off * tilt.inverse() * Vector3::z()),
+                gravity: Some(off * truth.inverse() * Vector3::z()),
             });
         }
         let s = f.state();
-        let moved = (s.pose.rotation * tilt.inverse()).scaled_axis();
-        assert!(moved.xy().norm().to_degrees() > 0.5, "the tilt follows the vertical: {moved:?}");
-        // About the vertical only what composing the tilt corrections gives (second order).
-        assert!(moved.z.abs() < 2e-4, "heading moved by {:e} rad", moved.z);
+        let error = (s.pose.rotation * truth.inverse()).scaled_axis();
+        assert!(error.xy().norm().to_degrees() > 0.5, "the tilt follows the vertical: {error:?}");
         assert_eq!(s.gyro_bias, Vector3::zeros());
     }
 

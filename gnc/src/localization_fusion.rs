@@ -58,6 +58,12 @@ pub struct FusionParams {
     pub gyro_bias_sigma: f64,
     /// Random walk of the gyro bias, rad/s/sqrt(s).
     pub gyro_bias_walk: f64,
+    /// Gravity corrects the tilt only, never the heading or the gyro bias (Schmidt-Kalman; see
+    /// `FilterParams::gravity_tilt_only`, why it is off for now).
+    pub gravity_tilt_only: bool,
+    /// Take the turn's centripetal acceleration out of the accelerometer's vertical
+    /// ([`gravity_direction`]); off for now with `gravity_tilt_only`.
+    pub gravity_centripetal: bool,
     /// How long the filter keeps its steps for late measurements, s.
     pub history_s: f64,
     /// Visual measurements whose rotation is beyond this squared Mahalanobis distance from the
@@ -112,6 +118,8 @@ impl Default for FusionParams {
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
             gyro_bias_walk: 2e-5,
+            gravity_tilt_only: false,
+            gravity_centripetal: false,
             history_s: 10.0,
             visual_gate: 50.0,
             use_visual: true,
@@ -306,6 +314,7 @@ impl LocalizationDataFusion {
             tilt_random_walk: p.tilt_random_walk,
             gyro_bias_sigma: p.gyro_bias_sigma,
             gyro_bias_walk: p.gyro_bias_walk,
+            gravity_tilt_only: p.gravity_tilt_only,
         };
         PoseFilter::new(stamp, pose, cov, fp)
     }
@@ -363,7 +372,11 @@ impl LocalizationDataFusion {
                     // gyro's mean rate, the wheels' mean velocity), not the last samples of it.
                     let rate = if dt > 0.0 { rotation.scaled_axis() / dt } else { a.value.angular_rate };
                     let velocity = if mech_dt > 0.0 { translation / mech_dt } else { Vector3::zeros() };
-                    let gravity = a.value.gravity.and_then(|f| gravity_direction(&f, &rate, &velocity));
+                    let gravity = if p.gravity_centripetal {
+                        a.value.gravity.and_then(|f| gravity_direction(&f, &rate, &velocity))
+                    } else {
+                        a.value.gravity
+                    };
                     (rotation, Matrix3::identity() * var, gravity, dt)
                 }
                 (Some(a), _) => {

@@ -5,10 +5,10 @@
 //! [`PoseFilter`]: the wheels' body-frame displacement since the previous reading, the gyro's
 //! rotation over the same interval (`localization/inertial`, or the wheels' heading change with its
 //! much larger noise while the IMU is silent), and the accelerometer's gravity direction for roll
-//! and pitch, with the turn's centripetal acceleration taken out ([`gravity_direction`]). Each
-//! closed visual odometry keyframe (`localization/visual`) is a relative pose measurement applied
-//! at its images' capture times, however late it arrives. The estimate is
-//! published as `localization/pose` in `map`, stamped with the data's time. Each sighting of a
+//! and pitch (with `gravity_centripetal`, the turn's centripetal acceleration taken out:
+//! [`gravity_direction`]). Each closed visual odometry keyframe (`localization/visual`) is a
+//! relative pose measurement applied at its images' capture times, however late it arrives. The
+//! estimate is published as `localization/pose` in `map`, stamped with the data's time. Each sighting of a
 //! surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
 //! reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
 //! with respect to a fixed object); where the estimate has drifted beyond what its covariance
@@ -347,7 +347,6 @@ impl LocalizationDataFusion {
         let (last_t, last_pose) = self.last_mech.expect("set with the filter");
         if mech.stamp > last_t {
             let d = last_pose.inverse() * mech.value.pose;
-            let mech_dt = (mech.stamp - last_t).as_secs_f64();
             let ds = d.translation.vector.norm();
             let translation = d.translation.vector;
             let turn = (p.wheel_sigma_per_rad * d.rotation.angle()).powi(2);
@@ -368,11 +367,11 @@ impl LocalizationDataFusion {
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
                     let var = a.value.gyro_noise.powi(2) * dt;
                     let rotation = g0.inverse() * a.value.gyro_attitude;
-                    // The motion over roughly the interval the vertical was averaged over (the
-                    // gyro's mean rate, the wheels' mean velocity), not the last samples of it.
-                    let rate = if dt > 0.0 { rotation.scaled_axis() / dt } else { a.value.angular_rate };
-                    let velocity = if mech_dt > 0.0 { translation / mech_dt } else { Vector3::zeros() };
                     let gravity = if p.gravity_centripetal {
+                        // The motion over roughly the interval the vertical was averaged over (the
+                        // gyro's mean rate, the wheels' mean velocity), not the last samples of it.
+                        let rate = if dt > 0.0 { rotation.scaled_axis() / dt } else { a.value.angular_rate };
+                        let velocity = translation / (mech.stamp - last_t).as_secs_f64();
                         a.value.gravity.and_then(|f| gravity_direction(&f, &rate, &velocity))
                     } else {
                         a.value.gravity

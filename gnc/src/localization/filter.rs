@@ -296,8 +296,9 @@ impl Augmented {
         Ok(d2)
     }
 
-    /// The accelerometer's vertical corrects the tilt only: the heading (the rotation about the
-    /// `map` vertical, here and in a clone) and the gyro bias are consider states of this update
+    /// The accelerometer's vertical corrects the state. With `tilt_only` it corrects the tilt
+    /// only: the heading (the rotation about the `map` vertical, here and in a clone) and the gyro
+    /// bias are consider states of this update
     /// (Schmidt-Kalman: their gain rows are zero, their covariance unchanged, their correlations
     /// with the corrected states kept right). Gravity cannot see the heading; it reached it, and
     /// the body-z bias, only through correlations built by the bias on sloped ground, so that the
@@ -316,6 +317,8 @@ impl Augmented {
         let s = hb * pht.fixed_rows::<3>(3) + n;
         let Some(s_inv) = s.try_inverse() else { return };
         let k = pht * s_inv;
+        // Without tilt_only, the arithmetic of the filter before the option (the same result as
+        // the general form below with nothing considered, but not to the bit).
         if !tilt_only {
             let dx = k * (m - predicted);
             // Symmetric up to rounding; symmetrized where a state is stored.

@@ -29,7 +29,7 @@
 use crate::body::joint_values;
 use crate::manipulation::clearance::{Clearance, ClearanceParams, Held};
 use crate::manipulation::kinematics::{ArmKinematics, distance, top_down_grasps};
-use crate::manipulation::servo::{mean_pose, next_tool_pose, tool_correction};
+use crate::manipulation::servo::{mean_pose, next_tool_pose, tilt_tolerant_correction};
 use crate::manipulation::trajectory::{plan_path, segment_speed};
 use crate::peer::send;
 use framework::data::{JointStates, ManipulationState, ObjectPoses};
@@ -566,13 +566,22 @@ impl ManipulatorControl {
                 let g = job.grasp.ok_or("no grasp chosen")?;
                 // Where the tool should see the handle: the pre-grasp pose's inverse.
                 let goal_tool_from_handle = (Isometry3::translation(0.0, 0.0, height) * g).inverse();
-                let (corr, e) = tool_correction(&tool_from_handle, &goal_tool_from_handle);
+                // The tool's x axis is its approach (top_down_grasps): its tilt off the handle's
+                // normal is corrected only beyond the dead band (see `manipulation::servo`).
+                let t = tilt_tolerant_correction(
+                    &tool_from_handle,
+                    &goal_tool_from_handle,
+                    &Vector3::x_axis(),
+                    self.params.servo_tilt_dead_band_deg.to_radians(),
+                );
+                let (corr, e) = (t.correction, t.error);
                 job.last_error = Some((e.position_m, e.angle_rad));
                 ctx.note(format!(
-                    "servo step {}: {:.1} mm, {:.2} deg from the pre-grasp pose",
+                    "servo step {}: {:.1} mm, {:.2} deg from the pre-grasp pose (the approach axis {:.1} deg off the handle's normal)",
                     job.servo_steps,
                     e.position_m * 1e3,
-                    e.angle_rad.to_degrees()
+                    e.angle_rad.to_degrees(),
+                    t.tilt_rad.to_degrees()
                 ));
                 if e.position_m <= self.params.servo_tolerance_m
                     && e.angle_rad <= self.params.servo_tolerance_deg.to_radians()
@@ -919,6 +928,12 @@ impl Module for ManipulatorControl {
             ("place_height_m", p.place_height_m),
             ("view_frames", f64::from(p.view_frames)),
         ])?;
+        if !(0.0..45.0).contains(&p.servo_tilt_dead_band_deg) {
+            return Err(format!(
+                "servo_tilt_dead_band_deg must be in [0, 45), got {}",
+                p.servo_tilt_dead_band_deg
+            ));
+        }
         if p.speed > 1.0 || p.servo_gain > 1.0 {
             return Err(format!(
                 "speed and servo_gain must be in (0, 1], got {} and {}",

@@ -51,8 +51,12 @@ pub struct ManipulatorParams {
     pub servo_max_step_m: f64,
     /// The servo loop ends within this translation ...
     pub servo_tolerance_m: f64,
-    /// ... and this rotation, deg.
+    /// ... and this rotation, deg ...
     pub servo_tolerance_deg: f64,
+    /// ... leaving the tilt of the approach axis off the handle's normal as it is within this,
+    /// deg: the marker's tilt seen face on is its weak part (degrees off, either way, from corner
+    /// errors and the believed focal lengths), and the fingers take a handle tilted this much (the position and the turn about the axis are servoed to the tolerances above).
+    pub servo_tilt_dead_band_deg: f64,
     /// Most servo steps of one grasp (0: none, an open-loop grasp from the first view, to measure
     /// what the servoing is worth).
     pub max_servo_steps: u32,
@@ -106,6 +110,7 @@ impl Default for ManipulatorParams {
             servo_max_step_m: 0.06,
             servo_tolerance_m: 0.003,
             servo_tolerance_deg: 1.5,
+            servo_tilt_dead_band_deg: 6.0,
             max_servo_steps: 10,
             settle_s: 0.3,
             view_frames: 3,

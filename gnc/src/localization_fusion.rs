@@ -5,8 +5,8 @@
 //! [`PoseFilter`]: the wheels' body-frame displacement since the previous reading, the gyro's
 //! rotation over the same interval (`localization/inertial`, or the wheels' heading change with its
 //! much larger noise while the IMU is silent), and the accelerometer's gravity direction for roll
-//! and pitch (with `gravity_centripetal`, the turn's centripetal acceleration taken out:
-//! [`gravity_direction`]). Each closed visual odometry keyframe (`localization/visual`) is a
+//! and pitch (the turn's centripetal acceleration taken out: [`gravity_direction`]; it corrects
+//! the tilt only, never the heading or the gyro bias). Each closed visual odometry keyframe (`localization/visual`) is a
 //! relative pose measurement applied at its images' capture times, however late it arrives. The
 //! estimate is published as `localization/pose` in `map`, stamped with the data's time. Each sighting of a
 //! surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
@@ -58,12 +58,6 @@ pub struct FusionParams {
     pub gyro_bias_sigma: f64,
     /// Random walk of the gyro bias, rad/s/sqrt(s).
     pub gyro_bias_walk: f64,
-    /// Gravity corrects the tilt only, never the heading or the gyro bias (Schmidt-Kalman; see
-    /// `FilterParams::gravity_tilt_only`, why it is off for now).
-    pub gravity_tilt_only: bool,
-    /// Take the turn's centripetal acceleration out of the accelerometer's vertical
-    /// ([`gravity_direction`]); off for now with `gravity_tilt_only`.
-    pub gravity_centripetal: bool,
     /// How long the filter keeps its steps for late measurements, s.
     pub history_s: f64,
     /// Visual measurements whose rotation is beyond this squared Mahalanobis distance from the
@@ -118,8 +112,6 @@ impl Default for FusionParams {
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
             gyro_bias_walk: 2e-5,
-            gravity_tilt_only: false,
-            gravity_centripetal: false,
             history_s: 10.0,
             visual_gate: 50.0,
             use_visual: true,
@@ -314,7 +306,6 @@ impl LocalizationDataFusion {
             tilt_random_walk: p.tilt_random_walk,
             gyro_bias_sigma: p.gyro_bias_sigma,
             gyro_bias_walk: p.gyro_bias_walk,
-            gravity_tilt_only: p.gravity_tilt_only,
         };
         PoseFilter::new(stamp, pose, cov, fp)
     }
@@ -367,15 +358,11 @@ impl LocalizationDataFusion {
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
                     let var = a.value.gyro_noise.powi(2) * dt;
                     let rotation = g0.inverse() * a.value.gyro_attitude;
-                    let gravity = if p.gravity_centripetal {
-                        // The motion over roughly the interval the vertical was averaged over (the
-                        // gyro's mean rate, the wheels' mean velocity), not the last samples of it.
-                        let rate = if dt > 0.0 { rotation.scaled_axis() / dt } else { a.value.angular_rate };
-                        let velocity = translation / (mech.stamp - last_t).as_secs_f64();
-                        a.value.gravity.and_then(|f| gravity_direction(&f, &rate, &velocity))
-                    } else {
-                        a.value.gravity
-                    };
+                    // The motion over roughly the interval the vertical was averaged over (the
+                    // gyro's mean rate, the wheels' mean velocity), not the last samples of it.
+                    let rate = if dt > 0.0 { rotation.scaled_axis() / dt } else { a.value.angular_rate };
+                    let velocity = translation / (mech.stamp - last_t).as_secs_f64();
+                    let gravity = a.value.gravity.and_then(|f| gravity_direction(&f, &rate, &velocity));
                     (rotation, Matrix3::identity() * var, gravity, dt)
                 }
                 (Some(a), _) => {

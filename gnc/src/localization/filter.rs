@@ -12,9 +12,10 @@
 //!   frame; the bias walks. Vision's rotations make the bias observable: a rover that never stood
 //!   still long enough to learn it (sliding on a slope) still gets its heading right.
 //! - Gravity: the accelerometer's unit specific force measures R^T e_z (valid when not accelerating
-//!   hard); H = `[0, R^T [e_z]x]`. With `gravity_tilt_only` it corrects the tilt only: the
-//!   heading and the bias are consider states of this update (Schmidt-Kalman), since its errors
-//!   are no white noise.
+//!   hard); H = `[0, R^T [e_z]x]`. It corrects the tilt only: the heading and the bias are
+//!   consider states of this update (Schmidt-Kalman), since its errors are no white noise (on a
+//!   slope the body-z bias is correlated with the tilt, and a turn's vibration or the
+//!   accelerometer's bias learnt through that correlation became a heading rate).
 //! - Relative measurement (t_a, t_b, D): r = (R_a^T (p_b - p_a) - t_D, Log(R_D^T R_a^T R_b)), by
 //!   stochastic cloning: the state at t_a is cloned into an augmented state, the increments from
 //!   t_a to t_b re-propagated with it, and the update made at t_b.
@@ -53,12 +54,6 @@ pub struct FilterParams {
     pub gyro_bias_sigma: f64,
     /// Random walk of the gyro bias, rad/s/sqrt(s).
     pub gyro_bias_walk: f64,
-    /// Gravity corrects the tilt only: the heading and the gyro bias are consider states of its
-    /// update (see `Augmented::gravity`). Off by default for now: on, the sweep's headings
-    /// follow the gyro as they should, but a grasp of the e2e manipulation test then lands where
-    /// the visual servo oscillates (its marker measurements jump by centimetres), which is to be
-    /// mended first.
-    pub gravity_tilt_only: bool,
 }
 
 impl Default for FilterParams {
@@ -71,7 +66,6 @@ impl Default for FilterParams {
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
             gyro_bias_walk: 2e-5,
-            gravity_tilt_only: false,
         }
     }
 }
@@ -227,7 +221,7 @@ impl Augmented {
     fn advance(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
         self.predict(inc, dt, p);
         if let Some(g) = &inc.gravity {
-            self.gravity(g, p.gravity_sigma, p.gravity_tilt_only);
+            self.gravity(g, p.gravity_sigma);
         }
     }
 
@@ -306,7 +300,7 @@ impl Augmented {
     /// centripetal and linear accelerations, the accelerometer's bias) were learnt as a heading
     /// rate: in a traverse without vision the fused heading was 9 degrees off after 320 s where
     /// the gyro alone was 3 off.
-    fn gravity(&mut self, measured: &Vector3<f64>, sigma: f64, tilt_only: bool) {
+    fn gravity(&mut self, measured: &Vector3<f64>, sigma: f64) {
         let Some(m) = measured.try_normalize(1e-9) else { return };
         let rt = self.pose.rotation.to_rotation_matrix().into_inner().transpose();
         let predicted = rt * Vector3::z();
@@ -317,15 +311,6 @@ impl Augmented {
         let s = hb * pht.fixed_rows::<3>(3) + n;
         let Some(s_inv) = s.try_inverse() else { return };
         let k = pht * s_inv;
-        // Without tilt_only, the arithmetic of the filter before the option (the same result as
-        // the general form below with nothing considered, but not to the bit).
-        if !tilt_only {
-            let dx = k * (m - predicted);
-            // Symmetric up to rounding; symmetrized where a state is stored.
-            self.p -= k * pht.transpose();
-            self.apply(&dx);
-            return;
-        }
         let mut ks = k;
         for i in CONSIDERED_BY_GRAVITY {
             ks.row_mut(i).fill(0.0);

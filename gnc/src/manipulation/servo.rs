@@ -202,7 +202,7 @@ mod tests {
         );
         let truth = |commanded: &Isometry3<f64>| commanded * model_error;
         let tilt_error = |k: usize| {
-            let s = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let s = if k.is_multiple_of(2) { 1.0 } else { -1.0 };
             Isometry3::rotation(Vector3::new(4f64.to_radians() * s, 3f64.to_radians() * s, 0.0))
         };
         let axis = Vector3::x_axis();

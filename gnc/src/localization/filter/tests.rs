@@ -178,8 +178,7 @@ fn a_biased_vertical_moves_the_tilt_not_the_gyro_bias() {
     let turn = UnitQuaternion::from_euler_angles(0.0, 0.0, 0.3 * DT);
     let off = UnitQuaternion::from_euler_angles(1f64.to_radians(), 0.0, 0.0);
     let pose = Isometry3::from_parts(Translation3::new(1.0, 2.0, 0.3), start);
-    let tilt_only = FilterParams { gravity_tilt_only: true, ..params() };
-    let mut f = PoseFilter::new(stamp(0), pose, Matrix6::identity() * 1e-4, tilt_only);
+    let mut f = PoseFilter::new(stamp(0), pose, Matrix6::identity() * 1e-4, params());
     let mut truth = start;
     for i in 1..=500 {
         truth *= turn;

@@ -122,7 +122,9 @@ struct Job {
     /// The grasp (tool pose in the handle's frame, at the handle).
     grasp: Option<Isometry3<f64>>,
     servo_steps: u32,
-    last_error: Option<(f64, f64)>,
+    /// The last servo step's error: translation (m), rotation (rad), and the tilt of the approach
+    /// axis off the handle's normal that the dead band left (rad).
+    last_error: Option<(f64, f64, f64)>,
     /// Why the command fails once its remaining actions (backing off) are done.
     failed: Option<String>,
     /// Where a `place` puts the object (a link).
@@ -575,7 +577,7 @@ impl ManipulatorControl {
                     self.params.servo_tilt_dead_band_deg.to_radians(),
                 );
                 let (corr, e) = (t.correction, t.error);
-                job.last_error = Some((e.position_m, e.angle_rad));
+                job.last_error = Some((e.position_m, e.angle_rad, t.tilt_rad));
                 ctx.note(format!(
                     "servo step {}: {:.1} mm, {:.2} deg from the pre-grasp pose (the approach axis {:.1} deg off the handle's normal)",
                     job.servo_steps,
@@ -722,8 +724,9 @@ impl ManipulatorControl {
         serde_json::json!({
             "holding": self.held.as_ref().map(|(k, _)| k.clone()),
             "servo_steps": job.servo_steps,
-            "servo_error_mm": job.last_error.map(|(p, _)| p * 1e3),
-            "servo_error_deg": job.last_error.map(|(_, a)| a.to_degrees()),
+            "servo_error_mm": job.last_error.map(|(p, ..)| p * 1e3),
+            "servo_error_deg": job.last_error.map(|(_, a, _)| a.to_degrees()),
+            "servo_tilt_deg": job.last_error.map(|(.., tilt)| tilt.to_degrees()),
             "tool": tool.map(|t| [t.translation.x, t.translation.y, t.translation.z]),
         })
     }

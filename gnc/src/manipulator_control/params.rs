@@ -55,7 +55,8 @@ pub struct ManipulatorParams {
     pub servo_tolerance_deg: f64,
     /// ... leaving the tilt of the approach axis off the handle's normal as it is within this,
     /// deg: the marker's tilt seen face on is its weak part (degrees off, either way, from corner
-    /// errors and the believed focal lengths), and the fingers take a handle tilted this much (the position and the turn about the axis are servoed to the tolerances above).
+    /// errors and the believed focal lengths), and the fingers take a handle tilted this much (the
+    /// position and the turn about the axis are servoed to the tolerances above).
     pub servo_tilt_dead_band_deg: f64,
     /// Most servo steps of one grasp (0: none, an open-loop grasp from the first view, to measure
     /// what the servoing is worth).

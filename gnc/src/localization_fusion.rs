@@ -5,11 +5,11 @@
 //! [`PoseFilter`]: the wheels' body-frame displacement since the previous reading, the gyro's
 //! rotation over the same interval (`localization/inertial`, or the wheels' heading change with its
 //! much larger noise while the IMU is silent), and the accelerometer's gravity direction for roll
-//! and pitch (the turn's centripetal acceleration taken out: [`gravity_direction`]; it corrects
-//! the tilt only, never the heading or the gyro bias). Each closed visual odometry keyframe (`localization/visual`) is a
-//! relative pose measurement applied at its images' capture times, however late it arrives. The
-//! estimate is published as `localization/pose` in `map`, stamped with the data's time. Each sighting of a
-//! surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
+//! and pitch (the turn's centripetal acceleration taken out: [`gravity_direction`]; it
+//! corrects the tilt only, never the heading or the gyro bias). Each closed visual odometry
+//! keyframe (`localization/visual`) is a relative pose measurement applied at its images' capture
+//! times, however late it arrives. The estimate is published as `localization/pose` in `map`,
+//! stamped with the data's time. Each sighting of a surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
 //! reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
 //! with respect to a fixed object); where the estimate has drifted beyond what its covariance
 //! says, the gate refuses every sighting: `landmark_drift_sightings` refused in a row that agree

@@ -33,7 +33,7 @@ use nalgebra::{
     Isometry3, Matrix3, Matrix6, SMatrix, SVector, Translation3, UnitQuaternion, Vector3, Vector6,
 };
 use std::collections::VecDeque;
-use std::ops::AddAssign;
+use std::ops::{AddAssign, SubAssign};
 
 /// Filter parameters.
 #[derive(Clone, Debug)]
@@ -290,8 +290,7 @@ impl Augmented {
         Ok(d2)
     }
 
-    /// The accelerometer's vertical corrects the state. With `tilt_only` it corrects the tilt
-    /// only: the heading (the rotation about the `map` vertical, here and in a clone) and the gyro
+    /// The accelerometer's vertical corrects the state, the tilt only: the heading (the rotation about the `map` vertical, here and in a clone) and the gyro
     /// bias are consider states of this update
     /// (Schmidt-Kalman: their gain rows are zero, their covariance unchanged, their correlations
     /// with the corrected states kept right). Gravity cannot see the heading; it reached it, and
@@ -303,24 +302,21 @@ impl Augmented {
     fn gravity(&mut self, measured: &Vector3<f64>, sigma: f64) {
         let Some(m) = measured.try_normalize(1e-9) else { return };
         let rt = self.pose.rotation.to_rotation_matrix().into_inner().transpose();
-        let predicted = rt * Vector3::z();
+        let y = m - rt * Vector3::z();
         // H is zero but for the rotation block: the products take only the columns it touches.
         let hb = rt * Vector3::z().cross_matrix();
         let n = Matrix3::identity() * sigma * sigma;
-        let pht: SMatrix<f64, 18, 3> = self.p.fixed_columns::<3>(3) * hb.transpose();
-        let s = hb * pht.fixed_rows::<3>(3) + n;
-        let Some(s_inv) = s.try_inverse() else { return };
-        let k = pht * s_inv;
-        let mut ks = k;
-        for i in CONSIDERED_BY_GRAVITY {
-            ks.row_mut(i).fill(0.0);
+        // Without a clone its rows and columns are zero: the update of the state's own block.
+        let mut dx = SVector::<f64, 18>::zeros();
+        if self.clone.is_some() {
+            let Some(d) = consider_update(&mut self.p, &hb, &y, &n, &CONSIDERED_BY_GRAVITY) else { return };
+            dx = d;
+        } else {
+            let mut p = self.p.fixed_view::<N, N>(0, 0).into_owned();
+            let Some(d) = consider_update(&mut p, &hb, &y, &n, &CONSIDERED_BY_GRAVITY[..4]) else { return };
+            self.p.fixed_view_mut::<N, N>(0, 0).copy_from(&p);
+            dx.fixed_rows_mut::<N>(0).copy_from(&d);
         }
-        let dx = ks * (m - predicted);
-        // With K S = P H^T: P - Ks H P - P H^T Ks^T + Ks S Ks^T, which is P - K S K^T where every
-        // state is estimated, and leaves the consider states' own block as it was. Symmetric up
-        // to rounding; symmetrized where a state is stored.
-        let ks_pht = ks * pht.transpose();
-        self.p += ks * s * ks.transpose() - ks_pht - ks_pht.transpose();
         self.apply(&dx);
     }
 
@@ -395,6 +391,35 @@ impl Augmented {
         h.fixed_view_mut::<4, 6>(0, 0).copy_from(&h6);
         self.update(&y, &h, &n, gate.map(|g| (0, g)))
     }
+}
+
+/// A Schmidt-Kalman update of covariance `p` (D states) by a measurement with innovation `y`,
+/// noise `n` and Jacobian `hb` on the rotation block alone (columns 3..6), the states `considered`
+/// not corrected: their gain rows are zero, their own block unchanged, their correlations with the
+/// corrected states kept right. Returns the correction. With Ks the gain with those rows zeroed and
+/// A = Ks (P H^T)^T, the Joseph form P - Ks H P - P H^T Ks^T + Ks S Ks^T is P - A on the corrected
+/// rows and P - A^T on the considered ones (Ks S is P H^T with the considered rows zeroed), one
+/// outer product. Symmetric up to rounding; symmetrized where a state is stored.
+fn consider_update<const D: usize>(
+    p: &mut SMatrix<f64, D, D>,
+    hb: &Matrix3<f64>,
+    y: &Vector3<f64>,
+    n: &Matrix3<f64>,
+    considered: &[usize],
+) -> Option<SVector<f64, D>> {
+    let pht: SMatrix<f64, D, 3> = p.fixed_columns::<3>(3) * hb.transpose();
+    let s = hb * pht.fixed_rows::<3>(3) + n;
+    let mut ks = pht * s.try_inverse()?;
+    for &i in considered {
+        ks.row_mut(i).fill(0.0);
+    }
+    let a = ks * pht.transpose();
+    *p -= a;
+    for &i in considered {
+        let column = a.column(i).transpose();
+        p.row_mut(i).sub_assign(&column);
+    }
+    Some(ks * y)
 }
 
 impl PoseFilter {

@@ -249,3 +249,43 @@ fn refusals_are_reported() {
     assert!(f.relative(ok).is_ok());
     assert_eq!(f.relative(m(45, 60, 0.0)), Err(RelativeError::Overlaps));
 }
+
+/// The one-outer-product consider update equals the Joseph form with the considered gain rows
+/// zeroed (P - Ks H P - P H^T Ks^T + Ks S Ks^T), with and without a clone's states.
+#[test]
+fn the_consider_update_is_the_joseph_form_with_the_considered_gains_zeroed() {
+    let mut g = Gauss(11);
+    let hb = Matrix3::new(0.1, -0.9, 0.2, 0.95, 0.05, -0.1, 0.0, 0.3, 0.0);
+    let y = g.vec3(0.01);
+    let n = Matrix3::identity() * 4e-4;
+    fn check<const D: usize>(
+        g: &mut Gauss,
+        hb: &Matrix3<f64>,
+        y: &Vector3<f64>,
+        n: &Matrix3<f64>,
+        c: &[usize],
+    ) {
+        let l = SMatrix::<f64, D, D>::from_fn(|_, _| g.next() * 0.1);
+        let p = l * l.transpose() + SMatrix::<f64, D, D>::identity() * 1e-3;
+        let mut h = SMatrix::<f64, 3, D>::zeros();
+        h.fixed_columns_mut::<3>(3).copy_from(hb);
+        let s = h * p * h.transpose() + n;
+        let mut ks = p * h.transpose() * s.try_inverse().unwrap();
+        for &i in c {
+            ks.row_mut(i).fill(0.0);
+        }
+        let joseph = p - ks * h * p - p * h.transpose() * ks.transpose() + ks * s * ks.transpose();
+        let mut q = p;
+        let dx = consider_update(&mut q, hb, y, n, c).unwrap();
+        assert!((q - joseph).abs().max() < 1e-12, "{}", (q - joseph).abs().max());
+        assert!((dx - ks * y).abs().max() < 1e-12);
+        // The considered states' own block is unchanged.
+        for &i in c {
+            for &j in c {
+                assert!((q[(i, j)] - p[(i, j)]).abs() < 1e-15);
+            }
+        }
+    }
+    check::<9>(&mut g, &hb, &y, &n, &CONSIDERED_BY_GRAVITY[..4]);
+    check::<18>(&mut g, &hb, &y, &n, &CONSIDERED_BY_GRAVITY);
+}

@@ -74,6 +74,10 @@ pub struct VisualModuleParams {
     pub keyframe_max_rotation_deg: f64,
     /// See `keyframe_min_fraction`.
     pub keyframe_max_interval_s: f64,
+    /// The rotation from the corners' bearings alone (free of the stereo depths and the pair's
+    /// calibration error), the translation from stereo under it, once the camera is this far from
+    /// the keyframe, m (negative: never; the stereo motion's own rotation).
+    pub bearing_rotation_from_m: f64,
     /// Factor on the published covariance (the refinement's covariance knows the pixel noise, not
     /// the calibration's error).
     pub covariance_scale: f64,
@@ -114,6 +118,7 @@ impl Default for VisualModuleParams {
             keyframe_max_translation_m: v.keyframe_max_translation_m,
             keyframe_max_rotation_deg: v.keyframe_max_rotation_rad.to_degrees(),
             keyframe_max_interval_s: v.keyframe_max_interval_s,
+            bearing_rotation_from_m: v.bearing_rotation_from_m.unwrap_or(-1.0),
             covariance_scale: 1.0,
             scale_sigma: 0.01,
             rotation_sigma_deg: 0.1,
@@ -142,6 +147,8 @@ impl VisualModuleParams {
         v.keyframe_max_translation_m = self.keyframe_max_translation_m;
         v.keyframe_max_rotation_rad = self.keyframe_max_rotation_deg.to_radians();
         v.keyframe_max_interval_s = self.keyframe_max_interval_s;
+        v.bearing_rotation_from_m =
+            (self.bearing_rotation_from_m >= 0.0).then_some(self.bearing_rotation_from_m);
         v
     }
 }

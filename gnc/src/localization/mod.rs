@@ -1,7 +1,8 @@
 //! Localization algorithms (seed 000, 8.3), apart from the module machinery so they can be tested
 //! and benchmarked alone: stereo rectification, corners and stereo matching, motion refinement,
-//! keyframe stereo visual odometry.
+//! keyframe stereo visual odometry, its rotation from bearings.
 
+pub mod bearing;
 pub mod features;
 pub mod filter;
 pub mod landmark;

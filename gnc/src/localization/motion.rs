@@ -146,6 +146,60 @@ pub fn refine(
     Some(Motion { pose, covariance, inliers, rmse_px: (sq / n as f64).sqrt(), variance_factor })
 }
 
+/// Refines only the translation of `pose`, its rotation fixed (found from the bearings:
+/// [`super::bearing`], with covariance `rotation_covariance` of its left perturbation), over the
+/// correspondences `inliers` marks. The covariance is the translation's given the rotation plus
+/// what the rotation's error carries into it through the reprojection's coupling (the optimal
+/// translation moves by -H_ρρ⁻¹ H_ρφ φ for a rotation error φ), with their cross terms.
+pub fn refine_translation(
+    k: &Intrinsics,
+    obs: &[Correspondence],
+    pose: &Isometry3<f64>,
+    inliers: &[bool],
+    p: &RefineParams,
+    rotation_covariance: &Matrix3<f64>,
+) -> Option<Motion> {
+    let mut pose = *pose;
+    for _ in 0..p.iterations {
+        let (h, g, _) = normal_equations(k, obs, &pose, inliers, p);
+        let htt = h.fixed_view::<3, 3>(0, 0).into_owned();
+        let step = htt.cholesky()?.solve(&-g.fixed_rows::<3>(0).into_owned());
+        pose = perturb(&pose, &Vector6::new(step.x, step.y, step.z, 0.0, 0.0, 0.0));
+        if step.norm() < 1e-10 {
+            break;
+        }
+    }
+    let (info, _, chi2) = normal_equations(k, obs, &pose, inliers, p);
+    let n = inliers.iter().filter(|i| **i).count();
+    if n < 4 {
+        return None;
+    }
+    let variance_factor = chi2 / (2 * n).saturating_sub(3).max(1) as f64;
+    let htt_inv = info.fixed_view::<3, 3>(0, 0).into_owned().try_inverse()?;
+    let a = -htt_inv * info.fixed_view::<3, 3>(0, 3);
+    let rc = rotation_covariance;
+    let mut covariance = Matrix6::zeros();
+    covariance
+        .fixed_view_mut::<3, 3>(0, 0)
+        .copy_from(&(htt_inv * variance_factor.max(1.0) + a * rc * a.transpose()));
+    covariance.fixed_view_mut::<3, 3>(0, 3).copy_from(&(a * rc));
+    covariance.fixed_view_mut::<3, 3>(3, 0).copy_from(&(rc * a.transpose()));
+    covariance.fixed_view_mut::<3, 3>(3, 3).copy_from(rc);
+    let sq: f64 = obs
+        .iter()
+        .zip(inliers)
+        .filter(|(_, i)| **i)
+        .map(|(o, _)| (k.project(&(pose * o.point)) - o.pixel).norm_squared())
+        .sum();
+    Some(Motion {
+        pose,
+        covariance,
+        inliers: inliers.to_vec(),
+        rmse_px: (sq / n as f64).sqrt(),
+        variance_factor,
+    })
+}
+
 /// The whitened residual norm of one correspondence; None when the point is behind the camera.
 fn whitened(k: &Intrinsics, o: &Correspondence, pose: &Isometry3<f64>, p: &RefineParams) -> Option<f64> {
     let (r, w, _) = residual(k, o, pose, p)?;

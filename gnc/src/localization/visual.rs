@@ -7,7 +7,11 @@
 //! 2. Every new frame: the keyframe's corners are tracked frame to frame by pyramidal Lucas-Kanade
 //!    (kornia-imgproc) with a forward-backward check; the camera's motion from the keyframe is found
 //!    by PnP RANSAC on the AP3P kernel (kornia-3d), then refined by weighted, robust Gauss-Newton on
-//!    the reprojection error ([`super::motion`]), which gives its covariance.
+//!    the reprojection error ([`super::motion`]), which gives its covariance. The motion a closing
+//!    keyframe hands on, once the camera has moved far enough for the two views to have a
+//!    baseline, takes its rotation from the corners' bearings alone ([`super::bearing`]) and its
+//!    translation refined under it: the stereo depths carry the pair's calibration error, which
+//!    otherwise turns every metre driven (decoupled as in SOFT).
 //! 3. The keyframe is replaced when too few of its corners remain, when the camera has moved or
 //!    turned past a threshold, or after a time; the motion up to that frame is the estimate handed on
 //!    (measurements that chain, one per keyframe, never overlap). A stationary camera keeps its
@@ -16,8 +20,9 @@
 //! Tracking is lost when too few corners track or too few agree on a motion; the frame then starts a
 //! new keyframe and the interval is reported as a gap, never guessed.
 
+use super::bearing::refine_rotation;
 use super::features::{FeatureParams, stereo_features};
-use super::motion::{Correspondence, Intrinsics, Motion, RefineParams, refine};
+use super::motion::{Correspondence, Intrinsics, Motion, RefineParams, refine, refine_translation};
 use super::rectify::Rectification;
 use framework::camera::{GreyImage, StereoCalibration};
 use framework::time::Time;
@@ -60,6 +65,9 @@ pub struct VisualParams {
     pub keyframe_max_rotation_rad: f64,
     /// A new keyframe after this long, s.
     pub keyframe_max_interval_s: f64,
+    /// The rotation from the corners' bearings (the translation refined under it) once the camera
+    /// is this far from the keyframe, m; below, and with `None`, the stereo motion's own.
+    pub bearing_rotation_from_m: Option<f64>,
 }
 
 impl Default for VisualParams {
@@ -78,6 +86,7 @@ impl Default for VisualParams {
             keyframe_max_translation_m: 0.3,
             keyframe_max_rotation_rad: 10f64.to_radians(),
             keyframe_max_interval_s: 2.0,
+            bearing_rotation_from_m: Some(0.05),
         }
     }
 }
@@ -330,6 +339,12 @@ impl StereoOdometry {
             || moved > p.keyframe_max_translation_m
             || turned > p.keyframe_max_rotation_rad
             || (stamp - key.stamp).as_secs_f64() >= p.keyframe_max_interval_s;
+        // The motion a closing keyframe hands on: its rotation from the bearings (the frames
+        // between only steer the keyframe policy and the display).
+        let motion = match self.params.bearing_rotation_from_m {
+            Some(min) if new_keyframe && moved >= min => self.decoupled(&obs, motion),
+            _ => motion,
+        };
         let keyframe_stamp = key.stamp;
         let mut keyframe_features = 0;
         if new_keyframe {
@@ -402,6 +417,27 @@ impl StereoOdometry {
             return Err(format!("{n} of {} corners agree on a refined motion", obs.len()));
         }
         Ok(motion)
+    }
+
+    /// The stereo `motion` with its rotation from the bearings and its translation refined under
+    /// it; the stereo motion itself when the bearings give no rotation.
+    fn decoupled(&self, obs: &[Correspondence], motion: Motion) -> Motion {
+        let r = &self.params.refine;
+        let t = motion.pose.translation.vector;
+        let Some(b) = refine_rotation(
+            &self.k,
+            obs,
+            &motion.inliers,
+            &motion.pose.rotation,
+            &t,
+            r.pixel_sigma,
+            r.huber,
+            r.iterations,
+        ) else {
+            return motion;
+        };
+        let pose = Isometry3::from_parts(Translation3::from(t), b.rotation);
+        refine_translation(&self.k, obs, &pose, &motion.inliers, r, &b.covariance).unwrap_or(motion)
     }
 
     /// Makes this frame the keyframe; returns its corner count.

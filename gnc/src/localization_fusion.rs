@@ -9,8 +9,8 @@
 //! corrects the tilt only, never the heading or the gyro bias). Each closed visual odometry
 //! keyframe (`localization/visual`) is a relative pose measurement applied at its images' capture
 //! times, however late it arrives. The estimate is published as `localization/pose` in `map`,
-//! stamped with the data's time. Each sighting of a surveyed landmark (`landmarks`: an object the operator surveyed in the yard, as TrackingMarker
-//! reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
+//! stamped with the data's time. Each sighting of a surveyed landmark (`landmarks`: an object the
+//! operator surveyed in the yard, as TrackingMarker reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
 //! with respect to a fixed object); where the estimate has drifted beyond what its covariance
 //! says, the gate refuses every sighting: `landmark_drift_sightings` refused in a row that agree
 //! with each other on where the rover is (within `landmark_drift_agree_m`, each within

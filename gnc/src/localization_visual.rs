@@ -78,6 +78,11 @@ pub struct VisualModuleParams {
     /// calibration error), the translation from stereo under it, once the camera is this far from
     /// the keyframe, m (negative: never; the stereo motion's own rotation).
     pub bearing_rotation_from_m: f64,
+    /// ... unless it differs from the stereo motion's rotation by more than this squared
+    /// Mahalanobis distance (a gross failure of the bearings' fit).
+    pub bearing_gate: f64,
+    /// ... or when its variance is more than this many times the stereo rotation's.
+    pub bearing_max_variance_ratio: f64,
     /// Factor on the published covariance (the refinement's covariance knows the pixel noise, not
     /// the calibration's error).
     pub covariance_scale: f64,
@@ -119,6 +124,8 @@ impl Default for VisualModuleParams {
             keyframe_max_rotation_deg: v.keyframe_max_rotation_rad.to_degrees(),
             keyframe_max_interval_s: v.keyframe_max_interval_s,
             bearing_rotation_from_m: v.bearing_rotation_from_m.unwrap_or(-1.0),
+            bearing_gate: v.bearing_gate,
+            bearing_max_variance_ratio: v.bearing_max_variance_ratio,
             covariance_scale: 1.0,
             scale_sigma: 0.01,
             rotation_sigma_deg: 0.1,
@@ -147,6 +154,8 @@ impl VisualModuleParams {
         v.keyframe_max_translation_m = self.keyframe_max_translation_m;
         v.keyframe_max_rotation_rad = self.keyframe_max_rotation_deg.to_radians();
         v.keyframe_max_interval_s = self.keyframe_max_interval_s;
+        v.bearing_gate = self.bearing_gate;
+        v.bearing_max_variance_ratio = self.bearing_max_variance_ratio;
         v.bearing_rotation_from_m =
             (self.bearing_rotation_from_m >= 0.0).then_some(self.bearing_rotation_from_m);
         v
@@ -456,6 +465,8 @@ impl Module for LocalizationVisual {
             ("keyframe_max_translation_m", p.keyframe_max_translation_m),
             ("keyframe_max_rotation_deg", p.keyframe_max_rotation_deg),
             ("keyframe_max_interval_s", p.keyframe_max_interval_s),
+            ("bearing_gate", p.bearing_gate),
+            ("bearing_max_variance_ratio", p.bearing_max_variance_ratio),
             ("covariance_scale", p.covariance_scale),
         ])?;
         let b = p.body_box;

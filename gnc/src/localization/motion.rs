@@ -258,6 +258,43 @@ fn normal_equations(
 mod tests {
     use super::*;
 
+    /// Given the rotation's marginal covariance from the full fit, the translation refined under
+    /// the fitted rotation gets back the full fit's covariance: the composition (conditional
+    /// translation, plus the rotation's error carried through the coupling) is the joint one.
+    #[test]
+    fn the_translation_under_a_fixed_rotation_composes_the_joint_covariance() {
+        let k = Intrinsics { fx: 380.0, fy: 380.0, cx: 319.5, cy: 239.5 };
+        let truth = Isometry3::new(Vector3::new(0.03, 0.01, -0.25), Vector3::new(-0.01, 0.04, 0.01));
+        let mut s = 3u64;
+        let mut rnd = || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
+        };
+        let obs: Vec<Correspondence> = (0..100)
+            .map(|_| {
+                let x = Point3::new(rnd() * 4.0, rnd() * 2.0 + 0.8, 2.0 + (rnd() + 0.5) * 6.0);
+                let mut px = k.project(&(truth * x));
+                px.x += rnd() * 0.2;
+                px.y += rnd() * 0.2;
+                Correspondence { point: x, covariance: Matrix3::identity() * 1e-5, pixel: px }
+            })
+            .collect();
+        let p = RefineParams::default();
+        let all = vec![true; obs.len()];
+        let m = refine(&k, &obs, &Isometry3::identity(), &all, &p).unwrap();
+        assert!(m.variance_factor < 1.0, "{}", m.variance_factor);
+        let sigma_phi = m.covariance.fixed_view::<3, 3>(3, 3).into_owned();
+        let t = refine_translation(&k, &obs, &m.pose, &m.inliers, &p, &sigma_phi).unwrap();
+        assert!((t.pose.translation.vector - m.pose.translation.vector).norm() < 1e-9);
+        let scale = m.covariance.abs().max();
+        assert!(
+            (t.covariance - m.covariance).abs().max() < 1e-6 * scale,
+            "{}\n{}",
+            t.covariance,
+            m.covariance
+        );
+    }
+
     #[test]
     fn refinement_recovers_a_motion_and_its_covariance_covers_the_error() {
         let k = Intrinsics { fx: 400.0, fy: 400.0, cx: 319.5, cy: 239.5 };

@@ -66,8 +66,17 @@ pub struct VisualParams {
     /// A new keyframe after this long, s.
     pub keyframe_max_interval_s: f64,
     /// The rotation from the corners' bearings (the translation refined under it) once the camera
-    /// is this far from the keyframe, m; below, and with `None`, the stereo motion's own.
+    /// is this far from the keyframe, m; below, and with `None` (the default for now: see
+    /// `localization_visual.toml`), the stereo motion's own.
     pub bearing_rotation_from_m: Option<f64>,
+    /// The bearings' rotation is refused (the stereo motion kept) when it differs from the stereo
+    /// motion's by more than this squared Mahalanobis distance (both covariances): a gross
+    /// failure, not the calibration's bias it corrects (a few units); and when its covariance's
+    /// trace is more than `bearing_max_variance_ratio` times the stereo rotation's (a baseline too
+    /// short to tell the rotation from the direction of travel).
+    pub bearing_gate: f64,
+    /// See `bearing_gate`.
+    pub bearing_max_variance_ratio: f64,
 }
 
 impl Default for VisualParams {
@@ -86,7 +95,9 @@ impl Default for VisualParams {
             keyframe_max_translation_m: 0.3,
             keyframe_max_rotation_rad: 10f64.to_radians(),
             keyframe_max_interval_s: 2.0,
-            bearing_rotation_from_m: Some(0.05),
+            bearing_rotation_from_m: None,
+            bearing_gate: 100.0,
+            bearing_max_variance_ratio: 4.0,
         }
     }
 }
@@ -424,18 +435,17 @@ impl StereoOdometry {
     fn decoupled(&self, obs: &[Correspondence], motion: Motion) -> Motion {
         let r = &self.params.refine;
         let t = motion.pose.translation.vector;
-        let Some(b) = refine_rotation(
-            &self.k,
-            obs,
-            &motion.inliers,
-            &motion.pose.rotation,
-            &t,
-            r.pixel_sigma,
-            r.huber,
-            r.iterations,
-        ) else {
+        let Some(b) = refine_rotation(&self.k, obs, &motion.inliers, &motion.pose.rotation, &t, r) else {
             return motion;
         };
+        let d = (b.rotation * motion.pose.rotation.inverse()).scaled_axis();
+        let stereo = motion.covariance.fixed_view::<3, 3>(3, 3).into_owned();
+        let both = b.covariance + stereo;
+        if both.try_inverse().is_none_or(|inv| d.dot(&(inv * d)) > self.params.bearing_gate)
+            || b.covariance.trace() > self.params.bearing_max_variance_ratio * stereo.trace()
+        {
+            return motion;
+        }
         let pose = Isometry3::from_parts(Translation3::from(t), b.rotation);
         refine_translation(&self.k, obs, &pose, &motion.inliers, r, &b.covariance).unwrap_or(motion)
     }

@@ -10,8 +10,8 @@
 //! keyframe (`localization/visual`) is a relative pose measurement applied at its images' capture
 //! times, however late it arrives. The estimate is published as `localization/pose` in `map`,
 //! stamped with the data's time. Each sighting of a surveyed landmark (`landmarks`: an object the
-//! operator surveyed in the yard, as TrackingMarker reports it in `tracking/objects`) fixes the position and heading (seed 000, 10: localization
-//! with respect to a fixed object); where the estimate has drifted beyond what its covariance
+//! operator surveyed in the yard, as TrackingMarker reports it in `tracking/objects`) fixes the
+//! position and heading (seed 000, 10: localization with respect to a fixed object); where the estimate has drifted beyond what its covariance
 //! says, the gate refuses every sighting: `landmark_drift_sightings` refused in a row that agree
 //! with each other on where the rover is (within `landmark_drift_agree_m`, each within
 //! `landmark_drift_gate`) relocalize it on the landmark ([`PoseFilter::relocalize`]).

@@ -292,8 +292,8 @@ impl Augmented {
 
     /// The accelerometer's vertical corrects the state, the tilt only: the heading (the rotation
     /// about the `map` vertical, here and in a clone) and the gyro bias are consider states of
-    /// this update (Schmidt-Kalman: their gain rows are zero, their covariance unchanged, their correlations
-    /// with the corrected states kept right). Gravity cannot see the heading; it reached it, and
+    /// this update (Schmidt-Kalman: their gain rows are zero, their covariance unchanged, their
+    /// correlations with the corrected states kept right). Gravity cannot see the heading; it reached it, and
     /// the body-z bias, only through correlations built by the bias on sloped ground, so that the
     /// vertical's errors that are no white noise (vibration in skid turns, what is left of the
     /// centripetal and linear accelerations, the accelerometer's bias) were learnt as a heading

@@ -137,13 +137,8 @@ pub fn refine(
     let dof = (2 * n).saturating_sub(6).max(1) as f64;
     let variance_factor = chi2 / dof;
     let covariance = info.try_inverse()? * variance_factor.max(1.0);
-    let sq: f64 = obs
-        .iter()
-        .zip(&inliers)
-        .filter(|(_, i)| **i)
-        .map(|(o, _)| (k.project(&(pose * o.point)) - o.pixel).norm_squared())
-        .sum();
-    Some(Motion { pose, covariance, inliers, rmse_px: (sq / n as f64).sqrt(), variance_factor })
+    let rmse_px = rms_reprojection(k, obs, &pose, &inliers);
+    Some(Motion { pose, covariance, inliers, rmse_px, variance_factor })
 }
 
 /// Refines only the translation of `pose`, its rotation fixed (found from the bearings:
@@ -185,19 +180,19 @@ pub fn refine_translation(
     covariance.fixed_view_mut::<3, 3>(0, 3).copy_from(&(a * rc));
     covariance.fixed_view_mut::<3, 3>(3, 0).copy_from(&(rc * a.transpose()));
     covariance.fixed_view_mut::<3, 3>(3, 3).copy_from(rc);
-    let sq: f64 = obs
+    let rmse_px = rms_reprojection(k, obs, &pose, inliers);
+    Some(Motion { pose, covariance, inliers: inliers.to_vec(), rmse_px, variance_factor })
+}
+
+/// Root-mean-square reprojection error of the correspondences `inliers` marks at `pose`, pixels.
+fn rms_reprojection(k: &Intrinsics, obs: &[Correspondence], pose: &Isometry3<f64>, inliers: &[bool]) -> f64 {
+    let (sq, n) = obs
         .iter()
         .zip(inliers)
         .filter(|(_, i)| **i)
         .map(|(o, _)| (k.project(&(pose * o.point)) - o.pixel).norm_squared())
-        .sum();
-    Some(Motion {
-        pose,
-        covariance,
-        inliers: inliers.to_vec(),
-        rmse_px: (sq / n as f64).sqrt(),
-        variance_factor,
-    })
+        .fold((0.0, 0usize), |(s, n), e| (s + e, n + 1));
+    (sq / n as f64).sqrt()
 }
 
 /// The whitened residual norm of one correspondence; None when the point is behind the camera.

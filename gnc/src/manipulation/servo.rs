@@ -32,6 +32,16 @@ pub struct ServoError {
     pub angle_rad: f64,
 }
 
+impl ServoError {
+    /// The size of a correction (the desired tool pose in the present tool's frame).
+    fn of(correction: &Isometry3<f64>) -> ServoError {
+        ServoError {
+            position_m: correction.translation.vector.norm(),
+            angle_rad: correction.rotation.angle(),
+        }
+    }
+}
+
 /// The error of a tool that sees the object at `tool_from_object` when it should see it at
 /// `goal_tool_from_object`: the desired tool pose in the present tool's frame.
 pub fn tool_correction(
@@ -39,8 +49,7 @@ pub fn tool_correction(
     goal_tool_from_object: &Isometry3<f64>,
 ) -> (Isometry3<f64>, ServoError) {
     let t = tool_from_object * goal_tool_from_object.inverse();
-    let e = ServoError { position_m: t.translation.vector.norm(), angle_rad: t.rotation.angle() };
-    (t, e)
+    (t, ServoError::of(&t))
 }
 
 /// A servo correction that leaves the tilt of the tool's approach axis alone within `dead_band`.
@@ -66,7 +75,7 @@ pub fn tilt_tolerant_correction(
     axis: &Unit<Vector3<f64>>,
     dead_band: f64,
 ) -> TiltTolerant {
-    let full = tool_from_object * goal_tool_from_object.inverse();
+    let (full, _) = tool_correction(tool_from_object, goal_tool_from_object);
     let (swing, twist) = swing_twist(&full.rotation, axis);
     let tilt = swing.angle();
     let kept = if tilt > dead_band { (tilt - dead_band) / tilt } else { 0.0 };
@@ -76,8 +85,7 @@ pub fn tilt_tolerant_correction(
     let translation =
         tool_from_object.translation.vector - rotation * goal_tool_from_object.translation.vector;
     let correction = Isometry3::from_parts(Translation3::from(translation), rotation);
-    let error = ServoError { position_m: translation.norm(), angle_rad: rotation.angle() };
-    TiltTolerant { correction, error, tilt_rad: tilt }
+    TiltTolerant { correction, error: ServoError::of(&correction), tilt_rad: tilt }
 }
 
 /// `r` as swing * twist: the twist turns about `axis`, the swing about an axis perpendicular to

@@ -28,8 +28,8 @@
 
 use crate::body::joint_values;
 use crate::manipulation::clearance::{Clearance, ClearanceParams, Held};
-use crate::manipulation::kinematics::{ArmKinematics, distance, top_down_grasps};
-use crate::manipulation::servo::{mean_pose, next_tool_pose, tilt_tolerant_correction};
+use crate::manipulation::kinematics::ArmKinematics;
+use crate::manipulation::servo::mean_pose;
 use crate::manipulation::trajectory::{plan_path, segment_speed};
 use crate::peer::send;
 use framework::data::{JointStates, ManipulationState, ObjectPoses};
@@ -40,6 +40,7 @@ use framework::prelude::*;
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use std::collections::VecDeque;
 
+mod grasp;
 mod params;
 mod place;
 
@@ -474,168 +475,6 @@ impl ManipulatorControl {
         Ok(false)
     }
 
-    /// The fingers stopped on the handle: the object is held (its pose in the tool frame from
-    /// the grasp); closed on nothing, or stopped wide, the grasp failed.
-    fn check_grip(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
-        let object = job.object.clone().ok_or("no object")?;
-        let o = self.object_params(&object)?.clone();
-        let all = self.all_joints(ctx).ok_or("no joint states")?;
-        let names = self.kinematics.mechanism().dof_names();
-        let fingers: Vec<f64> =
-            self.fingers.iter().filter_map(|f| names.iter().position(|n| n == f).map(|i| all[i])).collect();
-        let ok = !fingers.is_empty()
-            && fingers.iter().all(|f| (f - o.handle_half_width_m).abs() <= self.params.grip_tolerance_m);
-        if !ok {
-            let mm: Vec<String> = fingers.iter().map(|f| format!("{:.1}", f * 1e3)).collect();
-            let why = format!(
-                "the fingers stopped at {} mm, not on the handle ({:.1} mm)",
-                mm.join(", "),
-                o.handle_half_width_m * 1e3
-            );
-            ctx.note(format!("grasp: {why}: opening and backing off"));
-            // Let go and back off before failing, so a retry starts clear.
-            job.actions.clear();
-            job.actions.push_back(Action::Gripper(vec![self.params.open_m; self.fingers.len()]));
-            job.actions.push_back(Action::Lift);
-            job.failed = Some(why);
-            return self.next_action(ctx, job).map(|_| ());
-        }
-        let grasp = job.grasp.ok_or("no grasp")?;
-        let h = Vector3::from(o.handle);
-        let object_from_tool = Isometry3::translation(h.x, h.y, h.z) * grasp;
-        self.held = Some((object, object_from_tool.inverse()));
-        self.next_action(ctx, job).map(|_| ())
-    }
-
-    /// What a view of the object at rest does: the approach picks the grasp and goes to its
-    /// pre-grasp pose; a servo step measures the error and corrects it or ends the loop.
-    fn viewed(
-        &mut self,
-        ctx: &mut Ctx<'_>,
-        job: &mut Job,
-        tool_from_object: Isometry3<f64>,
-    ) -> Result<(), String> {
-        let action = job.actions.pop_front().ok_or("no action")?;
-        let object = job.object.clone().ok_or("no object")?;
-        let o = self.object_params(&object)?.clone();
-        let h = Vector3::from(o.handle);
-        let tool_from_handle = tool_from_object * Isometry3::translation(h.x, h.y, h.z);
-        let (q, all) = self.arm_now(ctx)?;
-        let base_from_tool = self.kinematics.forward(&q)?;
-        let height = self.params.pregrasp_height_m;
-        match action {
-            Action::Approach => {
-                let base_from_handle = base_from_tool * tool_from_handle;
-                // Of the two grasps (the closing axis either way), the reachable one whose path is
-                // clear and nearest the present joints.
-                let mut best: Option<(f64, Vec<f64>, Isometry3<f64>)> = None;
-                let mut why = String::new();
-                let full = |a: &[f64]| self.kinematics.full(a, &all);
-                for g in top_down_grasps(0.0) {
-                    let pre = base_from_handle * Isometry3::translation(0.0, 0.0, height) * g;
-                    let at = base_from_handle * g;
-                    let sol = self.kinematics.inverse(&pre, &q, &self.seeds()).and_then(|qp| {
-                        // The grasp itself must be reachable from there too.
-                        self.kinematics.inverse(&at, &qp, &[])?;
-                        plan_path(&self.clearance, &full, &q, &qp, &self.vias(), None)
-                            .map_err(|e| e.to_string())?;
-                        Ok(qp)
-                    });
-                    match sol {
-                        Ok(qp) => {
-                            let d = distance(&qp, &q);
-                            if best.as_ref().is_none_or(|(b, ..)| d < *b) {
-                                best = Some((d, qp, g));
-                            }
-                        }
-                        Err(e) => why = e,
-                    }
-                }
-                let (_, qp, g) = best.ok_or_else(|| format!("no grasp of the {object}'s handle: {why}"))?;
-                job.grasp = Some(g);
-                let hv = base_from_handle.translation.vector;
-                ctx.note(format!(
-                    "grasp: the {object}'s handle at ({:.3}, {:.3}, {:.3}) in base_link; to the pre-grasp pose",
-                    hv.x, hv.y, hv.z
-                ));
-                // With no servo steps allowed the grasp goes where this first view put it: open
-                // loop, through the believed kinematics alone.
-                let next = if self.params.max_servo_steps == 0 { Action::Descend } else { Action::Servo };
-                job.actions.push_front(next);
-                job.actions.push_front(Action::Plan(qp));
-            }
-            Action::Servo => {
-                let g = job.grasp.ok_or("no grasp chosen")?;
-                // Where the tool should see the handle: the pre-grasp pose's inverse.
-                let goal_tool_from_handle = (Isometry3::translation(0.0, 0.0, height) * g).inverse();
-                // The tool's x axis is its approach (top_down_grasps): its tilt off the handle's
-                // normal is corrected only beyond the dead band (see `manipulation::servo`).
-                let t = tilt_tolerant_correction(
-                    &tool_from_handle,
-                    &goal_tool_from_handle,
-                    &Vector3::x_axis(),
-                    self.params.servo_tilt_dead_band_deg.to_radians(),
-                );
-                let (corr, e) = (t.correction, t.error);
-                job.last_error = Some((e.position_m, e.angle_rad, t.tilt_rad));
-                ctx.note(format!(
-                    "servo step {}: {:.1} mm, {:.2} deg from the pre-grasp pose (the approach axis {:.1} deg off the handle's normal)",
-                    job.servo_steps,
-                    e.position_m * 1e3,
-                    e.angle_rad.to_degrees(),
-                    t.tilt_rad.to_degrees()
-                ));
-                if e.position_m <= self.params.servo_tolerance_m
-                    && e.angle_rad <= self.params.servo_tolerance_deg.to_radians()
-                {
-                    job.actions.push_front(Action::Descend);
-                } else {
-                    if job.servo_steps >= self.params.max_servo_steps {
-                        return Err(format!(
-                            "visual servoing did not converge in {} steps: {:.1} mm, {:.2} deg left",
-                            job.servo_steps,
-                            e.position_m * 1e3,
-                            e.angle_rad.to_degrees()
-                        ));
-                    }
-                    job.servo_steps += 1;
-                    let goal = next_tool_pose(
-                        &base_from_tool,
-                        &corr,
-                        self.params.servo_gain,
-                        self.params.servo_max_step_m,
-                    );
-                    let qn = self.kinematics.inverse(&goal, &q, &[])?;
-                    job.actions.push_front(Action::Servo);
-                    job.actions.push_front(Action::Straight { to: qn, contact: false });
-                }
-            }
-            other => return Err(format!("internal: a view for {other:?}")),
-        }
-        self.next_action(ctx, job).map(|_| ())
-    }
-
-    /// The lift of the open fingers off an object let go got stuck (`why`): a finger caught on it
-    /// (a handle clamped in its slot). The rest of that lift is dropped, the motors are taken out
-    /// of fault and the tool goes straight up instead, once.
-    fn lift_again(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, why: &str) -> Result<(), String> {
-        job.lift_retried = true;
-        while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
-            job.actions.pop_front();
-        }
-        let (q, _) = self.arm_now(ctx)?;
-        let up = self.vertical(&q, self.params.lift_m)?;
-        for p in up.into_iter().rev() {
-            job.actions.push_front(Action::Straight { to: p, contact: true });
-        }
-        job.actions.push_front(Action::Recover(Group::Arm));
-        ctx.note(format!(
-            "the lift of the open fingers {why} (a finger caught?): lifting straight up instead"
-        ));
-        job.wait = Wait::Idle;
-        Ok(())
-    }
-
     /// Advances the job; its result once it ends.
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
         match job.wait.clone() {
@@ -910,63 +749,7 @@ impl Module for ManipulatorControl {
     }
 
     fn configure(&mut self, p: &ManipulatorParams) -> Result<(), String> {
-        crate::params::require_positive(&[
-            ("speed", p.speed),
-            ("acceleration_rad_s2", p.acceleration_rad_s2),
-            ("margin_m", p.margin_m),
-            ("check_step_rad", p.check_step_rad),
-            ("open_m", p.open_m),
-            ("pregrasp_height_m", p.pregrasp_height_m),
-            ("descent_step_m", p.descent_step_m),
-            ("lift_m", p.lift_m),
-            ("servo_gain", p.servo_gain),
-            ("servo_max_step_m", p.servo_max_step_m),
-            ("servo_tolerance_m", p.servo_tolerance_m),
-            ("servo_tolerance_deg", p.servo_tolerance_deg),
-            ("settle_s", p.settle_s),
-            ("observe_timeout_s", p.observe_timeout_s),
-            ("move_slack_s", p.move_slack_s),
-            ("arrive_tolerance_m", p.arrive_tolerance_m),
-            ("grip_tolerance_m", p.grip_tolerance_m),
-            ("place_height_m", p.place_height_m),
-            ("view_frames", f64::from(p.view_frames)),
-        ])?;
-        if !(0.0..45.0).contains(&p.servo_tilt_dead_band_deg) {
-            return Err(format!(
-                "servo_tilt_dead_band_deg must be in [0, 45), got {}",
-                p.servo_tilt_dead_band_deg
-            ));
-        }
-        if p.speed > 1.0 || p.servo_gain > 1.0 {
-            return Err(format!(
-                "speed and servo_gain must be in (0, 1], got {} and {}",
-                p.speed, p.servo_gain
-            ));
-        }
-        let limits = self.kinematics.limits();
-        for (name, q) in &p.poses {
-            if q.len() != limits.len() {
-                return Err(format!(
-                    "pose '{name}' has {} values, the arm has {} joints",
-                    q.len(),
-                    limits.len()
-                ));
-            }
-            if let Some((j, v)) =
-                q.iter().enumerate().find(|(j, v)| !(limits[*j].0..=limits[*j].1).contains(*v))
-            {
-                return Err(format!(
-                    "pose '{name}': {} = {v} outside its limits",
-                    self.kinematics.joint_names()[j]
-                ));
-            }
-        }
-        if let Some(v) = p.vias.iter().find(|v| !p.poses.contains_key(*v)) {
-            return Err(format!("via-pose '{v}' is not a configured pose"));
-        }
-        if !p.poses.contains_key(&p.after_place) {
-            return Err(format!("after_place pose '{}' is not a configured pose", p.after_place));
-        }
+        p.validate(&self.kinematics.limits(), self.kinematics.joint_names())?;
         self.clearance = Clearance::new(
             self.kinematics.mechanism(),
             is_arm_link,

@@ -129,6 +129,67 @@ impl Default for ManipulatorParams {
     }
 }
 
+impl ManipulatorParams {
+    /// Checks the values against each other and the arm (`limits` and `joint_names` in the arm's
+    /// joint order).
+    pub fn validate(&self, limits: &[(f64, f64)], joint_names: &[String]) -> Result<(), String> {
+        crate::params::require_positive(&[
+            ("speed", self.speed),
+            ("acceleration_rad_s2", self.acceleration_rad_s2),
+            ("margin_m", self.margin_m),
+            ("check_step_rad", self.check_step_rad),
+            ("open_m", self.open_m),
+            ("pregrasp_height_m", self.pregrasp_height_m),
+            ("descent_step_m", self.descent_step_m),
+            ("lift_m", self.lift_m),
+            ("servo_gain", self.servo_gain),
+            ("servo_max_step_m", self.servo_max_step_m),
+            ("servo_tolerance_m", self.servo_tolerance_m),
+            ("servo_tolerance_deg", self.servo_tolerance_deg),
+            ("settle_s", self.settle_s),
+            ("observe_timeout_s", self.observe_timeout_s),
+            ("move_slack_s", self.move_slack_s),
+            ("arrive_tolerance_m", self.arrive_tolerance_m),
+            ("grip_tolerance_m", self.grip_tolerance_m),
+            ("place_height_m", self.place_height_m),
+            ("view_frames", f64::from(self.view_frames)),
+        ])?;
+        if !(0.0..45.0).contains(&self.servo_tilt_dead_band_deg) {
+            return Err(format!(
+                "servo_tilt_dead_band_deg must be in [0, 45), got {}",
+                self.servo_tilt_dead_band_deg
+            ));
+        }
+        if self.speed > 1.0 || self.servo_gain > 1.0 {
+            return Err(format!(
+                "speed and servo_gain must be in (0, 1], got {} and {}",
+                self.speed, self.servo_gain
+            ));
+        }
+        for (name, q) in &self.poses {
+            if q.len() != limits.len() {
+                return Err(format!(
+                    "pose '{name}' has {} values, the arm has {} joints",
+                    q.len(),
+                    limits.len()
+                ));
+            }
+            if let Some((j, v)) =
+                q.iter().enumerate().find(|(j, v)| !(limits[*j].0..=limits[*j].1).contains(*v))
+            {
+                return Err(format!("pose '{name}': {} = {v} outside its limits", joint_names[j]));
+            }
+        }
+        if let Some(v) = self.vias.iter().find(|v| !self.poses.contains_key(*v)) {
+            return Err(format!("via-pose '{v}' is not a configured pose"));
+        }
+        if !self.poses.contains_key(&self.after_place) {
+            return Err(format!("after_place pose '{}' is not a configured pose", self.after_place));
+        }
+        Ok(())
+    }
+}
+
 /// Arguments of `move_named`.
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]

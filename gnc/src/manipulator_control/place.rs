@@ -1,6 +1,7 @@
 //! ManipulatorControl's `place`: the held object upright into a slot at the quarter turn whose
 //! way there and descent are clear, and what a blocked descent means (let go on the slot's floor,
-//! tried again to the side when on its wall, kept when it never goes in).
+//! tried again to the side when on its wall, kept when it never goes in), and the lift of the
+//! open fingers that gets stuck on the object let go.
 
 use super::{Action, Group, Job, ManipulatorControl, Wait};
 use crate::manipulation::kinematics::distance;
@@ -44,6 +45,27 @@ fn seat_direction(k: u32, n: u32) -> f64 {
 }
 
 impl ManipulatorControl {
+    /// The lift of the open fingers off an object let go got stuck (`why`): a finger caught on it
+    /// (a handle clamped in its slot). The rest of that lift is dropped, the motors are taken out
+    /// of fault and the tool goes straight up instead, once.
+    pub(super) fn lift_again(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, why: &str) -> Result<(), String> {
+        job.lift_retried = true;
+        while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
+            job.actions.pop_front();
+        }
+        let (q, _) = self.arm_now(ctx)?;
+        let up = self.vertical(&q, self.params.lift_m)?;
+        for p in up.into_iter().rev() {
+            job.actions.push_front(Action::Straight { to: p, contact: true });
+        }
+        job.actions.push_front(Action::Recover(Group::Arm));
+        ctx.note(format!(
+            "the lift of the open fingers {why} (a finger caught?): lifting straight up instead"
+        ));
+        job.wait = Wait::Idle;
+        Ok(())
+    }
+
     /// A place's descent stopped short (the held object met the cradle's floor or a wall before the
     /// believed kinematics said it would), after the arm's motors are out of any fault: within
     /// `seat_tolerance_m` of the resting place the rest of the descent is dropped and the object

@@ -1,7 +1,7 @@
 //! Vision algorithms of seed 000, 8.1 and 8.4, free of the framework's module machinery: fiducial
 //! markers ([`marker_detector`]) and the poses they give ([`markers`]), the operator-selected target's image tracker
 //! ([`template`], on the weighted correlation of `correlation`) and where a lost one is looked for ([`search`]), its position by stereo
-//! ([`locate`], within the ranges a box of known [`size`] allows) fused over the images
+//! ([`locate`], within the ranges a box of known [`size`] allows, by [`stereo_match`]) fused over the images
 //! ([`estimate`]) and the pan and tilt that point a camera at it
 //! ([`pointing`]).
 
@@ -13,4 +13,5 @@ pub mod markers;
 pub mod pointing;
 pub mod search;
 pub mod size;
+pub mod stereo_match;
 pub mod template;

@@ -37,103 +37,18 @@ use framework::data::{
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
 use framework::prelude::*;
-use nalgebra::{Point3, Vector2, Vector3};
-use serde::{Deserialize, Serialize};
+use nalgebra::Point3;
+mod legs;
+mod params;
+
+pub use legs::{Faced, Leg, bearing_goal, faced, next_leg};
+pub use params::{ApproachArgs, ApproachTrackArgs, PointLocateArgs, VisualTrackingParams};
 
 /// A pan-tilt command unchanged is sent again after this many command periods off target.
 const RESEND_PERIODS: f64 = 4.0;
 
 /// The slot of the coordinator's state.
 pub const SLOT: &str = "tracking/visual";
-
-/// CoordinatorVisualTracking parameters.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct VisualTrackingParams {
-    /// The pan-tilt unit is re-commanded at most this often, s.
-    pub command_period_s: f64,
-    /// ... and only when the aim moved more than this, rad.
-    pub deadband_rad: f64,
-    /// Pan-tilt speed of the pursuit, fraction of the joints' limits.
-    pub ptu_speed: f64,
-    /// Range assumed along the line of sight before stereo ranged the target, m.
-    pub sight_range_m: f64,
-    /// Default accuracy `locate` is asked for (1 sigma, horizontal), m.
-    pub max_sigma_m: f64,
-    /// Approach-and-track legs: the accuracy asked before a leg, as a fraction of the distance.
-    pub leg_sigma_fraction: f64,
-    /// A leg ends at this fraction of the distance to the target ...
-    pub leg_fraction: f64,
-    /// ... and at most this far from where it starts, m.
-    pub max_leg_m: f64,
-    /// The approach's goal lies at this fraction of the boundary from the target.
-    pub standoff_fraction: f64,
-    /// Arrival tolerance of an intermediate leg, m.
-    pub leg_tolerance_m: f64,
-    /// Most legs of one `point_locate_approach_track`, and most times it locates again after
-    /// facing the target outside the boundary.
-    pub max_legs: u32,
-    /// Longest wait for TrackingTarget to locate the target to the asked accuracy, s.
-    pub locate_timeout_s: f64,
-    /// A far target (a leg's accuracy asked) still tracked but not located to it after this long
-    /// (a few pixels wide, stereo cannot range it well enough) is driven towards along its line of
-    /// sight instead: a leg of `leg_fraction` of its assumed range (at most `max_leg_m`), s.
-    pub bearing_after_s: f64,
-    /// Longest wait for a target to be tracked at all when a command starts, s.
-    pub target_wait_s: f64,
-}
-
-impl Default for VisualTrackingParams {
-    fn default() -> Self {
-        VisualTrackingParams {
-            command_period_s: 0.5,
-            deadband_rad: 0.01,
-            ptu_speed: 0.5,
-            sight_range_m: 20.0,
-            max_sigma_m: 0.3,
-            leg_sigma_fraction: 0.08,
-            leg_fraction: 0.5,
-            max_leg_m: 8.0,
-            standoff_fraction: 0.6,
-            leg_tolerance_m: 0.5,
-            max_legs: 10,
-            locate_timeout_s: 90.0,
-            bearing_after_s: 20.0,
-            target_wait_s: 10.0,
-        }
-    }
-}
-
-/// Arguments of `point_locate`.
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PointLocateArgs {
-    /// Accuracy to locate to, 1 sigma, m (default: configured).
-    #[serde(default)]
-    pub max_sigma_m: Option<f64>,
-}
-
-/// Arguments of `point_locate_approach`.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ApproachArgs {
-    /// The rover stops within this distance of the target, m.
-    pub boundary_m: f64,
-    /// Accuracy to locate to before approaching, 1 sigma, m (default: configured).
-    #[serde(default)]
-    pub max_sigma_m: Option<f64>,
-}
-
-/// Arguments of `point_locate_approach_track`.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ApproachTrackArgs {
-    /// The loop ends within this distance of the target, m.
-    pub max_distance_m: f64,
-    /// Accuracy of the last locate, 1 sigma, m (default: configured).
-    #[serde(default)]
-    pub max_sigma_m: Option<f64>,
-}
 
 /// Which command a job carries out.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -218,96 +133,6 @@ pub struct VisualTrackingPeers {
     pub locomotion: String,
     /// CoordinatorNavigator, when the system navigates (approaches need it).
     pub navigator: Option<String>,
-}
-
-/// What to do after a locate: where the next leg ends, or that the rover is there.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Leg {
-    /// Drive to a goal within a tolerance.
-    Drive {
-        /// The goal (x, y) in `map`, m.
-        goal: [f64; 2],
-        /// Arrival tolerance, m.
-        tolerance: f64,
-    },
-    /// Close enough: turn to face the target.
-    Arrived,
-}
-
-/// What follows a turn to face the target.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Faced {
-    /// The job is done.
-    Done,
-    /// Outside the boundary: locate and approach again.
-    Again,
-    /// Outside the boundary (m), with no more tries: the job fails.
-    Outside(f64),
-}
-
-/// After turning to face a target `d` m away (by its estimate then): done within `boundary` (or
-/// without one); outside it, a tracking job (`track`) that has done so `refaced` times, fewer than
-/// `max`, goes again (the estimate was refined, or the target moved, while the rover turned);
-/// any other fails.
-pub fn faced(d: f64, boundary: Option<f64>, track: bool, refaced: u32, max: u32) -> Faced {
-    match boundary {
-        Some(b) if d > b && track && refaced < max => Faced::Again,
-        Some(b) if d > b => Faced::Outside(b),
-        _ => Faced::Done,
-    }
-}
-
-/// The next leg of an approach from `rover` to `target` (both in `map`, m) that must end within
-/// `boundary` of it: when farther than `boundary` (and `track` asks for legs), a goal on the line
-/// between them at `leg_fraction` of the distance (at most `max_leg_m` nearer), never nearer than
-/// the stand-off; the final leg ends at the stand-off with a tolerance that keeps it inside.
-pub fn next_leg(
-    rover: [f64; 2],
-    target: [f64; 2],
-    boundary: f64,
-    track: bool,
-    p: &VisualTrackingParams,
-) -> Leg {
-    let (dx, dy) = (target[0] - rover[0], target[1] - rover[1]);
-    let d = dx.hypot(dy);
-    if d <= boundary {
-        return Leg::Arrived;
-    }
-    // The rover stops as soon as it is within the tolerance, so coming from afar it ends near the
-    // tolerance's far edge: half the room to the boundary keeps the other half for the estimate's
-    // error.
-    let standoff = boundary * p.standoff_fraction;
-    let final_tolerance = 0.5 * (boundary - standoff);
-    let mut stop_at = standoff;
-    if track {
-        let leg = (d * p.leg_fraction).max(d - p.max_leg_m);
-        // A leg that would end near the stand-off anyway goes all the way.
-        if leg > standoff + p.leg_tolerance_m + final_tolerance {
-            stop_at = leg;
-        }
-    }
-    let f = stop_at / d;
-    let goal = [target[0] - f * dx, target[1] - f * dy];
-    let tolerance = if stop_at == standoff { final_tolerance } else { p.leg_tolerance_m };
-    Leg::Drive { goal, tolerance }
-}
-
-/// A leg towards a target seen along `direction` (`map`) but not located well enough: from
-/// `rover`, along the direction's horizontal bearing, `leg_fraction` of the target's assumed
-/// `range` (at most `max_leg_m`). None for a line of sight with no bearing (straight up or down).
-pub fn bearing_goal(
-    rover: [f64; 2],
-    direction: &Vector3<f64>,
-    range: f64,
-    p: &VisualTrackingParams,
-) -> Option<[f64; 2]> {
-    let heading = Vector2::new(direction.x, direction.y);
-    if !(heading.norm() > 1e-6 && range.is_finite() && range > 0.0) {
-        return None;
-    }
-    let heading = heading.normalize();
-    let leg = (range * p.leg_fraction).min(p.max_leg_m);
-    Some([rover[0] + leg * heading.x, rover[1] + leg * heading.y])
 }
 
 /// The CoordinatorVisualTracking module.
@@ -861,80 +686,5 @@ impl Module for CoordinatorVisualTracking {
             self.commanded = None;
         }
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn drive(leg: Leg) -> ([f64; 2], f64) {
-        match leg {
-            Leg::Drive { goal, tolerance } => (goal, tolerance),
-            Leg::Arrived => panic!("arrived"),
-        }
-    }
-
-    #[test]
-    fn a_bearing_leg_follows_the_line_of_sight_s_horizontal_bearing_for_part_of_the_range() {
-        let p = VisualTrackingParams::default();
-        // Looking down and to the north-east at a target assumed 10 m away: half of it.
-        let d = Vector3::new(1.0, 1.0, -0.3);
-        let goal = bearing_goal([2.0, -1.0], &d, 10.0, &p).unwrap();
-        let (dx, dy) = (goal[0] - 2.0, goal[1] + 1.0);
-        assert!((dx.hypot(dy) - 10.0 * p.leg_fraction).abs() < 1e-9, "{goal:?}");
-        assert!((dy.atan2(dx) - std::f64::consts::FRAC_PI_4).abs() < 1e-9, "{goal:?}");
-        // Far away: capped.
-        let goal = bearing_goal([0.0, 0.0], &Vector3::new(0.0, -2.0, 0.1), 60.0, &p).unwrap();
-        assert!((goal[0]).abs() < 1e-9 && (goal[1] + p.max_leg_m).abs() < 1e-9, "{goal:?}");
-        // No bearing, or no range: no leg.
-        assert_eq!(bearing_goal([0.0, 0.0], &Vector3::new(0.0, 0.0, -1.0), 10.0, &p), None);
-        assert_eq!(bearing_goal([0.0, 0.0], &d, f64::NAN, &p), None);
-    }
-
-    #[test]
-    fn a_tracking_job_faced_outside_the_boundary_goes_again_a_bounded_number_of_times() {
-        assert_eq!(faced(1.9, Some(2.0), true, 0, 10), Faced::Done);
-        assert_eq!(faced(2.0, Some(2.0), false, 0, 10), Faced::Done);
-        assert_eq!(faced(2.03, Some(2.0), true, 0, 10), Faced::Again);
-        assert_eq!(faced(2.03, Some(2.0), true, 10, 10), Faced::Outside(2.0));
-        assert_eq!(faced(2.03, Some(2.0), false, 0, 10), Faced::Outside(2.0));
-        assert_eq!(faced(7.0, None, false, 0, 10), Faced::Done);
-    }
-
-    #[test]
-    fn an_approach_ends_inside_the_boundary_on_the_line_to_the_target() {
-        let p = VisualTrackingParams::default();
-        let (goal, tol) = drive(next_leg([0.0, 0.0], [10.0, 0.0], 2.0, false, &p));
-        let d = 10.0 - goal[0];
-        assert!((goal[1]).abs() < 1e-12);
-        assert!(d + tol < 2.0 && d - tol > 0.5, "goal {d} m from the target, tolerance {tol}");
-        assert_eq!(next_leg([8.5, 0.0], [10.0, 0.0], 2.0, false, &p), Leg::Arrived);
-    }
-
-    #[test]
-    fn tracking_legs_shrink_the_distance_geometrically_then_stop_at_the_standoff() {
-        let p = VisualTrackingParams::default();
-        let target = [3.0, -4.0];
-        let mut rover = [-15.0, 10.0];
-        let mut distances = Vec::new();
-        for _ in 0..p.max_legs {
-            match next_leg(rover, target, 1.5, true, &p) {
-                Leg::Arrived => break,
-                Leg::Drive { goal, .. } => {
-                    rover = goal;
-                    distances.push((goal[0] - target[0]).hypot(goal[1] - target[1]));
-                }
-            }
-        }
-        assert!(distances.len() >= 3, "{distances:?}");
-        // No leg longer than max_leg_m, each nearer than the last, the last at the stand-off.
-        let mut from = (-15.0f64 - 3.0).hypot(10.0 + 4.0);
-        for d in &distances {
-            assert!(*d < from && from - d <= p.max_leg_m + 1e-9, "{distances:?}");
-            from = *d;
-        }
-        assert!((from - 1.5 * p.standoff_fraction).abs() < 1e-9, "{distances:?}");
-        assert_eq!(next_leg(rover, target, 1.5, true, &p), Leg::Arrived);
     }
 }

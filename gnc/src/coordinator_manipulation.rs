@@ -29,7 +29,10 @@ use framework::module::Request;
 use framework::prelude::*;
 use nalgebra::{Isometry3, Point3};
 
+mod moves;
 mod params;
+pub use moves::reposition;
+use moves::{Move, REPOSITION_BEARING_DEG};
 pub use params::CoordinatorManipulationParams;
 
 /// Names of the modules the coordinator commands and the slots it reads.
@@ -55,10 +58,6 @@ pub struct ManipulationPeers {
     pub objects: String,
 }
 
-/// The rover's speed in the short moves that bring an object within reach, m/s.
-const DRIVE_SPEED_MPS: f64 = 0.1;
-/// After a look, the rover turns to face an object farther off its heading than this, deg.
-const REPOSITION_BEARING_DEG: f64 = 4.0;
 /// Longest back-up to search for an object no look pose saw, m (it is driven blind, open loop).
 const MAX_SEARCH_BACK_M: f64 = 1.0;
 /// Most moves towards the head camera's estimate before the look (a turn, a drive, a turn).
@@ -67,32 +66,6 @@ const MAX_PREPARE_MOVES: u32 = 3;
 const MAX_STALL_RECOVERIES: u32 = 2;
 /// The turns of the look all round: quarter turns, a full circle.
 const SCAN_TURNS: u32 = 4;
-
-/// A move of the rover, as sent to locomotion.
-#[derive(Clone, Copy, Debug, PartialEq)]
-enum Move {
-    /// A turn in place to a heading of `map`, rad.
-    Turn { yaw: f64 },
-    /// A straight drive of `distance` m (negative: backwards) from `from` (`map` x, y) along the
-    /// heading `heading` (rad) it started on.
-    Drive { distance: f64, from: [f64; 2], heading: f64 },
-}
-
-impl Move {
-    /// What is left of the move with the rover at `at` (`map` x, y): the turn (to an absolute
-    /// heading) as it was, the drive its distance less the way made good along its heading; None
-    /// when under a centimetre of it is left.
-    fn rest(&self, at: [f64; 2]) -> Option<Move> {
-        match *self {
-            Move::Turn { .. } => Some(*self),
-            Move::Drive { distance, from, heading } => {
-                let made = (at[0] - from[0]) * heading.cos() + (at[1] - from[1]) * heading.sin();
-                let left = distance - made;
-                (left * distance.signum() > 0.01).then_some(Move::Drive { distance: left, from: at, heading })
-            }
-        }
-    }
-}
 
 /// Which command a job carries out.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -202,19 +175,6 @@ struct Job {
     since: Time,
 }
 
-/// What the rover should do so that an object at `object` (in `base_link`, m) can be grasped:
-/// nothing (None), or move to the point (in `base_link`) from which the object lies `grasp_x_m`
-/// ahead on the same line.
-pub fn reposition(object: &Point3<f64>, p: &CoordinatorManipulationParams) -> Option<[f64; 2]> {
-    let [x_min, x_max, y_max] = p.grasp_region_m;
-    if (x_min..=x_max).contains(&object.x) && object.y.abs() <= y_max {
-        return None;
-    }
-    let d = object.x.hypot(object.y);
-    let f = (d - p.grasp_x_m) / d;
-    Some([object.x * f, object.y * f])
-}
-
 /// The CoordinatorManipulation module.
 pub struct CoordinatorManipulation {
     peers: ManipulationPeers,
@@ -256,60 +216,6 @@ impl CoordinatorManipulation {
         let pose = self.params.look_poses.get(job.look).ok_or("no look pose left")?;
         job.id = send(ctx, &self.peers.manipulator, "move_named", serde_json::json!({ "pose": pose }))?;
         job.step = Step::Look;
-        Ok(())
-    }
-
-    /// One locomotion move that brings the object at `object` (in `map`) to `want` m ahead
-    /// (within `tolerance`) and within `max_bearing` (rad) of the heading: a turn to face it when
-    /// it is off the heading, else a straight drive by what is missing (slowly, open loop: the
-    /// caller looks again after it). False when the rover is there already.
-    fn move_towards(
-        &self,
-        ctx: &mut Ctx<'_>,
-        job: &mut Job,
-        object: &Point3<f64>,
-        want: f64,
-        tolerance: f64,
-        max_bearing: f64,
-    ) -> Result<bool, String> {
-        let pose = self.pose(ctx)?;
-        let in_base = pose.inverse() * object;
-        let d = in_base.x.hypot(in_base.y);
-        if in_base.y.atan2(in_base.x).abs() > max_bearing {
-            let rover = pose.translation.vector;
-            let yaw = (object.y - rover.y).atan2(object.x - rover.x);
-            self.move_rover(ctx, job, Move::Turn { yaw })?;
-            return Ok(true);
-        }
-        let go = d - want;
-        if go.abs() <= tolerance {
-            return Ok(false);
-        }
-        self.drive_straight(ctx, job, go)?;
-        Ok(true)
-    }
-
-    /// A straight drive of `distance` (m; negative: backwards), slowly and open loop.
-    fn drive_straight(&self, ctx: &mut Ctx<'_>, job: &mut Job, distance: f64) -> Result<(), String> {
-        let pose = self.pose(ctx)?;
-        let from = [pose.translation.x, pose.translation.y];
-        let heading = pose.rotation.euler_angles().2;
-        self.move_rover(ctx, job, Move::Drive { distance, from, heading })
-    }
-
-    /// Sends a move of the rover to locomotion for the job, remembered to be sent again (what is
-    /// left of it) after a stall.
-    fn move_rover(&self, ctx: &mut Ctx<'_>, job: &mut Job, m: Move) -> Result<(), String> {
-        let (command, args) = match m {
-            Move::Turn { yaw } => ("turn_to", serde_json::json!({ "yaw_deg": yaw.to_degrees() })),
-            Move::Drive { distance, .. } => {
-                let v = DRIVE_SPEED_MPS.copysign(distance);
-                let args = serde_json::json!({ "v": v, "omega": 0.0, "duration_s": distance.abs() / DRIVE_SPEED_MPS });
-                ("drive", args)
-            }
-        };
-        job.id = send(ctx, &self.peers.locomotion, command, args)?;
-        job.last_move = Some(m);
         Ok(())
     }
 
@@ -625,6 +531,29 @@ impl CoordinatorManipulation {
             }
             (Step::Grasp, Err(r)) if job.attempts < self.params.max_attempts => {
                 job.look = 0;
+                // A handle the arm cannot reach from where the rover stands (inside the grasp
+                // region by the locate, yet no grasp of it is reachable: its turn, the ground)
+                // stays so however often it is looked at: the rover first moves to have the
+                // object `grasp_x_m` straight ahead, facing it.
+                if let (true, true, Some(target)) = (
+                    r.contains("cannot reach"),
+                    job.repositions < self.params.max_repositions,
+                    job.object_map,
+                ) {
+                    job.repositions += 1;
+                    ctx.note(format!(
+                        "{}: grasp {} failed ({r}): moving the rover to have the {} {:.2} m straight ahead",
+                        job.kind.name(),
+                        job.attempts,
+                        self.params.object,
+                        self.params.grasp_x_m
+                    ));
+                    let x = self.params.grasp_x_m;
+                    if self.move_towards(ctx, job, &target, x, 0.02, REPOSITION_BEARING_DEG.to_radians())? {
+                        job.step = Step::Reposition;
+                        return Ok(None);
+                    }
+                }
                 ctx.note(format!("{}: grasp {} failed ({r}): looking again", job.kind.name(), job.attempts));
                 self.look(ctx, job)?;
             }

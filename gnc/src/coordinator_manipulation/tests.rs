@@ -31,13 +31,24 @@ struct Setup {
     locate_hangs: bool,
     /// A command every peer fails.
     fails: Option<&'static str>,
+    /// The wrist camera's `locate` finds the canister here (`base_link` x, y, z), and the arm's
+    /// `grasp` of it fails, its handle out of reach.
+    located_out_of_reach: Option<[f64; 3]>,
     /// The coordinator's parameters (TOML) over its defaults.
     params: &'static str,
 }
 
 impl Default for Setup {
     fn default() -> Self {
-        Setup { by_head: true, estimate_m: 1.05, glimpse: None, locate_hangs: false, fails: None, params: "" }
+        Setup {
+            by_head: true,
+            estimate_m: 1.05,
+            glimpse: None,
+            locate_hangs: false,
+            fails: None,
+            located_out_of_reach: None,
+            params: "",
+        }
     }
 }
 
@@ -68,6 +79,12 @@ impl Peer {
         match command {
             _ if self.setup.fails == Some(command) => Outcome::fail(format!("{command} refused")),
             "locate" if self.setup.locate_hangs => Outcome::Accepted,
+            "locate" if self.setup.located_out_of_reach.is_some() => Outcome::Completed(
+                serde_json::json!({ "base_from_object": { "xyz": self.setup.located_out_of_reach } }),
+            ),
+            "grasp" => Outcome::fail(
+                "no grasp of the canister's handle: the arm cannot reach that pose (60.9 mm from it at best)",
+            ),
             "locate" => Outcome::fail("not located to 0.01 m within 8 s"),
             _ => Outcome::done(),
         }
@@ -143,6 +160,7 @@ impl Module for Peer {
             Ok(())
         });
         d.command("move_named", |m, _, _: serde_json::Value| m.answer("move_named"));
+        d.command("grasp", |m, _, _: serde_json::Value| m.answer("grasp"));
         d.command("locate", |m, _, _: serde_json::Value| m.answer("locate"));
         d.command("set_rate", |m, _, _: serde_json::Value| m.answer("set_rate"));
         // A drive takes a second (the wrist camera's images meanwhile are of no look pose).
@@ -403,4 +421,24 @@ fn a_look_pose_from_which_nothing_is_seen_is_left_before_the_locate_times_out() 
     let longer = seen - quick;
     let one = p.locate_timeout_s - p.glimpse_timeout_s;
     assert!(longer > 0.5 * one, "{quick} s without the glimpse, {seen} s with it");
+}
+
+#[test]
+fn a_handle_out_of_the_arm_s_reach_moves_the_rover_before_the_next_grasp() {
+    // Located inside the grasp region but 10 cm off the rover's axis: every grasp fails, out of
+    // reach. Each failure moves the rover (a turn to face it) before the next look, while
+    // repositions are left; then it looks again from where it is.
+    let (status, log, _) = acquire_with(Setup {
+        located_out_of_reach: Some([0.9, 0.1, -0.3]),
+        params: "max_attempts = 3\nmax_repositions = 1",
+        ..Default::default()
+    });
+    assert!(matches!(&status, AckStatus::Failed(r) if r.contains("cannot reach")), "{status:?}");
+    let grasps: Vec<usize> =
+        log.iter().enumerate().filter(|(_, c)| *c == "manipulator.grasp").map(|(i, _)| i).collect();
+    assert_eq!(grasps.len(), 3, "{log:?}");
+    let moved =
+        |a: usize, b: usize| log[a..b].iter().any(|c| c == "locomotion.turn_to" || c == "locomotion.drive");
+    assert!(moved(grasps[0], grasps[1]), "no move after the first failure: {log:?}");
+    assert!(!moved(grasps[1], grasps[2]), "a move beyond max_repositions: {log:?}");
 }

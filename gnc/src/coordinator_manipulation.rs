@@ -14,7 +14,9 @@
 //!   it. Then the manipulator grasps it under visual servoing. A move of the rover that stalls a wheel is recovered from (locomotion's `recover`)
 //!   and sent again, what is left of it (a turn to its heading, a drive its remaining distance),
 //!   twice at most. A grasp that fails (the fingers closed beside the handle, the servo loop did not
-//!   converge) is tried again from the look, up to `max_attempts`. Completes once the manipulator
+//!   converge) is tried again from the look, up to `max_attempts`; one whose handle the arm cannot
+//!   reach from where the rover stands first has the rover face the object and bring it
+//!   `grasp_x_m` ahead (a reposition). Completes once the manipulator
 //!   reports the object held (its fingers stopped on the handle), with the wrist camera off again.
 //! - `stow_canister`: has the manipulator place the held object in the stowage slot.
 //! - `stop`: ends the command in progress and stops what it commanded.
@@ -32,7 +34,7 @@ use nalgebra::{Isometry3, Point3};
 mod moves;
 mod params;
 pub use moves::reposition;
-use moves::{Move, REPOSITION_BEARING_DEG};
+use moves::{Move, REACH_TOLERANCE_M, REPOSITION_BEARING_DEG};
 pub use params::CoordinatorManipulationParams;
 
 /// Names of the modules the coordinator commands and the slots it reads.
@@ -136,6 +138,9 @@ struct Job {
     id: MessageId,
     attempts: u32,
     repositions: u32,
+    /// Further moves of a reposition for a grasp out of reach (a turn to face the object, then
+    /// the drive to the grasp distance), each sent once the one before completes.
+    reach_moves: u32,
     /// Moves towards the head camera's estimate so far.
     prepares: u32,
     /// The look pose in use (index into `look_poses`).
@@ -439,6 +444,21 @@ impl CoordinatorManipulation {
                 }
             }
             (Step::Reposition, Ok(_)) => {
+                if let (true, Some(target)) = (job.reach_moves > 0, job.object_map) {
+                    job.reach_moves -= 1;
+                    let x = self.params.grasp_x_m;
+                    if self.move_towards(
+                        ctx,
+                        job,
+                        &target,
+                        x,
+                        REACH_TOLERANCE_M,
+                        REPOSITION_BEARING_DEG.to_radians(),
+                    )? {
+                        return Ok(None);
+                    }
+                }
+                job.reach_moves = 0;
                 job.look = 0;
                 self.look(ctx, job)?;
             }
@@ -533,23 +553,28 @@ impl CoordinatorManipulation {
                 job.look = 0;
                 // A handle the arm cannot reach from where the rover stands (inside the grasp
                 // region by the locate, yet no grasp of it is reachable: its turn, the ground)
-                // stays so however often it is looked at: the rover first moves to have the
-                // object `grasp_x_m` straight ahead, facing it.
+                // stays so however often it is looked at: the rover first turns to face the
+                // object and drives to have it `grasp_x_m` straight ahead (the moves that are
+                // needed; one reposition). Only the approach's failure, before the arm left the
+                // look pose (ManipulatorControl's "no grasp of ..."): a later step that cannot
+                // reach (a servo step, the descent, the lift) leaves the arm low or holding.
                 if let (true, true, Some(target)) = (
-                    r.contains("cannot reach"),
+                    r.starts_with("no grasp of") && r.contains("cannot reach"),
                     job.repositions < self.params.max_repositions,
                     job.object_map,
                 ) {
-                    job.repositions += 1;
-                    ctx.note(format!(
-                        "{}: grasp {} failed ({r}): moving the rover to have the {} {:.2} m straight ahead",
-                        job.kind.name(),
-                        job.attempts,
-                        self.params.object,
-                        self.params.grasp_x_m
-                    ));
                     let x = self.params.grasp_x_m;
-                    if self.move_towards(ctx, job, &target, x, 0.02, REPOSITION_BEARING_DEG.to_radians())? {
+                    let bearing = REPOSITION_BEARING_DEG.to_radians();
+                    if self.move_towards(ctx, job, &target, x, REACH_TOLERANCE_M, bearing)? {
+                        job.repositions += 1;
+                        job.reach_moves = 1;
+                        ctx.note(format!(
+                            "{}: grasp {} failed ({r}): moving the rover to have the {} {:.2} m straight ahead",
+                            job.kind.name(),
+                            job.attempts,
+                            self.params.object,
+                            self.params.grasp_x_m
+                        ));
                         job.step = Step::Reposition;
                         return Ok(None);
                     }
@@ -591,6 +616,7 @@ impl CoordinatorManipulation {
                     id,
                     attempts: 0,
                     repositions: 0,
+                    reach_moves: 0,
                     prepares: 0,
                     look: 0,
                     object_map: None,

@@ -10,6 +10,9 @@ use nalgebra::Point3;
 const DRIVE_SPEED_MPS: f64 = 0.1;
 /// After a look, the rover turns to face an object farther off its heading than this, deg.
 pub(super) const REPOSITION_BEARING_DEG: f64 = 4.0;
+/// A reposition for a grasp out of reach drives when the object is farther than this from
+/// `grasp_x_m` ahead, m.
+pub(super) const REACH_TOLERANCE_M: f64 = 0.02;
 
 /// A move of the rover, as sent to locomotion.
 #[derive(Clone, Copy, Debug, PartialEq)]

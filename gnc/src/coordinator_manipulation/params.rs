@@ -32,7 +32,8 @@ pub struct CoordinatorManipulationParams {
     pub locate_timeout_s: f64,
     /// Grasps tried before the command fails.
     pub max_attempts: u32,
-    /// Rover moves after looking before the command fails (the back-up search counts as one).
+    /// Rover moves after looking before the command fails (the back-up search counts as one, and
+    /// so does the move after a grasp the arm could not reach).
     pub max_repositions: u32,
     /// When no look pose saw anything of the object (it may lie nearer than the wrist camera's
     /// views reach, or beside them), the rover backs up this far once and looks again, m (0: never).

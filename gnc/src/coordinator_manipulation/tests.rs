@@ -53,7 +53,8 @@ impl Default for Setup {
 }
 
 /// A peer of the coordinator that completes every command at once but the wrist camera's
-/// `locate`, which fails (nothing seen) or hangs; its blackboard slot (the pose, the head
+/// `locate`, which fails (nothing seen) or hangs, or finds the canister out of the arm's reach
+/// (`located_out_of_reach`, and then the arm's `grasp` fails); its blackboard slot (the pose, the head
 /// camera's track, the wrist camera's objects), if any, holds a rover at the origin facing +x and
 /// a canister estimate `estimate_m` ahead of it; the wrist camera's objects the setup's glimpse.
 struct Peer {
@@ -82,7 +83,7 @@ impl Peer {
             "locate" if self.setup.located_out_of_reach.is_some() => Outcome::Completed(
                 serde_json::json!({ "base_from_object": { "xyz": self.setup.located_out_of_reach } }),
             ),
-            "grasp" => Outcome::fail(
+            "grasp" if self.setup.located_out_of_reach.is_some() => Outcome::fail(
                 "no grasp of the canister's handle: the arm cannot reach that pose (60.9 mm from it at best)",
             ),
             "locate" => Outcome::fail("not located to 0.01 m within 8 s"),
@@ -425,20 +426,28 @@ fn a_look_pose_from_which_nothing_is_seen_is_left_before_the_locate_times_out() 
 
 #[test]
 fn a_handle_out_of_the_arm_s_reach_moves_the_rover_before_the_next_grasp() {
-    // Located inside the grasp region but 10 cm off the rover's axis: every grasp fails, out of
-    // reach. Each failure moves the rover (a turn to face it) before the next look, while
-    // repositions are left; then it looks again from where it is.
-    let (status, log, _) = acquire_with(Setup {
-        located_out_of_reach: Some([0.9, 0.1, -0.3]),
-        params: "max_attempts = 3\nmax_repositions = 1",
-        ..Default::default()
-    });
-    assert!(matches!(&status, AckStatus::Failed(r) if r.contains("cannot reach")), "{status:?}");
-    let grasps: Vec<usize> =
-        log.iter().enumerate().filter(|(_, c)| *c == "manipulator.grasp").map(|(i, _)| i).collect();
-    assert_eq!(grasps.len(), 3, "{log:?}");
-    let moved =
-        |a: usize, b: usize| log[a..b].iter().any(|c| c == "locomotion.turn_to" || c == "locomotion.drive");
-    assert!(moved(grasps[0], grasps[1]), "no move after the first failure: {log:?}");
-    assert!(!moved(grasps[1], grasps[2]), "a move beyond max_repositions: {log:?}");
+    // Every grasp fails, out of reach. Located 10 cm off the rover's axis (inside the grasp
+    // region), the first failure moves the rover (a turn to face it, and the move after it: the
+    // stub's rover never moves, so a second turn) before the next look; with no reposition left,
+    // the next failure looks again from where the rover is.
+    let run = |at: [f64; 3]| {
+        let (status, log, _) = acquire_with(Setup {
+            located_out_of_reach: Some(at),
+            params: "max_attempts = 3\nmax_repositions = 1",
+            ..Default::default()
+        });
+        assert!(matches!(&status, AckStatus::Failed(r) if r.contains("cannot reach")), "{status:?}");
+        let grasps: Vec<usize> =
+            log.iter().enumerate().filter(|(_, c)| *c == "manipulator.grasp").map(|(i, _)| i).collect();
+        assert_eq!(grasps.len(), 3, "{log:?}");
+        let moves = |a: usize, b: usize| {
+            log[a..b].iter().filter(|c| *c == "locomotion.turn_to" || *c == "locomotion.drive").count()
+        };
+        (moves(grasps[0], grasps[1]), moves(grasps[1], grasps[2]), log)
+    };
+    let (first, second, log) = run([0.9, 0.1, -0.3]);
+    assert_eq!((first, second), (2, 0), "{log:?}");
+    // Already facing it at the grasp distance: nothing to move, the looks go on from there.
+    let (first, second, log) = run([1.0, 0.0, -0.3]);
+    assert_eq!((first, second), (0, 0), "{log:?}");
 }

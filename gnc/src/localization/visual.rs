@@ -66,8 +66,8 @@ pub struct VisualParams {
     /// A new keyframe after this long, s.
     pub keyframe_max_interval_s: f64,
     /// The rotation from the corners' bearings (the translation refined under it) once the camera
-    /// is this far from the keyframe, m; below, and with `None` (the default for now: see
-    /// `localization_visual.toml`), the stereo motion's own.
+    /// is this far from the keyframe, m; below, and with `None` (the default here;
+    /// `localization_visual.toml` sets 0.15 m), the stereo motion's own.
     pub bearing_rotation_from_m: Option<f64>,
     /// The bearings' rotation is refused (the stereo motion kept) when it differs from the stereo
     /// motion's by more than this squared Mahalanobis distance (both covariances): a gross

@@ -5,8 +5,8 @@
 
 use framework::camera::GreyImage;
 
-/// Zero-mean SAD between the left window at (u, v) and the right window at (u - d, v), and the
-/// left window's mean absolute deviation.
+/// Zero-mean SAD between the left window at (u, v) and the right window at (u - d, v), half
+/// size `h`.
 pub(crate) fn zsad(l: &GreyImage, r: &GreyImage, u: usize, v: usize, d: usize, h: usize) -> f64 {
     let w = l.width as usize;
     let (mut sl, mut sr) = (0i32, 0i32);

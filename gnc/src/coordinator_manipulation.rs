@@ -34,7 +34,7 @@ use nalgebra::{Isometry3, Point3};
 mod moves;
 mod params;
 pub use moves::reposition;
-use moves::{Move, REACH_TOLERANCE_M, REPOSITION_BEARING_DEG};
+use moves::{Move, REPOSITION_BEARING_DEG};
 pub use params::CoordinatorManipulationParams;
 
 /// Names of the modules the coordinator commands and the slots it reads.
@@ -221,6 +221,8 @@ impl CoordinatorManipulation {
         let pose = self.params.look_poses.get(job.look).ok_or("no look pose left")?;
         job.id = send(ctx, &self.peers.manipulator, "move_named", serde_json::json!({ "pose": pose }))?;
         job.step = Step::Look;
+        // A look ends a reposition for a grasp out of reach (also one cut short by a stall).
+        job.reach_moves = 0;
         Ok(())
     }
 
@@ -446,19 +448,10 @@ impl CoordinatorManipulation {
             (Step::Reposition, Ok(_)) => {
                 if let (true, Some(target)) = (job.reach_moves > 0, job.object_map) {
                     job.reach_moves -= 1;
-                    let x = self.params.grasp_x_m;
-                    if self.move_towards(
-                        ctx,
-                        job,
-                        &target,
-                        x,
-                        REACH_TOLERANCE_M,
-                        REPOSITION_BEARING_DEG.to_radians(),
-                    )? {
+                    if self.move_within_reach(ctx, job, &target)? {
                         return Ok(None);
                     }
                 }
-                job.reach_moves = 0;
                 job.look = 0;
                 self.look(ctx, job)?;
             }
@@ -562,22 +555,19 @@ impl CoordinatorManipulation {
                     r.starts_with("no grasp of") && r.contains("cannot reach"),
                     job.repositions < self.params.max_repositions,
                     job.object_map,
-                ) {
-                    let x = self.params.grasp_x_m;
-                    let bearing = REPOSITION_BEARING_DEG.to_radians();
-                    if self.move_towards(ctx, job, &target, x, REACH_TOLERANCE_M, bearing)? {
-                        job.repositions += 1;
-                        job.reach_moves = 1;
-                        ctx.note(format!(
-                            "{}: grasp {} failed ({r}): moving the rover to have the {} {:.2} m straight ahead",
-                            job.kind.name(),
-                            job.attempts,
-                            self.params.object,
-                            self.params.grasp_x_m
-                        ));
-                        job.step = Step::Reposition;
-                        return Ok(None);
-                    }
+                ) && self.move_within_reach(ctx, job, &target)?
+                {
+                    job.repositions += 1;
+                    job.reach_moves = 1;
+                    ctx.note(format!(
+                        "{}: grasp {} failed ({r}): moving the rover to have the {} {:.2} m straight ahead",
+                        job.kind.name(),
+                        job.attempts,
+                        self.params.object,
+                        self.params.grasp_x_m
+                    ));
+                    job.step = Step::Reposition;
+                    return Ok(None);
                 }
                 ctx.note(format!("{}: grasp {} failed ({r}): looking again", job.kind.name(), job.attempts));
                 self.look(ctx, job)?;

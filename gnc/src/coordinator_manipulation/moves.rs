@@ -12,7 +12,7 @@ const DRIVE_SPEED_MPS: f64 = 0.1;
 pub(super) const REPOSITION_BEARING_DEG: f64 = 4.0;
 /// A reposition for a grasp out of reach drives when the object is farther than this from
 /// `grasp_x_m` ahead, m.
-pub(super) const REACH_TOLERANCE_M: f64 = 0.02;
+const REACH_TOLERANCE_M: f64 = 0.02;
 
 /// A move of the rover, as sent to locomotion.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,6 +54,18 @@ pub fn reposition(object: &Point3<f64>, p: &CoordinatorManipulationParams) -> Op
 }
 
 impl CoordinatorManipulation {
+    /// The next move of a reposition for a grasp out of reach: facing the object at `object`
+    /// (`map`), then bringing it `grasp_x_m` ahead. False when the rover is there already.
+    pub(super) fn move_within_reach(
+        &self,
+        ctx: &mut Ctx<'_>,
+        job: &mut Job,
+        object: &Point3<f64>,
+    ) -> Result<bool, String> {
+        let (x, bearing) = (self.params.grasp_x_m, REPOSITION_BEARING_DEG.to_radians());
+        self.move_towards(ctx, job, object, x, REACH_TOLERANCE_M, bearing)
+    }
+
     /// One locomotion move that brings the object at `object` (in `map`) to `want` m ahead
     /// (within `tolerance`) and within `max_bearing` (rad) of the heading: a turn to face it when
     /// it is off the heading, else a straight drive by what is missing (slowly, open loop: the

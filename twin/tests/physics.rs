@@ -610,3 +610,21 @@ fn in_kinematic_fidelity_a_rock_stops_the_rover_and_counts_as_a_collision() {
     t.run_for(S(20.0));
     assert!(t.base_pose().translation.x > 3.9 && t.collisions() == 0);
 }
+
+#[test]
+fn the_rover_pushing_the_free_canister_counts_as_a_collision_in_dynamic_fidelity() {
+    // The canister stands at (5, 5); the rover drives into it from 3 m behind, its right wheels
+    // in line with it (it would pass under the body between the wheels).
+    let track =
+        rover(flat(0.8), 0.0, 0.0, 0.0, Fidelity::Kinematic).locomotor_model().wheel_positions[0].y.abs();
+    let mut t = rover(flat(0.8), 2.0, 5.0 + track, 0.0, Fidelity::Dynamic);
+    t.run_for(S(1.0));
+    assert_eq!(t.collisions(), 0, "nothing touched at rest");
+    let rates = t.locomotor_model().wheel_rates(BodyTwist { v: 0.2, omega: 0.0 }).unwrap();
+    t.set_wheel_rates(&rates);
+    t.run_for(S(15.0));
+    let moved =
+        (t.canister_truth().unwrap().translation.vector.xy() - nalgebra::Vector2::new(5.0, 5.0)).norm();
+    assert!(moved > 0.1, "the canister moved only {moved} m, the rover at {:?}", t.base_pose().translation);
+    assert!(t.collisions() >= 1, "pushed {moved} m with no collision counted");
+}

@@ -277,14 +277,19 @@ impl Twin {
         // contacts centimetres apart too, which touch nothing).
         let touching =
             |p: &ContactPair| p.manifolds().iter().any(|m| m.points.iter().any(|c| c.dist <= 1e-3));
+        // The canister is the arm's to handle: anything else of the robot touching it while it is
+        // neither held nor stowed pushed it.
+        let canister_free = !self.holding_canister() && !self.canister_in_cradle();
         for (_, a, b) in active_pairs(ph).filter(|(p, ..)| touching(p)) {
             let (ta, tb) = (a.user_data as usize, b.user_data as usize);
             let (Some(x), Some(y)) = (self.tags.get(ta), self.tags.get(tb)) else { continue };
             // A collision: a robot part other than a wheel touching a rock or an object (wheels may
-            // touch anything: driving over small rocks is allowed; nothing counts the terrain, and
-            // the canister is handled, not hit).
+            // touch anything: driving over small rocks is allowed; nothing counts the terrain), or
+            // any part but the arm and gripper touching the free canister (a wheel too: it is no
+            // rock to drive over).
             let robot_hit = |r: &ColliderTag, o: &ColliderTag| {
-                r.robot && !r.wheel && !o.robot && !o.canister && o.name != "terrain"
+                (r.robot && !r.wheel && !o.robot && !o.canister && o.name != "terrain")
+                    || (r.robot && !r.arm && o.canister && canister_free)
             };
             if robot_hit(x, y) || robot_hit(y, x) {
                 now.insert((ta.min(tb), ta.max(tb)));

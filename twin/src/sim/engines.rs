@@ -272,27 +272,24 @@ impl Twin {
         let Engine::Dynamic(ph) = &self.engine else { return };
         let mut now = std::collections::BTreeSet::new();
         let mut self_now = std::collections::BTreeSet::new();
+        // The canister against a robot part but the arm and gripper: (the pair, the part's name).
         let mut canister_on_body = Vec::new();
         // Touching: a contact point at most a millimetre apart (the solver keeps speculative
         // contacts centimetres apart too, which touch nothing).
         let touching =
             |p: &ContactPair| p.manifolds().iter().any(|m| m.points.iter().any(|c| c.dist <= 1e-3));
-        // The canister is the arm's to handle: anything else of the robot touching it while it is
-        // neither held nor stowed pushed it.
-        let canister_free = !self.holding_canister() && !self.canister_in_cradle();
         for (_, a, b) in active_pairs(ph).filter(|(p, ..)| touching(p)) {
             let (ta, tb) = (a.user_data as usize, b.user_data as usize);
             let (Some(x), Some(y)) = (self.tags.get(ta), self.tags.get(tb)) else { continue };
+            let pair = (ta.min(tb), ta.max(tb));
             // A collision: a robot part other than a wheel touching a rock or an object (wheels may
-            // touch anything: driving over small rocks is allowed; nothing counts the terrain), or
-            // any part but the arm and gripper touching the free canister (a wheel too: it is no
-            // rock to drive over).
+            // touch anything: driving over small rocks is allowed; nothing counts the terrain; the
+            // canister is sorted out below).
             let robot_hit = |r: &ColliderTag, o: &ColliderTag| {
-                (r.robot && !r.wheel && !o.robot && !o.canister && o.name != "terrain")
-                    || (r.robot && !r.arm && o.canister && canister_free)
+                r.robot && !r.wheel && !o.robot && !o.canister && o.name != "terrain"
             };
             if robot_hit(x, y) || robot_hit(y, x) {
-                now.insert((ta.min(tb), ta.max(tb)));
+                now.insert(pair);
             }
             // A self-collision: the arm side against the body side.
             let body = |t: &ColliderTag| t.robot && !t.arm;
@@ -301,14 +298,21 @@ impl Twin {
                     self_now.insert((p.name.clone(), q.name.clone()));
                 }
                 if p.canister && body(q) {
-                    canister_on_body.push(q.name.clone());
+                    canister_on_body.push((pair, q.name.clone()));
                 }
             }
         }
-        // A held canister against the body, except where it belongs: in the stowage cradle.
-        if !canister_on_body.is_empty() && self.holding_canister() && !self.canister_in_cradle() {
-            for b in canister_on_body {
-                self_now.insert(("canister".to_string(), b));
+        // The canister is the arm's to handle. Against the body side (a wheel too: it is no rock to
+        // drive over): held, a self-collision, except where it belongs, in the stowage cradle;
+        // neither held nor stowed, a collision (the rover pushed it).
+        if !canister_on_body.is_empty() && !self.canister_in_cradle() {
+            let held = self.holding_canister();
+            for (pair, b) in canister_on_body {
+                if held {
+                    self_now.insert(("canister".to_string(), b));
+                } else {
+                    now.insert(pair);
+                }
             }
         }
         let new: Vec<(usize, usize)> = now.difference(&self.touching).copied().collect();

@@ -138,9 +138,9 @@ struct Job {
     id: MessageId,
     attempts: u32,
     repositions: u32,
-    /// Further moves of a reposition for a grasp out of reach (a turn to face the object, then
-    /// the drive to the grasp distance), each sent once the one before completes.
-    reach_moves: u32,
+    /// A reposition for a grasp out of reach is under way and has one more move to send when its
+    /// first completes (a turn to face the object is followed by the drive to the grasp distance).
+    reach_move_left: bool,
     /// Moves towards the head camera's estimate so far.
     prepares: u32,
     /// The look pose in use (index into `look_poses`).
@@ -222,7 +222,7 @@ impl CoordinatorManipulation {
         job.id = send(ctx, &self.peers.manipulator, "move_named", serde_json::json!({ "pose": pose }))?;
         job.step = Step::Look;
         // A look ends a reposition for a grasp out of reach (also one cut short by a stall).
-        job.reach_moves = 0;
+        job.reach_move_left = false;
         Ok(())
     }
 
@@ -446,8 +446,8 @@ impl CoordinatorManipulation {
                 }
             }
             (Step::Reposition, Ok(_)) => {
-                if let (true, Some(target)) = (job.reach_moves > 0, job.object_map) {
-                    job.reach_moves -= 1;
+                if let (true, Some(target)) = (job.reach_move_left, job.object_map) {
+                    job.reach_move_left = false;
                     if self.move_within_reach(ctx, job, &target)? {
                         return Ok(None);
                     }
@@ -558,7 +558,7 @@ impl CoordinatorManipulation {
                 ) && self.move_within_reach(ctx, job, &target)?
                 {
                     job.repositions += 1;
-                    job.reach_moves = 1;
+                    job.reach_move_left = true;
                     ctx.note(format!(
                         "{}: grasp {} failed ({r}): moving the rover to have the {} {:.2} m straight ahead",
                         job.kind.name(),
@@ -606,7 +606,7 @@ impl CoordinatorManipulation {
                     id,
                     attempts: 0,
                     repositions: 0,
-                    reach_moves: 0,
+                    reach_move_left: false,
                     prepares: 0,
                     look: 0,
                     object_map: None,

@@ -60,7 +60,7 @@ impl Default for TraversabilityParams {
             plane_window_m: 0.7,
             step_window_m: 0.3,
             min_known_fraction: 0.3,
-            inscribed_radius_m: 0.55,
+            inscribed_radius_m: 0.7,
             inflation_radius_m: 1.0,
             unknown: UnknownCells::Cost,
             unknown_cost: 100,

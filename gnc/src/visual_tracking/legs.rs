@@ -17,6 +17,9 @@ pub enum Leg {
     },
     /// Close enough: turn to face the target.
     Arrived,
+    /// No leg brings the rover nearer clear of the target at the estimate's uncertainty: locate
+    /// it to this accuracy (1 sigma along the line to it, m) first.
+    Sharpen(f64),
 }
 
 /// What follows a turn to face the target.
@@ -42,13 +45,35 @@ pub fn faced(d: f64, boundary: Option<f64>, track: bool, refaced: u32, max: u32)
     }
 }
 
-/// The next leg of an approach from `rover` to `target` (both in `map`, m) that must end within
+/// Where the final leg of an approach within `boundary` ends: its goal's distance from the target
+/// (the stand-off) and its arrival tolerance, m. The rover stops as soon as it is within the
+/// tolerance, so coming from afar it ends near the tolerance's far edge: half the room to the
+/// boundary keeps the other half for the estimate's error.
+pub fn final_leg(boundary: f64, p: &VisualTrackingParams) -> (f64, f64) {
+    let standoff = boundary * p.standoff_fraction;
+    (standoff, 0.5 * (boundary - standoff))
+}
+
+/// The accuracy (1 sigma along the line to the target, m) at which the final leg of an approach
+/// within `boundary` ends clear of the target: its near edge keeps `clearance_m` plus
+/// `clearance_sigmas` sigmas. Not positive when no accuracy does (the boundary is too tight).
+pub fn final_sigma(boundary: f64, p: &VisualTrackingParams) -> f64 {
+    let (standoff, tolerance) = final_leg(boundary, p);
+    (standoff - tolerance - p.clearance_m) / p.clearance_sigmas
+}
+
+/// The next leg of an approach from `rover` to `target` (both in `map`, m; the target's estimate
+/// uncertain by `sigma_along`, 1 sigma along the line between them) that must end within
 /// `boundary` of it: when farther than `boundary` (and `track` asks for legs), a goal on the line
 /// between them at `leg_fraction` of the distance (at most `max_leg_m` nearer), never nearer than
 /// the stand-off; the final leg ends at the stand-off with a tolerance that keeps it inside.
+/// No leg may end nearer the estimate than `clearance_m` plus `clearance_sigmas` sigmas (where the
+/// rover, turning in place, could touch the target): a leg that would stops there, and where the
+/// rover is there already, the estimate must be sharpened first ([`Leg::Sharpen`]).
 pub fn next_leg(
     rover: [f64; 2],
     target: [f64; 2],
+    sigma_along: f64,
     boundary: f64,
     track: bool,
     p: &VisualTrackingParams,
@@ -58,28 +83,31 @@ pub fn next_leg(
     if d <= boundary {
         return Leg::Arrived;
     }
-    // The rover stops as soon as it is within the tolerance, so coming from afar it ends near the
-    // tolerance's far edge: half the room to the boundary keeps the other half for the estimate's
-    // error.
-    let standoff = boundary * p.standoff_fraction;
-    let final_tolerance = 0.5 * (boundary - standoff);
-    let mut stop_at = standoff;
+    let (standoff, final_tolerance) = final_leg(boundary, p);
+    let (mut stop_at, mut tolerance) = (standoff, final_tolerance);
     if track {
         let leg = (d * p.leg_fraction).max(d - p.max_leg_m);
         // A leg that would end near the stand-off anyway goes all the way.
         if leg > standoff + p.leg_tolerance_m + final_tolerance {
-            stop_at = leg;
+            (stop_at, tolerance) = (leg, p.leg_tolerance_m);
+        }
+    }
+    let keep = p.clearance_m + p.clearance_sigmas * sigma_along.max(0.0);
+    if stop_at - tolerance < keep {
+        (stop_at, tolerance) = (keep + p.leg_tolerance_m, p.leg_tolerance_m);
+        if stop_at + tolerance >= d {
+            return Leg::Sharpen(final_sigma(boundary, p));
         }
     }
     let f = stop_at / d;
     let goal = [target[0] - f * dx, target[1] - f * dy];
-    let tolerance = if stop_at == standoff { final_tolerance } else { p.leg_tolerance_m };
     Leg::Drive { goal, tolerance }
 }
 
 /// A leg towards a target seen along `direction` (`map`) but not located well enough: from
 /// `rover`, along the direction's horizontal bearing, `leg_fraction` of the target's assumed
-/// `range` (at most `max_leg_m`). None for a line of sight with no bearing (straight up or down).
+/// `range` (at most `max_leg_m`, and ending at least `clearance_m` plus `leg_tolerance_m` short of
+/// it). None for a line of sight with no bearing (straight up or down), or a target too near.
 pub fn bearing_goal(
     rover: [f64; 2],
     direction: &Vector3<f64>,
@@ -91,7 +119,11 @@ pub fn bearing_goal(
         return None;
     }
     let heading = heading.normalize();
-    let leg = (range * p.leg_fraction).min(p.max_leg_m);
+    // Never to where the rover could touch the target, were the range right.
+    let leg = (range * p.leg_fraction).min(p.max_leg_m).min(range - p.clearance_m - p.leg_tolerance_m);
+    if leg <= 0.0 {
+        return None;
+    }
     Some([rover[0] + leg * heading.x, rover[1] + leg * heading.y])
 }
 
@@ -102,7 +134,7 @@ mod tests {
     fn drive(leg: Leg) -> ([f64; 2], f64) {
         match leg {
             Leg::Drive { goal, tolerance } => (goal, tolerance),
-            Leg::Arrived => panic!("arrived"),
+            other => panic!("{other:?}"),
         }
     }
 
@@ -121,6 +153,10 @@ mod tests {
         // No bearing, or no range: no leg.
         assert_eq!(bearing_goal([0.0, 0.0], &Vector3::new(0.0, 0.0, -1.0), 10.0, &p), None);
         assert_eq!(bearing_goal([0.0, 0.0], &d, f64::NAN, &p), None);
+        // Near: never to within the clearance (and a tolerance) of the assumed range.
+        let goal = bearing_goal([0.0, 0.0], &Vector3::new(1.0, 0.0, 0.0), 2.0, &p).unwrap();
+        assert!((goal[0] - (2.0 - p.clearance_m - p.leg_tolerance_m)).abs() < 1e-9, "{goal:?}");
+        assert_eq!(bearing_goal([0.0, 0.0], &Vector3::new(1.0, 0.0, 0.0), 1.3, &p), None);
     }
 
     #[test]
@@ -136,11 +172,14 @@ mod tests {
     #[test]
     fn an_approach_ends_inside_the_boundary_on_the_line_to_the_target() {
         let p = VisualTrackingParams::default();
-        let (goal, tol) = drive(next_leg([0.0, 0.0], [10.0, 0.0], 2.0, false, &p));
+        let (goal, tol) = drive(next_leg([0.0, 0.0], [10.0, 0.0], 0.1, 2.0, false, &p));
         let d = 10.0 - goal[0];
         assert!((goal[1]).abs() < 1e-12);
-        assert!(d + tol < 2.0 && d - tol > 0.5, "goal {d} m from the target, tolerance {tol}");
-        assert_eq!(next_leg([8.5, 0.0], [10.0, 0.0], 2.0, false, &p), Leg::Arrived);
+        assert!(
+            d + tol < 2.0 && d - tol > p.clearance_m + 0.2,
+            "goal {d} m from the target, tolerance {tol}"
+        );
+        assert_eq!(next_leg([8.5, 0.0], [10.0, 0.0], 0.1, 2.0, false, &p), Leg::Arrived);
     }
 
     #[test]
@@ -150,8 +189,9 @@ mod tests {
         let mut rover = [-15.0, 10.0];
         let mut distances = Vec::new();
         for _ in 0..p.max_legs {
-            match next_leg(rover, target, 1.5, true, &p) {
+            match next_leg(rover, target, 0.05, 1.5, true, &p) {
                 Leg::Arrived => break,
+                Leg::Sharpen(s) => panic!("sharpen to {s}"),
                 Leg::Drive { goal, .. } => {
                     rover = goal;
                     distances.push((goal[0] - target[0]).hypot(goal[1] - target[1]));
@@ -166,6 +206,67 @@ mod tests {
             from = *d;
         }
         assert!((from - 1.5 * p.standoff_fraction).abs() < 1e-9, "{distances:?}");
-        assert_eq!(next_leg(rover, target, 1.5, true, &p), Leg::Arrived);
+        assert_eq!(next_leg(rover, target, 0.05, 1.5, true, &p), Leg::Arrived);
+    }
+
+    /// Where the rover may end: the goal's distance from the target less the tolerance.
+    fn nearest_end(rover: [f64; 2], target: [f64; 2], leg: Leg) -> f64 {
+        let (goal, tol) = drive(leg);
+        let d = (goal[0] - target[0]).hypot(goal[1] - target[1]);
+        // On the line from the rover to the target, short of it.
+        let from_rover = (goal[0] - rover[0]).hypot(goal[1] - rover[1]);
+        let whole = (target[0] - rover[0]).hypot(target[1] - rover[1]);
+        assert!((from_rover + d - whole).abs() < 1e-9, "{goal:?} off the line");
+        d - tol
+    }
+
+    #[test]
+    fn no_leg_ends_within_the_clearance_and_two_sigmas_of_an_uncertain_target() {
+        let p = VisualTrackingParams::default();
+        let target = [6.0, 5.0];
+        // The recovery approach that drove into the canister (2026-11-29): 3.9 m away, its
+        // estimate 0.27 m uncertain, the final leg asked at once.
+        for rover in [[9.2, 6.6], [2.0, 5.0], [6.0, 2.4]] {
+            for sigma in [0.0, 0.05, 0.27, 0.6, 1.2] {
+                for track in [false, true] {
+                    match next_leg(rover, target, sigma, 1.5, track, &p) {
+                        Leg::Arrived => panic!("arrived from {rover:?}"),
+                        Leg::Sharpen(want) => {
+                            // Only where no leg gets nearer clear of it, asking what the final
+                            // leg needs.
+                            assert!(sigma > want, "{sigma} {want}");
+                            let (standoff, tol) = final_leg(1.5, &p);
+                            assert!((standoff - tol - p.clearance_m - 2.0 * want).abs() < 1e-9);
+                        }
+                        leg => {
+                            let near = nearest_end(rover, target, leg);
+                            assert!(near >= p.clearance_m + 2.0 * sigma - 1e-9, "{rover:?} {sigma}: {near}");
+                        }
+                    }
+                }
+            }
+        }
+        // Sharp enough, the final leg ends inside the boundary and clear of the target.
+        let leg = next_leg([9.2, 6.6], target, final_sigma(1.5, &p), 1.5, false, &p);
+        let (goal, tol) = drive(leg);
+        let d = (goal[0] - target[0]).hypot(goal[1] - target[1]);
+        assert!(d + tol <= 1.5 + 1e-9 && d - tol >= p.clearance_m, "{d} {tol}");
+        // 0.27 m uncertain 3.9 m away: a leg to 0.9 + 0.54 + 0.5 m, then sharpen there.
+        let leg = next_leg([9.2, 6.6], target, 0.27, 1.5, true, &p);
+        let near = nearest_end([9.2, 6.6], target, leg);
+        assert!((near - (p.clearance_m + 0.54)).abs() < 1e-9, "{near}");
+        let (goal, _) = drive(leg);
+        assert_eq!(next_leg(goal, target, 0.27, 1.5, true, &p), Leg::Sharpen(final_sigma(1.5, &p)));
+    }
+
+    #[test]
+    fn the_final_accuracy_leaves_room_between_the_clearance_and_the_boundary() {
+        let p = VisualTrackingParams::default();
+        // The canister mission's 1.5 m: ends 1.05-1.35 m from the estimate, 7.5 cm (1 sigma).
+        let (standoff, tol) = final_leg(1.5, &p);
+        assert!((standoff - 1.2).abs() < 1e-9 && (tol - 0.15).abs() < 1e-9);
+        assert!((final_sigma(1.5, &p) - 0.075).abs() < 1e-9);
+        // Tighter than the clearance allows: none.
+        assert!(final_sigma(1.2, &p) <= 0.0);
     }
 }

@@ -41,7 +41,7 @@ use nalgebra::Point3;
 mod legs;
 mod params;
 
-pub use legs::{Faced, Leg, bearing_goal, faced, next_leg};
+pub use legs::{Faced, Leg, bearing_goal, faced, final_leg, final_sigma, next_leg};
 pub use params::{ApproachArgs, ApproachTrackArgs, PointLocateArgs, VisualTrackingParams};
 
 /// A pan-tilt command unchanged is sent again after this many command periods off target.
@@ -120,6 +120,8 @@ struct Job {
     face_retries: u32,
     /// Times the target was found outside the boundary once faced.
     refaced: u32,
+    /// Times the estimate was too uncertain to come nearer and was located again sharper.
+    sharpened: u32,
 }
 
 /// Names of the modules the coordinator commands.
@@ -264,7 +266,8 @@ impl CoordinatorVisualTracking {
     fn locate(&self, ctx: &mut Ctx<'_>, job: &Job) -> Result<Step, String> {
         let sigma = match job.kind {
             Kind::Track { max_distance } => {
-                // A far target first to the accuracy its leg needs, the last leg's to the asked one.
+                // A far target first to the accuracy its leg needs, the last leg's to the asked one
+                // and to the one that lets it end clear of the target.
                 let range = self
                     .distance(ctx)
                     .or_else(|| self.track(ctx).and_then(|t| t.range_m))
@@ -272,11 +275,16 @@ impl CoordinatorVisualTracking {
                 if range > max_distance / self.params.leg_fraction {
                     job.max_sigma.max(self.params.leg_sigma_fraction * range)
                 } else {
-                    job.max_sigma
+                    job.max_sigma.min(final_sigma(max_distance, &self.params))
                 }
             }
             _ => job.max_sigma,
         };
+        self.locate_to(ctx, sigma)
+    }
+
+    /// Asks TrackingTarget to locate to `sigma` (1 sigma, m).
+    fn locate_to(&self, ctx: &mut Ctx<'_>, sigma: f64) -> Result<Step, String> {
         let id = send(ctx, &self.peers.tracker, "locate", serde_json::json!({ "max_sigma_m": sigma }))?;
         Ok(Step::Locate(id, ctx.now(), sigma))
     }
@@ -339,13 +347,30 @@ impl CoordinatorVisualTracking {
 
     /// What a job does after a locate or an arrival: the next leg, facing, or the result.
     fn after_locate(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<Outcome>, String> {
-        let (target, rover, _) = self.positions(ctx)?;
+        let (target, rover, t) = self.positions(ctx)?;
         let Some(boundary) = job.kind.boundary() else {
             return Ok(Some(Outcome::Completed(self.result(ctx, job)?)));
         };
         let track = matches!(job.kind, Kind::Track { .. });
-        match next_leg(rover, [target.x, target.y], boundary, track, &self.params) {
+        let sigma = sigma_along(rover, &target, &t);
+        match next_leg(rover, [target.x, target.y], sigma, boundary, track, &self.params) {
             Leg::Arrived => job.step = self.face(ctx)?,
+            Leg::Sharpen(want) => {
+                if job.sharpened >= self.params.max_legs {
+                    return Err(format!(
+                        "the target's estimate, {sigma:.2} m uncertain (1 sigma) {:.2} m away, was sharpened {} times and is still too uncertain to come nearer clear of it",
+                        dist(rover, &target),
+                        job.sharpened
+                    ));
+                }
+                job.sharpened += 1;
+                ctx.note(format!(
+                    "{}: the target's estimate, {sigma:.2} m uncertain (1 sigma) along the line to it {:.2} m away, is too uncertain to come nearer clear of it: locating it to {want:.3} m first",
+                    job.kind.name(),
+                    dist(rover, &target)
+                ));
+                job.step = self.locate_to(ctx, want)?;
+            }
             Leg::Drive { goal, tolerance } => {
                 if job.legs >= self.params.max_legs {
                     return Err(format!(
@@ -506,6 +531,23 @@ impl CoordinatorVisualTracking {
         Ok(None)
     }
 
+    /// Whether an approach may be asked to end within `boundary` (the argument `name`): the final
+    /// leg must end clear of the target (`clearance_m`) with room for the estimate's error.
+    fn approachable(&self, name: &str, boundary: f64) -> Result<(), String> {
+        if !(boundary.is_finite() && boundary > 0.0) {
+            return Err(format!("{name} must be positive, got {boundary}"));
+        }
+        if final_sigma(boundary, &self.params) <= 0.0 {
+            let (standoff, tolerance) = final_leg(boundary, &self.params);
+            return Err(format!(
+                "{name} {boundary} m is too tight: the final leg may end {:.2} m from the target, within the {} m the rover keeps clear of it (clearance_m)",
+                standoff - tolerance,
+                self.params.clearance_m
+            ));
+        }
+        Ok(())
+    }
+
     fn start(&mut self, ctx: &mut Ctx<'_>, kind: Kind, max_sigma: Option<f64>) -> Outcome {
         let max_sigma = max_sigma.unwrap_or(self.params.max_sigma_m);
         if !(max_sigma.is_finite() && max_sigma > 0.0) {
@@ -527,6 +569,7 @@ impl CoordinatorVisualTracking {
             legs: 0,
             face_retries: 0,
             refaced: 0,
+            sharpened: 0,
         });
         Outcome::Accepted
     }
@@ -602,6 +645,17 @@ fn dist(rover: [f64; 2], target: &Point3<f64>) -> f64 {
     (target.x - rover[0]).hypot(target.y - rover[1])
 }
 
+/// The target's uncertainty along the horizontal line from the rover to it (1 sigma, m).
+fn sigma_along(rover: [f64; 2], target: &Point3<f64>, track: &TargetTrack) -> f64 {
+    let u = nalgebra::Vector2::new(target.x - rover[0], target.y - rover[1]);
+    let c = track.covariance.fixed_view::<2, 2>(0, 0);
+    match u.try_normalize(1e-9) {
+        Some(u) => (u.transpose() * c * u)[(0, 0)].max(0.0).sqrt(),
+        // On top of it: the larger horizontal sigma.
+        None => c.symmetric_eigenvalues().max().max(0.0).sqrt(),
+    }
+}
+
 impl Module for CoordinatorVisualTracking {
     type Params = VisualTrackingParams;
     const KIND: ModuleKind = ModuleKind::Coordination;
@@ -624,14 +678,14 @@ impl Module for CoordinatorVisualTracking {
             m.start(ctx, Kind::PointLocate, a.max_sigma_m)
         });
         d.command("point_locate_approach", |m, ctx, a: ApproachArgs| {
-            if !(a.boundary_m.is_finite() && a.boundary_m > 0.0) {
-                return Outcome::reject(format!("boundary_m must be positive, got {}", a.boundary_m));
+            if let Err(e) = m.approachable("boundary_m", a.boundary_m) {
+                return Outcome::reject(e);
             }
             m.start(ctx, Kind::Approach { boundary: a.boundary_m }, a.max_sigma_m)
         });
         d.command("point_locate_approach_track", |m, ctx, a: ApproachTrackArgs| {
-            if !(a.max_distance_m.is_finite() && a.max_distance_m > 0.0) {
-                return Outcome::reject(format!("max_distance_m must be positive, got {}", a.max_distance_m));
+            if let Err(e) = m.approachable("max_distance_m", a.max_distance_m) {
+                return Outcome::reject(e);
             }
             m.start(ctx, Kind::Track { max_distance: a.max_distance_m }, a.max_sigma_m)
         });
@@ -675,6 +729,10 @@ impl Module for CoordinatorVisualTracking {
         if !(p.standoff_fraction >= 0.5 && p.standoff_fraction < 1.0) {
             return Err(format!("standoff_fraction must be in [0.5, 1), got {}", p.standoff_fraction));
         }
+        crate::params::require_positive(&[
+            ("clearance_m", p.clearance_m),
+            ("clearance_sigmas", p.clearance_sigmas),
+        ])?;
         self.params = p.clone();
         Ok(())
     }

@@ -25,6 +25,11 @@ pub struct VisualTrackingParams {
     pub max_leg_m: f64,
     /// The approach's goal lies at this fraction of the boundary from the target.
     pub standoff_fraction: f64,
+    /// No leg ends nearer the target's estimate than this, m: where the rover, turning in place to
+    /// face it, could touch it (the rover's circumscribed radius and the target's half-width) ...
+    pub clearance_m: f64,
+    /// ... plus this many sigmas of the estimate's uncertainty along the line to it.
+    pub clearance_sigmas: f64,
     /// Arrival tolerance of an intermediate leg, m.
     pub leg_tolerance_m: f64,
     /// Most legs of one `point_locate_approach_track`, and most times it locates again after
@@ -51,7 +56,9 @@ impl Default for VisualTrackingParams {
             leg_sigma_fraction: 0.08,
             leg_fraction: 0.5,
             max_leg_m: 8.0,
-            standoff_fraction: 0.6,
+            standoff_fraction: 0.8,
+            clearance_m: 0.9,
+            clearance_sigmas: 2.0,
             leg_tolerance_m: 0.5,
             max_legs: 10,
             locate_timeout_s: 90.0,

@@ -64,7 +64,7 @@ pub struct ManipulatorPeers {
 }
 
 /// One action of a command.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, PartialEq)]
 enum Action {
     /// A planned motion to arm values.
     Plan(Vec<f64>),
@@ -138,6 +138,10 @@ struct Job {
     lifting_free: bool,
     /// Such a lift got stuck once and went again straight up.
     lift_retried: bool,
+    /// The goal of the planned move in progress (while its segments run).
+    planned: Option<Vec<f64>>,
+    /// A planned move stalled once and was planned again from where the arm stopped.
+    replanned: bool,
 }
 
 /// The ManipulatorControl module.
@@ -393,8 +397,15 @@ impl ManipulatorControl {
         job.setting_down = false;
         // A lift's steps go on lifting.
         job.lifting_free &= matches!(action, Action::Straight { contact: true, .. });
+        // A planned move's segments go on with its goal.
+        if !matches!(action, Action::Straight { contact: false, .. }) {
+            job.planned = None;
+        }
         match action {
-            Action::Plan(to) => self.start_plan(ctx, job, &to)?,
+            Action::Plan(to) => {
+                job.planned = Some(to.clone());
+                self.start_plan(ctx, job, &to)?
+            }
             Action::Straight { to, contact } => {
                 // A place's descent (not the lift of a place that failed, holding the object).
                 job.setting_down =
@@ -494,6 +505,11 @@ impl ManipulatorControl {
                     // A finger caught firmly stalls a servo: the move fails rather than stops short.
                     self.lift_again(ctx, job, &format!("failed: {r}"))?;
                 }
+                Some(AckStatus::Failed(r))
+                    if r.contains("stalled") && job.planned.is_some() && !job.replanned =>
+                {
+                    self.plan_again(ctx, job, &format!("{what} failed: {r}"));
+                }
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     return Err(format!("{what} failed: {r}"));
                 }
@@ -514,6 +530,11 @@ impl ManipulatorControl {
                     if far && job.lifting_free && !job.lift_retried {
                         let why = format!("stopped {:.1} mm from its goal", off * 1e3);
                         self.lift_again(ctx, job, &why)?;
+                        return Ok(None);
+                    }
+                    if far && job.planned.is_some() && !job.replanned {
+                        let why = format!("the arm stopped {:.1} mm from its goal", off * 1e3);
+                        self.plan_again(ctx, job, &why);
                         return Ok(None);
                     }
                     if far {
@@ -597,6 +618,8 @@ impl ManipulatorControl {
             seat: None,
             lifting_free: false,
             lift_retried: false,
+            planned: None,
+            replanned: false,
         };
         match self.next_action(ctx, &mut job) {
             Ok(true) => Outcome::Completed(self.result(ctx, &job)),

@@ -4,7 +4,8 @@
 //! Every arm motion is planned clear of the rover's own body ([`Clearance`]: the URDF's collision
 //! shapes, a held object included) and the ground, through configured via-poses when the straight
 //! joint-space path is not clear, each segment timed within the joints' speed and acceleration
-//! limits ([`segment_speed`]).
+//! limits ([`segment_speed`]). A planned move that stalls a servo, or stops short of its goal, is
+//! planned again from where the arm stopped, once, after the motors are out of fault (`place`).
 //!
 //! Commands (each completes when done, with a deferred acknowledgement):
 //! - `move_named {pose}`: a planned motion to a configured pose;
@@ -140,8 +141,10 @@ struct Job {
     lift_retried: bool,
     /// The goal of the planned move in progress (while its segments run).
     planned: Option<Vec<f64>>,
-    /// A planned move stalled once and was planned again from where the arm stopped.
-    replanned: bool,
+    /// The goal of the planned move that stalled once and was planned again from where the arm
+    /// stopped (a second stall of that move fails the command; another move may be planned
+    /// again once too).
+    replanned: Option<Vec<f64>>,
 }
 
 /// The ManipulatorControl module.
@@ -403,6 +406,9 @@ impl ManipulatorControl {
         }
         match action {
             Action::Plan(to) => {
+                if job.replanned.as_ref() != Some(&to) {
+                    job.replanned = None;
+                }
                 job.planned = Some(to.clone());
                 self.start_plan(ctx, job, &to)?
             }
@@ -506,7 +512,7 @@ impl ManipulatorControl {
                     self.lift_again(ctx, job, &format!("failed: {r}"))?;
                 }
                 Some(AckStatus::Failed(r))
-                    if r.contains("stalled") && job.planned.is_some() && !job.replanned =>
+                    if r.contains("stalled") && job.planned.is_some() && job.replanned.is_none() =>
                 {
                     self.plan_again(ctx, job, &format!("{what} failed: {r}"));
                 }
@@ -532,7 +538,7 @@ impl ManipulatorControl {
                         self.lift_again(ctx, job, &why)?;
                         return Ok(None);
                     }
-                    if far && job.planned.is_some() && !job.replanned {
+                    if far && job.planned.is_some() && job.replanned.is_none() {
                         let why = format!("the arm stopped {:.1} mm from its goal", off * 1e3);
                         self.plan_again(ctx, job, &why);
                         return Ok(None);
@@ -619,7 +625,7 @@ impl ManipulatorControl {
             lifting_free: false,
             lift_retried: false,
             planned: None,
-            replanned: false,
+            replanned: None,
         };
         match self.next_action(ctx, &mut job) {
             Ok(true) => Outcome::Completed(self.result(ctx, &job)),

@@ -82,10 +82,10 @@ impl ManipulatorControl {
     /// (`why`): something the clearance model does not know pressed on the arm, or a servo gave
     /// up under a passing load (the rover rocking on its suspension as the arm swings). The rest of
     /// its segments is dropped, the motors are taken out of fault and the move is planned again
-    /// from where the arm stopped, once; a second stall fails the command.
+    /// from where the arm stopped, once for each move; a second stall of it fails the command.
     pub(super) fn plan_again(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, why: &str) {
-        job.replanned = true;
         let Some(goal) = job.planned.take() else { return };
+        job.replanned = Some(goal.clone());
         plan_again_from_here(&mut job.actions, goal);
         ctx.note(format!(
             "{}: a planned move stalled ({why}): the motors out of fault, planning it again from here",

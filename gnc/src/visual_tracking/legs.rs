@@ -69,7 +69,8 @@ pub fn final_sigma(boundary: f64, p: &VisualTrackingParams) -> f64 {
 /// the stand-off; the final leg ends at the stand-off with a tolerance that keeps it inside.
 /// No leg may end nearer the estimate than `clearance_m` plus `clearance_sigmas` sigmas (where the
 /// rover, turning in place, could touch the target): a leg that would stops there, and where the
-/// rover is there already, the estimate must be sharpened first ([`Leg::Sharpen`]).
+/// rover is there already (less than a leg's tolerance from where such a leg could end), the
+/// estimate must be sharpened first ([`Leg::Sharpen`]).
 pub fn next_leg(
     rover: [f64; 2],
     target: [f64; 2],
@@ -95,7 +96,8 @@ pub fn next_leg(
     let keep = p.clearance_m + p.clearance_sigmas * sigma_along.max(0.0);
     if stop_at - tolerance < keep {
         (stop_at, tolerance) = (keep + p.leg_tolerance_m, p.leg_tolerance_m);
-        if stop_at + tolerance >= d {
+        // A leg that would bring the rover less than a leg's tolerance nearer is not worth one.
+        if d - (stop_at + tolerance) < p.leg_tolerance_m {
             return Leg::Sharpen(final_sigma(boundary, p));
         }
     }
@@ -224,7 +226,7 @@ mod tests {
     fn no_leg_ends_within_the_clearance_and_two_sigmas_of_an_uncertain_target() {
         let p = VisualTrackingParams::default();
         let target = [6.0, 5.0];
-        // The recovery approach that drove into the canister (2026-11-29): 3.9 m away, its
+        // The recovery approach that drove into the canister (2026-11-29): 3.6 m away here, its
         // estimate 0.27 m uncertain, the final leg asked at once.
         for rover in [[9.2, 6.6], [2.0, 5.0], [6.0, 2.4]] {
             for sigma in [0.0, 0.05, 0.27, 0.6, 1.2] {
@@ -232,11 +234,15 @@ mod tests {
                     match next_leg(rover, target, sigma, 1.5, track, &p) {
                         Leg::Arrived => panic!("arrived from {rover:?}"),
                         Leg::Sharpen(want) => {
-                            // Only where no leg gets nearer clear of it, asking what the final
-                            // leg needs.
+                            // Only where no leg gets nearer clear of it, asking for an accuracy
+                            // at which the final leg ends clear of it, inside the boundary.
                             assert!(sigma > want, "{sigma} {want}");
-                            let (standoff, tol) = final_leg(1.5, &p);
-                            assert!((standoff - tol - p.clearance_m - 2.0 * want).abs() < 1e-9);
+                            let leg = next_leg(rover, target, want, 1.5, track, &p);
+                            let near = nearest_end(rover, target, leg);
+                            assert!(near >= p.clearance_m + 2.0 * want - 1e-9, "{rover:?}: {near}");
+                            let (goal, tol) = drive(leg);
+                            let far = (goal[0] - target[0]).hypot(goal[1] - target[1]) + tol;
+                            assert!(far <= 1.5 + 1e-9 || track, "{rover:?}: ends {far} m off");
                         }
                         leg => {
                             let near = nearest_end(rover, target, leg);
@@ -251,12 +257,15 @@ mod tests {
         let (goal, tol) = drive(leg);
         let d = (goal[0] - target[0]).hypot(goal[1] - target[1]);
         assert!(d + tol <= 1.5 + 1e-9 && d - tol >= p.clearance_m, "{d} {tol}");
-        // 0.27 m uncertain 3.9 m away: a leg to 0.9 + 0.54 + 0.5 m, then sharpen there.
+        // 0.27 m uncertain 3.6 m away: a leg to 0.9 + 0.54 + 0.5 m, then sharpen there.
         let leg = next_leg([9.2, 6.6], target, 0.27, 1.5, true, &p);
         let near = nearest_end([9.2, 6.6], target, leg);
         assert!((near - (p.clearance_m + 0.54)).abs() < 1e-9, "{near}");
         let (goal, _) = drive(leg);
         assert_eq!(next_leg(goal, target, 0.27, 1.5, true, &p), Leg::Sharpen(final_sigma(1.5, &p)));
+        // Just beyond where such a leg could end, no leg for a few centimetres: sharpen.
+        let d = p.clearance_m + 0.54 + 2.0 * p.leg_tolerance_m + 0.1;
+        assert_eq!(next_leg([6.0 + d, 5.0], target, 0.27, 1.5, true, &p), Leg::Sharpen(final_sigma(1.5, &p)));
     }
 
     #[test]

@@ -13,6 +13,11 @@
 //!   once faced, as a refined or moving estimate can say, it locates and approaches again);
 //! - `stop`: ends the command in progress (the navigation it started is cancelled) and the pursuit.
 //!
+//! No leg ends nearer the target's estimate than `clearance_m` (where the rover, turning in place
+//! to face it, could touch it) plus `clearance_sigmas` of the estimate's uncertainty along the line
+//! to it: a leg that would stops there, and where the rover is there already the target is located
+//! again to the accuracy at which the final leg ends clear of it (`legs`).
+//!
 //! A far target that is tracked but cannot be located to a leg's accuracy (a few pixels wide,
 //! stereo ranges it poorly or not at all) is approached along its line of sight: a leg over part
 //! of its assumed range, after which it is nearer, larger, and located again.
@@ -82,8 +87,9 @@ impl Kind {
 enum Step {
     /// Waiting for the target to be tracked, since.
     AwaitTarget(Time),
-    /// Asked TrackingTarget to locate (message, since, accuracy).
-    Locate(MessageId, Time, f64),
+    /// Asked TrackingTarget to locate (message, since, accuracy, whether a far target not
+    /// located in time may be approached along its line of sight instead).
+    Locate(MessageId, Time, f64, bool),
     /// Driving to a goal.
     Approach(MessageId, [f64; 2]),
     /// Turning to face the target.
@@ -280,13 +286,14 @@ impl CoordinatorVisualTracking {
             }
             _ => job.max_sigma,
         };
-        self.locate_to(ctx, sigma)
+        self.locate_to(ctx, sigma, true)
     }
 
-    /// Asks TrackingTarget to locate to `sigma` (1 sigma, m).
-    fn locate_to(&self, ctx: &mut Ctx<'_>, sigma: f64) -> Result<Step, String> {
+    /// Asks TrackingTarget to locate to `sigma` (1 sigma, m); `bearing`: a far target not located
+    /// in time may be approached along its line of sight instead.
+    fn locate_to(&self, ctx: &mut Ctx<'_>, sigma: f64, bearing: bool) -> Result<Step, String> {
         let id = send(ctx, &self.peers.tracker, "locate", serde_json::json!({ "max_sigma_m": sigma }))?;
-        Ok(Step::Locate(id, ctx.now(), sigma))
+        Ok(Step::Locate(id, ctx.now(), sigma, bearing))
     }
 
     /// A leg along the target's line of sight, for a far target still tracked (seen within the
@@ -364,12 +371,17 @@ impl CoordinatorVisualTracking {
                     ));
                 }
                 job.sharpened += 1;
+                // TrackingTarget's locate bounds the larger of the x and y sigmas, not the one
+                // along the line: asked in proportion, for an ellipse the same shape.
+                let ask = want * axis_sigma(&t) / sigma.max(1e-9);
                 ctx.note(format!(
-                    "{}: the target's estimate, {sigma:.2} m uncertain (1 sigma) along the line to it {:.2} m away, is too uncertain to come nearer clear of it: locating it to {want:.3} m first",
+                    "{}: the target's estimate, {sigma:.2} m uncertain (1 sigma) along the line to it {:.2} m away, is too uncertain to come nearer clear of it: locating it to {want:.3} m along that line first ({ask:.3} m in x and y)",
                     job.kind.name(),
                     dist(rover, &target)
                 ));
-                job.step = self.locate_to(ctx, want)?;
+                // No leg along the line of sight meanwhile: it would keep no margin for the
+                // estimate's error.
+                job.step = self.locate_to(ctx, ask, false)?;
             }
             Leg::Drive { goal, tolerance } => {
                 if job.legs >= self.params.max_legs {
@@ -442,7 +454,7 @@ impl CoordinatorVisualTracking {
                     ));
                 }
             }
-            Step::Locate(id, since, sigma) => match ctx.ack_status(id) {
+            Step::Locate(id, since, sigma, bearing) => match ctx.ack_status(id) {
                 Some(AckStatus::Completed(_)) => return self.after_locate(ctx, job),
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     return Err(format!("locate failed: {r}"));
@@ -450,6 +462,7 @@ impl CoordinatorVisualTracking {
                 // A far leg's accuracy (above the job's own) not reached in a while: along the
                 // line of sight, if the target is tracked.
                 _ if matches!(job.kind, Kind::Track { .. })
+                    && bearing
                     && sigma > job.max_sigma
                     && (now - since).as_secs_f64() > self.params.bearing_after_s
                     && let Some(step) = self.bearing_leg(ctx, job) =>
@@ -643,6 +656,11 @@ impl CoordinatorVisualTracking {
 
 fn dist(rover: [f64; 2], target: &Point3<f64>) -> f64 {
     (target.x - rover[0]).hypot(target.y - rover[1])
+}
+
+/// The larger of the target's x and y sigmas (m): what TrackingTarget's `locate` bounds.
+fn axis_sigma(track: &TargetTrack) -> f64 {
+    track.covariance[(0, 0)].max(track.covariance[(1, 1)]).max(0.0).sqrt()
 }
 
 /// The target's uncertainty along the horizontal line from the rover to it (1 sigma, m).

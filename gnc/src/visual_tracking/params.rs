@@ -32,8 +32,9 @@ pub struct VisualTrackingParams {
     pub clearance_sigmas: f64,
     /// Arrival tolerance of an intermediate leg, m.
     pub leg_tolerance_m: f64,
-    /// Most legs of one `point_locate_approach_track`, and most times it locates again after
-    /// facing the target outside the boundary.
+    /// Most legs of one `point_locate_approach_track`, most times it locates again after facing
+    /// the target outside the boundary, and most times an approach sharpens an estimate too
+    /// uncertain to come nearer clear of the target.
     pub max_legs: u32,
     /// Longest wait for TrackingTarget to locate the target to the asked accuracy, s.
     pub locate_timeout_s: f64,

@@ -13,7 +13,8 @@ pub struct PlannerParams {
     /// A cell of the highest traversable cost counts this many times its length (1 + weight).
     pub cost_weight: f64,
     /// The rover may leave forbidden (inflated) cells within this distance of its start, m: after a
-    /// map update it may find itself closer to an obstacle than its inscribed radius.
+    /// map update (or a stall against a rock) it may find itself closer to an obstacle than its
+    /// inscribed radius. More than that radius, so a centre at an obstacle's edge can get out.
     pub start_escape_m: f64,
     /// Clearance is searched up to this distance, m.
     pub clearance_search_m: f64,
@@ -21,7 +22,7 @@ pub struct PlannerParams {
 
 impl Default for PlannerParams {
     fn default() -> Self {
-        PlannerParams { cost_weight: 4.0, start_escape_m: 0.6, clearance_search_m: 2.0 }
+        PlannerParams { cost_weight: 4.0, start_escape_m: 0.9, clearance_search_m: 2.0 }
     }
 }
 
@@ -461,5 +462,21 @@ mod tests {
         let path = plan(&m, [0.55, 1.55], [2.55, 1.55], 0.05, &PlannerParams::default()).unwrap();
         assert_eq!(path.points.len(), 2);
         assert!((path.clearance_m[0] - 0.25).abs() < 1e-9, "{:?}", path.clearance_m);
+    }
+
+    #[test]
+    fn a_start_at_an_obstacle_s_edge_gets_out_of_a_band_as_wide_as_the_inscribed_radius() {
+        // The rover's centre on the first cell past an obstacle (a sweep run's return stalled
+        // against a rock there), the band inflated 0.7 m wide (the configured inscribed radius).
+        let mut m = open_map(30, 30);
+        for j in 0..30 {
+            for i in 0..10 {
+                set(&mut m, i, j, if i < 3 { cost::OBSTACLE } else { cost::INFLATED });
+            }
+        }
+        let path = plan(&m, [0.35, 1.55], [2.55, 1.55], 0.05, &PlannerParams::default()).unwrap();
+        assert!((path.points.last().unwrap()[0] - 2.55).abs() < 0.1, "{:?}", path.points);
+        let short = PlannerParams { start_escape_m: 0.6, ..Default::default() };
+        assert!(plan(&m, [0.35, 1.55], [2.55, 1.55], 0.05, &short).is_err());
     }
 }

@@ -272,6 +272,7 @@ impl ManipulatorControl {
 mod tests {
     use super::{Action, Group, plan_again_from_here, seat_direction};
     use std::collections::VecDeque;
+    use std::f64::consts::TAU;
 
     #[test]
     fn a_stalled_planned_move_drops_its_remaining_segments_and_is_planned_again_after_a_recover() {
@@ -298,7 +299,6 @@ mod tests {
         plan_again_from_here(&mut actions, goal.clone());
         assert_eq!(Vec::from(actions), vec![Action::Recover(Group::Arm), Action::Plan(goal)]);
     }
-    use std::f64::consts::TAU;
 
     #[test]
     fn a_seat_search_tries_opposite_sides_first_then_between_every_direction_once() {

@@ -451,14 +451,21 @@ mod tests {
         assert!(left < 0.35, "the path ends {left} m from the goal: {:?}", path.points);
     }
 
-    #[test]
-    fn a_start_inside_inflation_may_leave_it() {
+    /// A 3 m square map with an obstacle wall along x < 0.3 m and its inflated band up to
+    /// `band_end` cells.
+    fn wall_with_band(band_end: usize) -> NavigationMap {
         let mut m = open_map(30, 30);
         for j in 0..30 {
-            for i in 0..8 {
+            for i in 0..band_end {
                 set(&mut m, i, j, if i < 3 { cost::OBSTACLE } else { cost::INFLATED });
             }
         }
+        m
+    }
+
+    #[test]
+    fn a_start_inside_inflation_may_leave_it() {
+        let m = wall_with_band(8);
         let path = plan(&m, [0.55, 1.55], [2.55, 1.55], 0.05, &PlannerParams::default()).unwrap();
         assert_eq!(path.points.len(), 2);
         assert!((path.clearance_m[0] - 0.25).abs() < 1e-9, "{:?}", path.clearance_m);
@@ -468,12 +475,7 @@ mod tests {
     fn a_start_at_an_obstacle_s_edge_gets_out_of_a_band_as_wide_as_the_inscribed_radius() {
         // The rover's centre on the first cell past an obstacle (a sweep run's return stalled
         // against a rock there), the band inflated 0.7 m wide (the configured inscribed radius).
-        let mut m = open_map(30, 30);
-        for j in 0..30 {
-            for i in 0..10 {
-                set(&mut m, i, j, if i < 3 { cost::OBSTACLE } else { cost::INFLATED });
-            }
-        }
+        let m = wall_with_band(10);
         let path = plan(&m, [0.35, 1.55], [2.55, 1.55], 0.05, &PlannerParams::default()).unwrap();
         assert!((path.points.last().unwrap()[0] - 2.55).abs() < 0.1, "{:?}", path.points);
         let short = PlannerParams { start_escape_m: 0.6, ..Default::default() };

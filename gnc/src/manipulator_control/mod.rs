@@ -5,7 +5,7 @@
 //! shapes, a held object included) and the ground, through configured via-poses when the straight
 //! joint-space path is not clear, each segment timed within the joints' speed and acceleration
 //! limits ([`segment_speed`]). A planned move that stalls a servo, or stops short of its goal, is
-//! planned again from where the arm stopped, once, after the motors are out of fault (`place`).
+//! planned again from where the arm stopped, once, after the motors are out of fault (`retry`).
 //!
 //! Commands (each completes when done, with a deferred acknowledgement):
 //! - `move_named {pose}`: a planned motion to a configured pose;
@@ -44,6 +44,7 @@ use std::collections::VecDeque;
 mod grasp;
 mod params;
 mod place;
+mod retry;
 
 pub use params::{GraspArgs, GraspableObject, ManipulatorParams, MoveNamedArgs, MoveToolArgs, PlaceArgs};
 use place::Seat;

@@ -15,3 +15,9 @@ pub mod search;
 pub mod size;
 pub mod stereo_match;
 pub mod template;
+
+/// The larger of a target position covariance's x and y sigmas (m, `map`): what TrackingTarget's
+/// `locate {max_sigma_m}` bounds.
+pub fn locate_sigma(covariance: &nalgebra::Matrix3<f64>) -> f64 {
+    covariance[(0, 0)].max(covariance[(1, 1)]).max(0.0).sqrt()
+}

@@ -35,6 +35,7 @@
 //! Progress is published on `tracking/visual` ([`VisualTrackingState`]).
 
 use crate::peer::send;
+use crate::tracking::locate_sigma;
 use crate::tracking::pointing::PanTiltCamera;
 use framework::data::{
     JointStates, NavigationState, PoseEstimate, TargetStatus, TargetTrack, VisualTrackingState,
@@ -373,7 +374,7 @@ impl CoordinatorVisualTracking {
                 job.sharpened += 1;
                 // TrackingTarget's locate bounds the larger of the x and y sigmas, not the one
                 // along the line: asked in proportion, for an ellipse the same shape.
-                let ask = want * axis_sigma(&t) / sigma.max(1e-9);
+                let ask = want * locate_sigma(&t.covariance) / sigma.max(1e-9);
                 ctx.note(format!(
                     "{}: the target's estimate, {sigma:.2} m uncertain (1 sigma) along the line to it {:.2} m away, is too uncertain to come nearer clear of it: locating it to {want:.3} m along that line first ({ask:.3} m in x and y)",
                     job.kind.name(),
@@ -656,11 +657,6 @@ impl CoordinatorVisualTracking {
 
 fn dist(rover: [f64; 2], target: &Point3<f64>) -> f64 {
     (target.x - rover[0]).hypot(target.y - rover[1])
-}
-
-/// The larger of the target's x and y sigmas (m): what TrackingTarget's `locate` bounds.
-fn axis_sigma(track: &TargetTrack) -> f64 {
-    track.covariance[(0, 0)].max(track.covariance[(1, 1)]).max(0.0).sqrt()
 }
 
 /// The target's uncertainty along the horizontal line from the rover to it (1 sigma, m).

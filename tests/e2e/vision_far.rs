@@ -150,6 +150,7 @@ fn far_approach(seed: u64, canister: (f64, f64, f64), from: (f64, f64)) -> (usiz
                     centre: Some((uv.x, uv.y)),
                     radius_px: None,
                     width_px: Some(w0 * r0 / true_range),
+                    ..Prior::default()
                 };
                 let out = tracker.update(&img, &prior);
                 if out.status != TrackStatus::Lost {

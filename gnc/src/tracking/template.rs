@@ -25,9 +25,10 @@
 //! taken again only each time the box has grown (or shrunk) `anchor_rescale` times.
 //!
 //! The caller's [`Prior`] may also give the box's expected size (from the target's range): the
-//! scales searched are then centred on it. Scale chosen by correlation alone drifts over a long
-//! approach (a few pixels of target in a context region, each frame's best of three scales), so the
-//! box would end up on a part of the target or on the ground around it.
+//! scales searched are then centred on it, and a lost target is looked for at every size the
+//! range's uncertainty allows (`width_span_px`). Scale chosen by correlation alone drifts over a
+//! long approach (a few pixels of target in a context region, each frame's best of three scales),
+//! so the box would end up on a part of the target or on the ground around it.
 
 use crate::tracking::correlation::{
     Template, Weights, ncc_peaks, peaks_around, resample, resample_centred, search_around,
@@ -135,6 +136,12 @@ pub struct Prior {
     pub radius_px: Option<f64>,
     /// The box's expected width, pixels (its size at the range the estimate gives).
     pub width_px: Option<f64>,
+    /// The smallest and largest widths, pixels, the box can have within the estimate's
+    /// uncertainty along the line of sight (at its far and near ends). Where they reach beyond
+    /// the re-detection scales around `width_px`, a lost target is also looked for at the scales
+    /// out to them: an estimate known to a metre or two at a few metres (after a `reject`) puts
+    /// the target at half or twice the expected size.
+    pub width_span_px: Option<(f64, f64)>,
 }
 
 /// Largest change of scale toward the expected size in one frame while tracking: a box far from
@@ -145,6 +152,44 @@ const MAX_TRACK_RESCALE: f64 = 1.25;
 /// first: a small target's neighbourhood holds look-alikes that may match its learnt look better
 /// than it does.
 const MAX_CANDIDATES: usize = 4;
+
+/// The range of scales (relative to the last box) a lost target is looked for at: down to a
+/// quarter (the smaller the scale, the finer and costlier the search), up to 32 times (a canister
+/// selected 2.5 px wide at 25 m is 40 px wide at 1.5 m; a target lost since it was selected, as
+/// after a `reject`, is looked for again at the size its estimate gives).
+const REDETECT_RESCALE: (f64, f64) = (0.25, 32.0);
+
+/// The ratio between consecutive scales added to the re-detection scales to span
+/// [`Prior::width_span_px`] (that of the default re-detection scales, 0.8 to 1.25 in four steps).
+const SPAN_STEP: f64 = 1.12;
+
+/// The re-detection scales (relative to the last box) for a prior of expected scale `rescale`:
+/// the configured `scales` around it, and, beyond them, steps of [`SPAN_STEP`] out to the span's
+/// ends (`span`: the smallest and largest scale the target can have, within [`REDETECT_RESCALE`]).
+fn redetect_scales(scales: &[f64], rescale: f64, span: Option<(f64, f64)>) -> Vec<f64> {
+    let mut out: Vec<f64> = scales.iter().map(|s| s * rescale).collect();
+    let (Some((lo, hi)), Some(min), Some(max)) = (
+        span.filter(|(lo, hi)| lo.is_finite() && hi.is_finite() && *lo > 0.0 && hi >= lo),
+        out.iter().copied().reduce(f64::min).filter(|m| m.is_finite() && *m > 0.0),
+        out.iter().copied().reduce(f64::max).filter(|m| m.is_finite()),
+    ) else {
+        return out;
+    };
+    let (min_rescale, max_rescale) = REDETECT_RESCALE;
+    let (lo, hi) = (lo.clamp(min_rescale, max_rescale), hi.clamp(min_rescale, max_rescale));
+    // Below: each step down while the last one is still above the span's near end.
+    let mut s = min;
+    while s > lo * SPAN_STEP.sqrt() {
+        s /= SPAN_STEP;
+        out.push(s);
+    }
+    let mut s = max;
+    while s < hi / SPAN_STEP.sqrt() {
+        s *= SPAN_STEP;
+        out.push(s);
+    }
+    out
+}
 
 /// A candidate match: confidence, box, region.
 type Candidate = (f64, BBox, (f64, f64));
@@ -297,8 +342,10 @@ impl TemplateTracker {
         let found = if self.lost {
             // Either search must pass the re-detection threshold (a small target's neighbourhood
             // holds look-alikes: a lower one locks onto them) with a box wholly in the image.
-            let rescale = rescale.clamp(0.25, 4.0);
-            let scales: Vec<f64> = self.params.redetect_scales.iter().map(|s| s * rescale).collect();
+            let rescale = rescale.clamp(REDETECT_RESCALE.0, REDETECT_RESCALE.1);
+            let last_w = last[2] - last[0];
+            let span = prior.width_span_px.map(|(lo, hi)| (lo / last_w, hi / last_w));
+            let scales = redetect_scales(&self.params.redetect_scales, rescale, span);
             let (w, h) = (img.width as f64, img.height as f64);
             let threshold = self.params.redetect_threshold;
             let passing = |(c, b, _): &Candidate| {

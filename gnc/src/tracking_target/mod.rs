@@ -39,7 +39,7 @@ use framework::data::ExcludedPlace;
 use reject::{beyond, excluded, ray_prior};
 
 use placing::{
-    at_expected_depth, in_map, inside, map_box, on_the_ground, pose_term, raw_to_rect, rect_to_raw,
+    at_expected_depth, box_fits, in_map, inside, map_box, on_the_ground, pose_term, raw_to_rect, rect_to_raw,
     selected_view, sight_through, size_bounds,
 };
 
@@ -47,6 +47,7 @@ use crate::localization::rectify::Rectification;
 use crate::placement::Placement;
 use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
 use crate::tracking::locate::{Located, locate};
+use crate::tracking::locate_sigma;
 use crate::tracking::search::LostSearch;
 use crate::tracking::size::SelectedView;
 use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, Verdict};
@@ -364,26 +365,33 @@ impl TrackingTarget {
                 // An established estimate checks each re-detection candidate: one whose stereo
                 // location disagrees with it is a look-alike (the ground beside a small target,
                 // a rock), and the next best is tried; one stereo cannot locate (a few pixels far
-                // away) says nothing either way.
+                // away) says nothing either way. Except after a `reject` (`prior_only`): the
+                // target is then looked for near the rover, where stereo locates it, and one it
+                // cannot locate (at the image's edge, in a shadow) is not taken on its look alone.
                 let established = self.estimate.count() >= CONFIRM_AFTER;
+                let unlocated = if self.prior_only { Verdict::Disagrees } else { Verdict::Unknown };
                 let (estimate, params, rect, fix, rejected) =
                     (&self.estimate, &self.params, &self.rect, self.fix_pose_term, &self.excluded);
                 let view = self.selected_view;
                 let bounds =
                     size_bounds(&self.params, &self.target, view, self.selection_clipped, &self.rect);
+                let (target, clipped) = (&self.target, self.selection_clipped);
                 let mut check = |b: &BBox| {
                     let Some((map_from_rect, pose)) = placed.as_ref().ok() else { return Verdict::Unknown };
                     let loc = locate(&h.left, &h.right, &rect.model, *b, &params.locate);
                     let verdict = match &loc {
-                        Err(_) => Verdict::Unknown,
+                        Err(_) => unlocated,
                         Ok(loc) => {
                             let here = in_map(loc, map_from_rect, pose, fix);
                             let gate = params.redetect_gate_sigma;
                             let sized = view.is_none_or(|v| v.allows(&here.position, bounds));
+                            let fits =
+                                box_fits(params, target, clipped, rect, map_from_rect, b, &here.position);
                             let ground = on_the_ground(loc, map_from_rect, &rect.model, params).is_some();
                             ground_candidate_at_estimate |= ground && inside(b, prior.centre);
                             let elsewhere = !excluded(rejected, &here.position);
                             if sized
+                                && fits
                                 && !ground
                                 && elsewhere
                                 && estimate.agrees(&here, stamp, params.target_walk, gate)
@@ -666,7 +674,7 @@ impl TrackingTarget {
         // last located, and the rover's pose estimate has drifted since.
         let aged = self.aged_covariance(ctx.now(), self.placement.newest_pose());
         let outcome = if let (Some(p), Some(c)) = (self.estimate.position_at(ctx.now()), aged)
-            && c[(0, 0)].max(c[(1, 1)]).sqrt() <= *max_sigma
+            && locate_sigma(&c) <= *max_sigma
         {
             Some(Outcome::Completed(serde_json::json!({
                 "target": self.target,

@@ -164,6 +164,24 @@ pub(super) fn size_bounds(
     range_bounds(*extent, rect.model.left.pinhole.fx, view?.extent_px, params.size_tolerance)
 }
 
+/// Whether a re-detection candidate's own box `bbox` (rectified pixels, camera `map_from_rect`),
+/// located at `p` (`map`), is as large as a target of known size is at that range: a look-alike
+/// matched at another size (the end of the rover's mast shadow a few metres off, matched as a
+/// canister 25 m away) is not the target. True where the size says nothing (`size_bounds`: an
+/// unknown size, a target that may move, a selection cut by the image's border).
+pub(super) fn box_fits(
+    params: &TrackingTargetParams,
+    target: &str,
+    clipped: bool,
+    rect: &Rectification,
+    map_from_rect: &Isometry3<f64>,
+    bbox: &BBox,
+    p: &Point3<f64>,
+) -> bool {
+    let own = selected_view(map_from_rect, bbox);
+    own.allows(p, size_bounds(params, target, Some(own), clipped, rect))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -245,5 +263,41 @@ mod tests {
         let image = loc.covariance - loc.bias_covariance - loc.shared * loc.shared.transpose();
         assert!((left - r * image * r.transpose()).norm() < 1e-9 * left.norm());
         assert!(SymmetricEigen::new(left).eigenvalues.min() > 0.0);
+    }
+
+    #[test]
+    fn a_candidate_box_fits_only_where_a_target_of_known_size_spans_it_at_its_range() {
+        let cam = CameraModel::from_hfov(640, 480, 70f64.to_radians(), "l");
+        let calibration = |model: CameraModel| framework::camera::CameraCalibration {
+            model,
+            mount: "head".into(),
+            mount_from_optical: Isometry3::identity(),
+        };
+        let rect = Rectification::new(&StereoCalibration {
+            left: calibration(cam.clone()),
+            right: cam,
+            left_from_right: Isometry3::translation(0.25, 0.0, 0.0),
+        });
+        let mut params = TrackingTargetParams::default();
+        params.known_sizes.insert("canister".into(), [0.2, 0.25]);
+        let map_from_rect = Isometry3::new(Vector3::new(3.0, -2.0, 1.3), Vector3::new(1.2, -0.3, 0.8));
+        // 3 m ahead, the canister's 0.22 m spans this many pixels; its box is 0.8 as wide.
+        let p = map_from_rect * Point3::new(0.0, 0.0, 3.0);
+        let side = rect.model.left.pinhole.fx * 0.22 / 3.0;
+        let sized = |k: f64| [300.0, 200.0, 300.0 + 0.8 * k * side, 200.0 + k * side];
+        let at = |target: &str, clipped: bool, params: &TrackingTargetParams, k: f64| {
+            box_fits(params, target, clipped, &rect, &map_from_rect, &sized(k), &p)
+        };
+        // The canister's own size there: fits; a third of it (the end of a shadow matched as a
+        // canister far away) or three times it: not.
+        assert!(at("canister", false, &params, 1.0));
+        assert!(!at("canister", false, &params, 1.0 / 3.0));
+        assert!(!at("canister", false, &params, 3.0));
+        // Where the size says nothing, anything fits: an unknown size, a selection cut by the
+        // border, a target that may move.
+        assert!(at("rock", false, &params, 1.0 / 3.0));
+        assert!(at("canister", true, &params, 1.0 / 3.0));
+        let moving = TrackingTargetParams { max_target_speed_mps: 0.5, ..params.clone() };
+        assert!(at("canister", false, &moving, 1.0 / 3.0));
     }
 }

@@ -1,7 +1,7 @@
 //! What TrackingTarget tells its image tracker of the target (the [`Prior`]: where its estimate
-//! projects, the box's expected width, how far a lost target may be looked for), the estimate's
-//! covariance aged to an image's time, and when the estimate is doubted (the ground seen where it
-//! projects; a search there that finds nothing).
+//! projects, the box's expected width and the widths its uncertainty allows, how far a lost
+//! target may be looked for), the estimate's covariance aged to an image's time, and when the
+//! estimate is doubted (the ground seen where it projects; a search there that finds nothing).
 
 use super::placing::pose_drift;
 use super::{CONFIRM_AFTER, TrackingTarget};
@@ -66,6 +66,34 @@ impl TrackingTarget {
             .filter(|_| established)
             .map(|(p, v)| v.width_px * (p - v.camera).norm() / (p - camera).norm())
             .filter(|w| w.is_finite());
+        // After a `reject`, the smallest and largest widths the box can have within the prior's
+        // uncertainty along the line of sight (to the re-detection gate): a metre or two either way
+        // at a few metres. (An estimate that located the target knows its range well enough for
+        // the re-detection scales around `width_px`.)
+        let width_span_px = estimate
+            .zip(self.selected_view)
+            .filter(|_| established && self.prior_only)
+            .zip(self.aged_covariance(stamp, Some(pose)))
+            .and_then(|((p, v), c)| {
+                let range = (p - camera).norm();
+                let along = (p - camera) / range;
+                let sigma = (along.transpose() * c * along)[(0, 0)].max(0.0).sqrt();
+                let reach = self.params.redetect_gate_sigma * sigma;
+                // Nearer than a third of the range or farther than three times it, not looked at.
+                let (near, far) = ((range - reach).max(range / 3.0), (range + reach).min(3.0 * range));
+                let width_at = |r: f64| v.width_px * (camera + along * r - v.camera).norm() / r;
+                // The width shrinks with the range unless the camera moved away from where the
+                // target was selected: its least may then lie between the ends, where the range
+                // from the selecting camera is least relative to this one's.
+                let a = camera - v.camera;
+                let inner = (a.dot(&along) < 0.0).then(|| -a.norm_squared() / a.dot(&along));
+                let widths = [Some(near), Some(far), inner.filter(|r| (near..=far).contains(r))]
+                    .into_iter()
+                    .flatten()
+                    .map(width_at);
+                let (lo, hi) = widths.fold((f64::INFINITY, 0.0f64), |(lo, hi), w| (lo.min(w), hi.max(w)));
+                (lo.is_finite() && hi.is_finite() && lo > 0.0).then_some((lo, hi))
+            });
         let radius_px = if established && self.searched_lost.searched_s() < self.params.redetect_whole_after_s
         {
             self.aged_covariance(stamp, Some(pose)).and_then(|c| {
@@ -88,7 +116,7 @@ impl TrackingTarget {
         } else {
             None
         };
-        Prior { centre, radius_px, width_px }
+        Prior { centre, radius_px, width_px, width_span_px }
     }
 
     /// Counts an image whose box (or a re-detection candidate) found the ground where the

@@ -262,13 +262,72 @@ fn a_target_that_grew_while_lost_is_redetected_at_the_size_the_caller_expects() 
     // beyond the re-detection scales of the last box, found at the expected size.
     let grown = scene(240.0, 120.0, 40.0, false);
     let mut t = lost_behind_the_occluder();
-    let expected = Prior { centre: Some((240.0, 120.0)), radius_px: None, width_px: Some(40.0) };
+    let expected = Prior { centre: Some((240.0, 120.0)), width_px: Some(40.0), ..Prior::default() };
     let r = t.update(&grown, &expected);
     assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
     assert!(overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) > 0.6, "{r:?}");
     let mut t = lost_behind_the_occluder();
     let r = t.update(&grown, &Prior { width_px: None, ..expected });
     assert!(r.status == TrackStatus::Lost || overlap(&r.bbox, &boxed(240.0, 120.0, 40.0)) < 0.6, "{r:?}");
+}
+
+#[test]
+fn a_lost_target_is_redetected_anywhere_in_the_span_of_widths_the_caller_s_uncertainty_allows() {
+    // The caller expects 40 px, but its estimate along the line of sight allows 14-60 px (as
+    // after a `reject`: known to a metre or two at a few metres); the target is back at 16 px,
+    // well below the re-detection scales around 40 px (32-50 px). With the span: found there,
+    // at its size; without: not.
+    let back = scene(240.0, 120.0, 16.0, false);
+    let expected = Prior { centre: Some((240.0, 120.0)), width_px: Some(40.0), ..Prior::default() };
+    let mut t = lost_behind_the_occluder();
+    let r = t.update(&back, &Prior { width_span_px: Some((14.0, 60.0)), ..expected });
+    assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+    assert!(overlap(&r.bbox, &boxed(240.0, 120.0, 16.0)) > 0.6, "{r:?}");
+    let mut t = lost_behind_the_occluder();
+    let r = t.update(&back, &expected);
+    assert!(r.status == TrackStatus::Lost || overlap(&r.bbox, &boxed(240.0, 120.0, 16.0)) < 0.6, "{r:?}");
+}
+
+#[test]
+fn a_target_lost_at_a_few_pixels_is_redetected_at_ten_times_that_size() {
+    // Lost at 6 px (selected far away), back at 60 px (the rover came ten times nearer): found at
+    // the expected size, beyond four times the last box.
+    let mut t = TemplateTracker::new(TrackerParams { min_region_px: 8.0, ..TrackerParams::default() });
+    t.init(&scene(100.0, 120.0, 6.0, false), boxed(100.0, 120.0, 6.0)).unwrap();
+    t.reject();
+    let near = scene(200.0, 120.0, 60.0, false);
+    let r =
+        t.update(&near, &Prior { centre: Some((200.0, 120.0)), width_px: Some(60.0), ..Prior::default() });
+    assert_eq!(r.status, TrackStatus::Redetected, "{r:?}");
+    assert!(overlap(&r.bbox, &boxed(200.0, 120.0, 60.0)) > 0.6, "{r:?}");
+}
+
+#[test]
+fn the_redetection_scales_reach_the_span_s_ends_within_half_a_step() {
+    let configured = [0.8, 0.9, 1.0, 1.12, 1.25];
+    // No span, or one inside the configured scales: those alone.
+    assert_eq!(redetect_scales(&configured, 2.0, None), vec![1.6, 1.8, 2.0, 2.24, 2.5]);
+    assert_eq!(redetect_scales(&configured, 1.0, Some((0.85, 1.2))).len(), configured.len());
+    // A span from 0.3 to 3: steps of SPAN_STEP beyond, the outermost within half a step of its
+    // ends, none past them by more.
+    let scales = redetect_scales(&configured, 1.0, Some((0.3, 3.0)));
+    let (min, max) = scales.iter().fold((f64::MAX, f64::MIN), |(a, b), &s| (a.min(s), b.max(s)));
+    let half = SPAN_STEP.sqrt();
+    assert!(min <= 0.3 * half && min > 0.3 / half, "{scales:?}");
+    assert!(max >= 3.0 / half && max < 3.0 * half, "{scales:?}");
+    let mut sorted = scales.clone();
+    sorted.sort_by(f64::total_cmp);
+    // (No gap wider than the configured scales' widest, 0.8 to 0.9.)
+    assert!(sorted.windows(2).all(|w| w[1] / w[0] <= 0.9 / 0.8 + 1e-9), "{sorted:?}");
+    // Beyond what a box may be rescaled by: clamped there.
+    let (lo, hi) = REDETECT_RESCALE;
+    let wide = redetect_scales(&configured, 1.0, Some((0.01, 1000.0)));
+    assert!(wide.iter().all(|&s| s > lo / half && s < hi * half), "{wide:?}");
+    // Nonsense spans, or scales, are ignored (no endless steps from a scale of 0).
+    assert_eq!(redetect_scales(&configured, 1.0, Some((f64::NAN, 2.0))).len(), configured.len());
+    assert_eq!(redetect_scales(&configured, 1.0, Some((2.0, 0.5))).len(), configured.len());
+    assert_eq!(redetect_scales(&[0.0, 1.0], 1.0, Some((0.5, 2.0))), vec![0.0, 1.0]);
+    assert_eq!(redetect_scales(&[-1.0], 1.0, Some((0.5, 2.0))), vec![-1.0]);
 }
 
 #[test]

@@ -369,7 +369,8 @@ impl TrackingTarget {
                 // target is then looked for near the rover, where stereo locates it, and one it
                 // cannot locate (at the image's edge, in a shadow) is not taken on its look alone.
                 let established = self.estimate.count() >= CONFIRM_AFTER;
-                let unlocated = if self.prior_only { Verdict::Disagrees } else { Verdict::Unknown };
+                let prior_only = self.prior_only;
+                let unlocated = if prior_only { Verdict::Disagrees } else { Verdict::Unknown };
                 let (estimate, params, rect, fix, rejected) =
                     (&self.estimate, &self.params, &self.rect, self.fix_pose_term, &self.excluded);
                 let view = self.selected_view;
@@ -385,8 +386,13 @@ impl TrackingTarget {
                             let here = in_map(loc, map_from_rect, pose, fix);
                             let gate = params.redetect_gate_sigma;
                             let sized = view.is_none_or(|v| v.allows(&here.position, bounds));
-                            let fits =
-                                box_fits(params, target, clipped, rect, map_from_rect, b, &here.position);
+                            // After a `reject`, the candidate's own box must be as large as
+                            // the target at its range too (see [`reject`]). Not before: an
+                            // approach that followed a rock would lose it for good, where it
+                            // should reach it and have the wrist camera tell (canister_sweep
+                            // run 8 then ended in the approach, lost at 2.3 m).
+                            let fits = !prior_only
+                                || box_fits(params, target, clipped, rect, map_from_rect, b, &here.position);
                             let ground = on_the_ground(loc, map_from_rect, &rect.model, params).is_some();
                             ground_candidate_at_estimate |= ground && inside(b, prior.centre);
                             let elsewhere = !excluded(rejected, &here.position);

@@ -16,7 +16,7 @@
 //! above the re-detection threshold 3.5 m away, and the end of the mast's shadow beside the rover
 //! was, at 0.74. A candidate is therefore taken only where stereo locates it (one it cannot
 //! locate is not taken on its look alone), on the stretch, and as large as the target is at that
-//! range (its own box against the known size, as for every re-detection). Mostly none is, the
+//! range (its own box against the known size; only after a reject, see `box_fits`'s caller). Mostly none is, the
 //! estimate stays the prior, and the caller's wrist camera searches there.
 
 use crate::tracking::estimate::Location;

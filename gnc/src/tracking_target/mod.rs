@@ -374,9 +374,8 @@ impl TrackingTarget {
                 let (estimate, params, rect, fix, rejected) =
                     (&self.estimate, &self.params, &self.rect, self.fix_pose_term, &self.excluded);
                 let view = self.selected_view;
-                let bounds =
-                    size_bounds(&self.params, &self.target, view, self.selection_clipped, &self.rect);
                 let (target, clipped) = (&self.target, self.selection_clipped);
+                let bounds = size_bounds(params, target, view, clipped, rect);
                 let mut check = |b: &BBox| {
                     let Some((map_from_rect, pose)) = placed.as_ref().ok() else { return Verdict::Unknown };
                     let loc = locate(&h.left, &h.right, &rect.model, *b, &params.locate);

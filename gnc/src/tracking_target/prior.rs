@@ -59,6 +59,8 @@ impl TrackingTarget {
         // Only an established estimate (a wrong first location is allowed for) sizes the box and
         // bounds the search.
         let established = self.estimate.count() >= CONFIRM_AFTER;
+        // Its covariance now (both uses below need an established estimate).
+        let aged = established.then(|| self.aged_covariance(stamp, Some(pose))).flatten();
         // The selected box's width times the ratio of the ranges then and now, both from the one
         // estimate (its range error mostly cancels).
         let width_px = estimate
@@ -70,33 +72,32 @@ impl TrackingTarget {
         // uncertainty along the line of sight (to the re-detection gate): a metre or two either way
         // at a few metres. (An estimate that located the target knows its range well enough for
         // the re-detection scales around `width_px`.)
-        let width_span_px = estimate
-            .zip(self.selected_view)
-            .filter(|_| established && self.prior_only)
-            .zip(self.aged_covariance(stamp, Some(pose)))
-            .and_then(|((p, v), c)| {
-                let range = (p - camera).norm();
-                let along = (p - camera) / range;
-                let sigma = (along.transpose() * c * along)[(0, 0)].max(0.0).sqrt();
-                let reach = self.params.redetect_gate_sigma * sigma;
-                // Nearer than a third of the range or farther than three times it, not looked at.
-                let (near, far) = ((range - reach).max(range / 3.0), (range + reach).min(3.0 * range));
-                let width_at = |r: f64| v.width_px * (camera + along * r - v.camera).norm() / r;
-                // The width shrinks with the range unless the camera moved away from where the
-                // target was selected: its least may then lie between the ends, where the range
-                // from the selecting camera is least relative to this one's.
-                let a = camera - v.camera;
-                let inner = (a.dot(&along) < 0.0).then(|| -a.norm_squared() / a.dot(&along));
-                let widths = [Some(near), Some(far), inner.filter(|r| (near..=far).contains(r))]
-                    .into_iter()
-                    .flatten()
-                    .map(width_at);
-                let (lo, hi) = widths.fold((f64::INFINITY, 0.0f64), |(lo, hi), w| (lo.min(w), hi.max(w)));
-                (lo.is_finite() && hi.is_finite() && lo > 0.0).then_some((lo, hi))
-            });
+        let width_span_px =
+            estimate.zip(self.selected_view).filter(|_| established && self.prior_only).zip(aged).and_then(
+                |((p, v), c)| {
+                    let range = (p - camera).norm();
+                    let along = (p - camera) / range;
+                    let sigma = (along.transpose() * c * along)[(0, 0)].max(0.0).sqrt();
+                    let reach = self.params.redetect_gate_sigma * sigma;
+                    // Nearer than a third of the range or farther than three times it, not looked at.
+                    let (near, far) = ((range - reach).max(range / 3.0), (range + reach).min(3.0 * range));
+                    let width_at = |r: f64| v.width_px * (camera + along * r - v.camera).norm() / r;
+                    // The width shrinks with the range unless the camera moved away from where the
+                    // target was selected: its least may then lie between the ends, where the range
+                    // from the selecting camera is least relative to this one's.
+                    let a = camera - v.camera;
+                    let inner = (a.dot(&along) < 0.0).then(|| -a.norm_squared() / a.dot(&along));
+                    let widths = [Some(near), Some(far), inner.filter(|r| (near..=far).contains(r))]
+                        .into_iter()
+                        .flatten()
+                        .map(width_at);
+                    let (lo, hi) = widths.fold((f64::INFINITY, 0.0f64), |(lo, hi), w| (lo.min(w), hi.max(w)));
+                    (lo.is_finite() && hi.is_finite() && lo > 0.0).then_some((lo, hi))
+                },
+            );
         let radius_px = if established && self.searched_lost.searched_s() < self.params.redetect_whole_after_s
         {
-            self.aged_covariance(stamp, Some(pose)).and_then(|c| {
+            aged.and_then(|c| {
                 let r = map_from_rect.rotation.to_rotation_matrix().into_inner();
                 // The box at the size it is looked for.
                 let half_box = self.tracker.as_ref().and_then(TemplateTracker::bbox).map_or(0.0, |b| {

@@ -17,7 +17,10 @@
 //! `landmark_drift_gate`) relocalize it on the landmark ([`PoseFilter::relocalize`]).
 //!
 //! The wheels' noise here is the fusion's own model of slip (per metre, along, across and up), not
-//! the wheel odometry's: it is what lets vision correct a slipping drive.
+//! the wheel odometry's: it is what lets vision correct a slipping drive. Their systematic slip
+//! (`wheel_slip_sigma`: along-track scale, sideways slide per metre) is a state of the filter that
+//! vision teaches, and visual odometry's mount tilt (`visual_mount_tilt_sigma_deg`) a consider
+//! state whose uncertainty the covariance carries; both are noted every 10 m driven.
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
 use crate::localization::landmark::{Disagreement, DriftEvidence, LandmarkFix};
@@ -48,6 +51,21 @@ pub struct FusionParams {
     pub wheel_sigma_per_rad: f64,
     /// Heading noise per radian turned when the heading comes from the wheels, rad/rad.
     pub wheel_yaw_sigma_per_rad: f64,
+    /// The wheels' systematic slip, estimated as states of the filter (vision and landmarks teach
+    /// them): initial uncertainty (1 sigma) of the along-track scale error and of the sideways
+    /// slide per metre driven (0, 0: none estimated).
+    pub wheel_slip_sigma: [f64; 2],
+    /// Random walk of that slip per sqrt(m) travelled (the ground changes), along and across; a
+    /// walk needs its slip estimated (its sigma above 0).
+    pub wheel_slip_walk: [f64; 2],
+    /// Random walk of the sideways slide per sqrt(rad) turned (the slope's side turns with the
+    /// rover); needs the sideways slide estimated.
+    pub wheel_slip_turn_walk: f64,
+    /// Uncertainty of visual odometry's mount tilt (roll and pitch of the localization pair's
+    /// mounting that its calibration missed, 1 sigma), degrees, at most 5: a consider state of
+    /// the filter (its uncertainty counted in every visual update, never learnt from vision and
+    /// the wheels; landmarks correct it) (0: taken as calibrated).
+    pub visual_mount_tilt_sigma_deg: f64,
     /// Noise of the gravity direction (1 sigma), rad.
     pub gravity_sigma: f64,
     /// Random walk of roll and pitch, rad/sqrt(s) (gravity cannot pin the tilt below the
@@ -108,6 +126,10 @@ impl Default for FusionParams {
             wheel_sigma_per_m: [0.2, 0.2, 0.2],
             wheel_sigma_per_rad: 0.1,
             wheel_yaw_sigma_per_rad: 0.15,
+            wheel_slip_sigma: [0.0; 2],
+            wheel_slip_walk: [0.0; 2],
+            wheel_slip_turn_walk: 0.0,
+            visual_mount_tilt_sigma_deg: 0.0,
             gravity_sigma: 0.02,
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
@@ -164,7 +186,14 @@ pub struct LocalizationDataFusion {
     velocity: BodyTwist,
     /// Per landmark, the refused sightings that may show the estimate drifted from it.
     drift: std::collections::BTreeMap<String, DriftEvidence>,
+    /// How far the wheels have driven since the filter started, m, and where the wheel slip
+    /// estimate is noted next.
+    travelled_m: f64,
+    next_slip_note_m: f64,
 }
+
+/// The estimated wheel slip is noted every this many metres driven.
+const SLIP_NOTE_EVERY_M: f64 = 10.0;
 
 impl LocalizationDataFusion {
     /// The fusion of wheel odometry, the inertial attitude and, when the system has it, visual
@@ -189,6 +218,8 @@ impl LocalizationDataFusion {
             counts: FusionCounts::default(),
             velocity: BodyTwist::default(),
             drift: std::collections::BTreeMap::new(),
+            travelled_m: 0.0,
+            next_slip_note_m: SLIP_NOTE_EVERY_M,
         }
     }
 
@@ -306,6 +337,10 @@ impl LocalizationDataFusion {
             tilt_random_walk: p.tilt_random_walk,
             gyro_bias_sigma: p.gyro_bias_sigma,
             gyro_bias_walk: p.gyro_bias_walk,
+            wheel_slip_sigma: p.wheel_slip_sigma,
+            wheel_slip_walk: p.wheel_slip_walk,
+            wheel_slip_turn_walk: p.wheel_slip_turn_walk,
+            relative_mount_tilt_sigma: p.visual_mount_tilt_sigma_deg.to_radians(),
         };
         PoseFilter::new(stamp, pose, cov, fp)
     }
@@ -317,6 +352,8 @@ impl LocalizationDataFusion {
         let Some(mech) = mech else { return Ok(()) };
         if self.filter.is_none() {
             self.filter = Some(self.start(mech.stamp, att.as_ref().map(|a| &a.value)));
+            self.travelled_m = 0.0;
+            self.next_slip_note_m = SLIP_NOTE_EVERY_M;
             self.last_mech = Some((mech.stamp, mech.value.pose));
             self.last_gyro = att.as_ref().map(|a| (a.stamp, a.value.gyro_attitude));
             self.publish(ctx);
@@ -393,6 +430,31 @@ impl LocalizationDataFusion {
                 self.count(ctx, outcome);
             }
             self.last_mech = Some((mech.stamp, mech.value.pose));
+            self.travelled_m += ds;
+            let estimates =
+                p.wheel_slip_sigma.iter().any(|s| *s > 0.0) || p.visual_mount_tilt_sigma_deg > 0.0;
+            // (A walk is refused without its slip estimated: `validate_states`.)
+            if self.travelled_m >= self.next_slip_note_m && estimates {
+                self.next_slip_note_m += SLIP_NOTE_EVERY_M;
+                let s = self.filter.as_ref().expect("started").state();
+                let (slip, sigma) = (s.wheel_slip, s.wheel_slip_sigma());
+                let (tilt, tilt_sigma) = (
+                    s.relative_mount_tilt.map(f64::to_degrees),
+                    s.relative_mount_tilt_sigma().map(f64::to_degrees),
+                );
+                ctx.note(format!(
+                    "after {:.0} m: wheel slip along {:+.2} +/- {:.2} %, sideways {:+.2} +/- {:.2} cm per m; visual odometry's mount tilt roll {:+.3} +/- {:.3} deg, pitch {:+.3} +/- {:.3} deg",
+                    self.travelled_m,
+                    slip.x * 100.0,
+                    sigma.x * 100.0,
+                    slip.y * 100.0,
+                    sigma.y * 100.0,
+                    tilt.x,
+                    tilt_sigma.x,
+                    tilt.y,
+                    tilt_sigma.y
+                ));
+            }
             let w = fresh_att.map_or(mech.value.velocity.omega, |a| a.value.angular_rate.z);
             self.velocity = BodyTwist { v: mech.value.velocity.v, omega: w };
         }
@@ -500,6 +562,7 @@ impl Module for LocalizationDataFusion {
             ("landmark_drift_agree_deg", p.landmark_drift_agree_deg),
             ("landmark_drift_gate", p.landmark_drift_gate),
         ])?;
+        validate_states(p)?;
         if p.landmark_drift_sightings == 1 {
             return Err("landmark_drift_sightings must be 0 (never) or at least 2: one refused sighting is no evidence of drift".into());
         }
@@ -539,9 +602,73 @@ pub fn gravity_direction(
     (f.try_normalize(1e-9)? * G - rate.cross(velocity)).try_normalize(1e-9)
 }
 
+/// The filter's slip and mount-tilt parameters: finite, not negative, a walk only for a slip that
+/// is estimated, a tilt small enough for the filter's small-angle model.
+fn validate_states(p: &FusionParams) -> Result<(), String> {
+    let states = [
+        ("wheel_slip_sigma", p.wheel_slip_sigma[0]),
+        ("wheel_slip_sigma", p.wheel_slip_sigma[1]),
+        ("wheel_slip_walk", p.wheel_slip_walk[0]),
+        ("wheel_slip_walk", p.wheel_slip_walk[1]),
+        ("wheel_slip_turn_walk", p.wheel_slip_turn_walk),
+        ("visual_mount_tilt_sigma_deg", p.visual_mount_tilt_sigma_deg),
+    ];
+    if let Some((name, v)) = states.iter().find(|(_, v)| !v.is_finite() || *v < 0.0) {
+        return Err(format!("{name} must be finite and not negative, got {v}"));
+    }
+    let walks = [p.wheel_slip_walk[0], p.wheel_slip_walk[1].max(p.wheel_slip_turn_walk)];
+    if let Some(i) = (0..2).find(|&i| walks[i] > 0.0 && p.wheel_slip_sigma[i] == 0.0) {
+        let which = ["along-track scale", "sideways slide"][i];
+        return Err(format!(
+            "the wheels' {which} has a random walk but is not estimated: give wheel_slip_sigma[{i}] a value above 0, or set its walks to 0"
+        ));
+    }
+    if p.visual_mount_tilt_sigma_deg > MAX_MOUNT_TILT_SIGMA_DEG {
+        return Err(format!(
+            "visual_mount_tilt_sigma_deg must be at most {MAX_MOUNT_TILT_SIGMA_DEG} (the filter takes the tilt as a small angle), got {}",
+            p.visual_mount_tilt_sigma_deg
+        ));
+    }
+    Ok(())
+}
+
+/// The largest mount tilt uncertainty the filter's small-angle model is meant for, degrees.
+const MAX_MOUNT_TILT_SIGMA_DEG: f64 = 5.0;
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn slip_and_tilt_parameters_are_validated() {
+        let on = FusionParams {
+            wheel_slip_sigma: [0.05, 0.05],
+            wheel_slip_walk: [0.01, 0.01],
+            wheel_slip_turn_walk: 0.03,
+            visual_mount_tilt_sigma_deg: 0.5,
+            ..FusionParams::default()
+        };
+        assert_eq!(validate_states(&on), Ok(()));
+        assert_eq!(validate_states(&FusionParams::default()), Ok(()));
+        let err = |p: FusionParams| validate_states(&p).expect_err("refused");
+        assert!(
+            err(FusionParams { wheel_slip_walk: [0.01, -0.01], ..on.clone() }).contains("wheel_slip_walk")
+        );
+        assert!(
+            err(FusionParams { wheel_slip_sigma: [f64::NAN, 0.05], ..on.clone() })
+                .contains("wheel_slip_sigma")
+        );
+        // A walk on a slip that is not estimated would grow and be learnt all the same.
+        let walk_only = err(FusionParams { wheel_slip_sigma: [0.05, 0.0], ..on.clone() });
+        assert!(
+            walk_only.contains("sideways slide") && walk_only.contains("wheel_slip_sigma[1]"),
+            "{walk_only}"
+        );
+        let turn_only =
+            FusionParams { wheel_slip_sigma: [0.05, 0.0], wheel_slip_walk: [0.01, 0.0], ..on.clone() };
+        assert!(err(turn_only).contains("sideways slide"));
+        assert!(err(FusionParams { visual_mount_tilt_sigma_deg: 20.0, ..on.clone() }).contains("at most 5"));
+    }
 
     #[test]
     fn gravity_has_the_centripetal_acceleration_of_a_turn_taken_out() {

@@ -3,22 +3,43 @@
 //! rotation), corrects roll and pitch with gravity, and applies relative pose measurements (visual
 //! odometry between two capture times) at the times they describe, however late they arrive.
 //!
-//! - State: position p, orientation R (`map` from `base_link`) and a residual gyro bias b (what the
-//!   inertial module's standstill learning missed, rad/s, body frame); error state
-//!   δx = (δp, δθ, δb) with p_true = p + δp, R_true = Exp(δθ) R (world-frame, left perturbation),
-//!   b_true = b + δb. The pose covariance is over (x, y, z) in m, then small rotations about the
-//!   `map` axes in rad, which for small tilts are (roll, pitch, yaw) as `PoseEstimate` defines them.
-//! - Prediction: p ← p + R d, R ← R ΔR Exp(-b Δt_gyro), with the increment's noise in the body
-//!   frame; the bias walks. Vision's rotations make the bias observable: a rover that never stood
-//!   still long enough to learn it (sliding on a slope) still gets its heading right.
+//! - State: position p, orientation R (`map` from `base_link`), a residual gyro bias b (what the
+//!   inertial module's standstill learning missed, rad/s, body frame), the wheels' slip
+//!   σ = (σ_a, σ_c) and the tilt ε = (ε_x, ε_y) of the frame the relative measurements come in;
+//!   error state δx = (δp, δθ, δb, δσ, δε) with p_true = p + δp, R_true = Exp(δθ) R (world-frame,
+//!   left perturbation), b_true = b + δb, σ_true = σ + δσ, ε_true = ε + δε. The
+//!   pose covariance is over (x, y, z) in m, then small rotations about the `map` axes in rad,
+//!   which for small tilts are (roll, pitch, yaw) as `PoseEstimate` defines them.
+//! - Prediction: p ← p + R (d + J σ), R ← R ΔR Exp(-b Δt_gyro), with the increment's noise in the
+//!   body frame; the bias walks. Vision's rotations make the bias observable: a rover that never
+//!   stood still long enough to learn it (sliding on a slope) still gets its heading right.
+//! - Wheel slip: the increment's translation d is the wheels'; the body moved d + J σ with
+//!   J = [[d_x, 0], [0, |d_x|], [0, 0]]: σ_a is the along-track scale error (a wheel spinning on
+//!   loose ground, a stall; σ_a < 0 where the body moved less than the wheels turned) and σ_c the
+//!   sideways slide per metre driven, to the body's left (down a slope, whichever way the rover
+//!   drives). Both are random walks per metre travelled; σ_c also walks per radian turned, since
+//!   a rover that turns to cross the slope the other way slides to its other side. A skid-steer rover's slip is
+//!   systematic: taken as white noise per step it averages out over thousands of steps, and the
+//!   fusion followed the slipping wheels against vision. As states, vision (or a landmark) learns
+//!   them and the covariance grows with the distance, not its square root.
 //! - Gravity: the accelerometer's unit specific force measures R^T e_z (valid when not accelerating
-//!   hard); H = `[0, R^T [e_z]x]`. It corrects the tilt only: the heading and the bias are
-//!   consider states of this update (Schmidt-Kalman), since its errors are no white noise (on a
+//!   hard); H = `[0, R^T [e_z]x]`. It corrects the tilt only: the heading, the bias, the wheels'
+//!   slip and the mount tilt are consider states of this update (Schmidt-Kalman), since its
+//!   errors are no white noise (on a
 //!   slope the body-z bias is correlated with the tilt, and a turn's vibration or the
 //!   accelerometer's bias learnt through that correlation became a heading rate).
-//! - Relative measurement (t_a, t_b, D): r = (R_a^T (p_b - p_a) - t_D, Log(R_D^T R_a^T R_b)), by
-//!   stochastic cloning: the state at t_a is cloned into an augmented state, the increments from
-//!   t_a to t_b re-propagated with it, and the update made at t_b.
+//! - Relative measurement (t_a, t_b, D): r = (R_a^T (p_b - p_a) - Exp(-ε) t_D,
+//!   Log(R_D^T R_a^T R_b)), by stochastic cloning: the pose at t_a is cloned into an augmented
+//!   state, the increments from t_a to t_b re-propagated with it, and the update made at t_b.
+//! - The relative measurements' mount tilt ε (roll and pitch of their source's mounting that its
+//!   calibration missed; constant, its prior the calibration's stated accuracy, 0: taken as
+//!   calibrated) tilts every translation they measure the same way: a stereo pair pitched 0.3
+//!   degree sees the ground rise 5 m per km. Taken as white noise, that drift (which grows as the
+//!   distance, not its square root) left the height many sigmas off. It is a consider state of
+//!   the relative update (Schmidt-Kalman: not corrected, its uncertainty counted): nothing here
+//!   tells it apart from the body's own pitch on its suspension, which tilts the wheels'
+//!   displacement the same way. Landmarks correct it. The mount's yaw is not a state: against the
+//!   wheels it would be learnt from their sideways slip.
 //! - Landmark fix (a surveyed object seen from the body: [`super::landmark`]): carried by the
 //!   filter's own motion from its capture time to the newest step, applied there, and kept with
 //!   that step's inputs, so that every later re-run applies it again.
@@ -30,13 +51,13 @@
 use super::landmark::LandmarkFix;
 use framework::time::Time;
 use nalgebra::{
-    Isometry3, Matrix3, Matrix6, SMatrix, SVector, Translation3, UnitQuaternion, Vector3, Vector6,
+    Isometry3, Matrix3, Matrix6, SMatrix, SVector, Translation3, UnitQuaternion, Vector2, Vector3, Vector6,
 };
 use std::collections::VecDeque;
 use std::ops::{AddAssign, SubAssign};
 
 /// Filter parameters.
-#[derive(Clone, Debug)]
+#[derive(Clone, Copy, Debug)]
 pub struct FilterParams {
     /// How long steps are kept for late measurements, s.
     pub history_s: f64,
@@ -54,6 +75,17 @@ pub struct FilterParams {
     pub gyro_bias_sigma: f64,
     /// Random walk of the gyro bias, rad/s/sqrt(s).
     pub gyro_bias_walk: f64,
+    /// Initial uncertainty of the wheels' slip (1 sigma): along-track scale error and sideways
+    /// slide per metre driven (0: the wheels' translation is taken as it comes).
+    pub wheel_slip_sigma: [f64; 2],
+    /// Random walk of the wheels' slip, per sqrt(m) travelled: the ground changes.
+    pub wheel_slip_walk: [f64; 2],
+    /// Random walk of the sideways slide per sqrt(rad) turned: the slope's side turns with the
+    /// rover.
+    pub wheel_slip_turn_walk: f64,
+    /// Uncertainty of the relative measurements' mount tilt (roll and pitch, 1 sigma), rad (0:
+    /// taken as calibrated).
+    pub relative_mount_tilt_sigma: f64,
 }
 
 impl Default for FilterParams {
@@ -66,6 +98,10 @@ impl Default for FilterParams {
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
             gyro_bias_walk: 2e-5,
+            wheel_slip_sigma: [0.0; 2],
+            wheel_slip_walk: [0.0; 2],
+            wheel_slip_turn_walk: 0.0,
+            relative_mount_tilt_sigma: 0.0,
         }
     }
 }
@@ -135,16 +171,49 @@ pub struct State {
     pub covariance: Matrix6<f64>,
     /// The residual gyro bias, rad/s, body frame.
     pub gyro_bias: Vector3<f64>,
-    /// Covariance of the whole error state (δp, δθ, δb).
-    full: SMatrix<f64, 9, 9>,
+    /// The wheels' slip: along-track scale error, sideways slide per metre driven.
+    pub wheel_slip: Vector2<f64>,
+    /// The relative measurements' mount tilt: rotation about the body's x and y axes, rad.
+    pub relative_mount_tilt: Vector2<f64>,
+    /// Covariance of the whole error state (δp, δθ, δb, δσ, δε).
+    full: SMatrix<f64, N, N>,
 }
 
 impl State {
-    fn new(stamp: Time, pose: Isometry3<f64>, covariance: Matrix6<f64>, bias_sigma: f64) -> State {
-        let mut full = SMatrix::<f64, 9, 9>::zeros();
+    fn new(stamp: Time, pose: Isometry3<f64>, covariance: Matrix6<f64>, p: &FilterParams) -> State {
+        let mut full = SMatrix::<f64, N, N>::zeros();
         full.fixed_view_mut::<6, 6>(0, 0).copy_from(&covariance);
-        full.fixed_view_mut::<3, 3>(6, 6).copy_from(&(Matrix3::identity() * bias_sigma * bias_sigma));
-        State { stamp, pose, covariance, gyro_bias: Vector3::zeros(), full }
+        for i in 0..3 {
+            full[(BIAS + i, BIAS + i)] = p.gyro_bias_sigma.powi(2);
+        }
+        for i in 0..2 {
+            full[(SLIP + i, SLIP + i)] = p.wheel_slip_sigma[i].powi(2);
+            full[(MOUNT + i, MOUNT + i)] = p.relative_mount_tilt_sigma.powi(2);
+        }
+        State {
+            stamp,
+            pose,
+            covariance,
+            gyro_bias: Vector3::zeros(),
+            wheel_slip: Vector2::zeros(),
+            relative_mount_tilt: Vector2::zeros(),
+            full,
+        }
+    }
+
+    /// The 1 sigma uncertainty of the two states from `at`.
+    fn sigma2(&self, at: usize) -> Vector2<f64> {
+        Vector2::new(self.full[(at, at)], self.full[(at + 1, at + 1)]).map(|v| v.max(0.0).sqrt())
+    }
+
+    /// The 1 sigma uncertainty of `wheel_slip`.
+    pub fn wheel_slip_sigma(&self) -> Vector2<f64> {
+        self.sigma2(SLIP)
+    }
+
+    /// The 1 sigma uncertainty of `relative_mount_tilt`.
+    pub fn relative_mount_tilt_sigma(&self) -> Vector2<f64> {
+        self.sigma2(MOUNT)
     }
 }
 
@@ -171,42 +240,66 @@ pub struct PoseFilter {
     pending: Vec<RelativePose>,
 }
 
-/// Error-state size, and with a clone.
-const N: usize = 9;
-type M18 = SMatrix<f64, 18, 18>;
+/// Where the gyro bias, the wheel slip and the relative measurements' mount tilt are in the error
+/// state.
+const BIAS: usize = 6;
+const SLIP: usize = 9;
+const MOUNT: usize = 11;
+/// Error-state size: pose (6), gyro bias (3), wheel slip (2), mount tilt (2).
+const N: usize = 13;
+/// With a clone of the pose (the clone is never propagated: it needs no bias or slip).
+const A: usize = N + 6;
+type MA = SMatrix<f64, A, A>;
 
-/// The states a gravity update does not correct: the heading (δθ_z) and the gyro bias, the
-/// clone's too (its bias rows are a copy nothing reads).
-const CONSIDERED_BY_GRAVITY: [usize; 8] = [5, 6, 7, 8, N + 5, N + 6, N + 7, N + 8];
+/// The states a gravity update does not correct: the heading (δθ_z), the gyro bias, the wheel
+/// slip, the mount tilt and the clone's heading. Without a clone, the first `N_CONSIDERED` of them.
+const CONSIDERED_BY_GRAVITY: [usize; 9] = [5, 6, 7, 8, SLIP, SLIP + 1, MOUNT, MOUNT + 1, N + 5];
+const N_CONSIDERED: usize = CONSIDERED_BY_GRAVITY.len() - 1;
+
+/// The states a relative measurement does not correct: the mount tilt. Against the wheels it is
+/// learnt from their vertical, which is no better known: the body rides pitched on its
+/// suspension (in a traverse sweep the learnt tilt reached 0.7 deg, beyond its 0.5 deg prior, and
+/// every run ended with the height 0.1-0.4 m low). Its uncertainty still counts in the
+/// covariance, as the drift it makes grows: with the distance.
+const CONSIDERED_BY_RELATIVE: [usize; 2] = [MOUNT, MOUNT + 1];
 
 /// The state being re-run, with an optional clone of an earlier pose (stochastic cloning).
 struct Augmented {
     pose: Isometry3<f64>,
     bias: Vector3<f64>,
+    slip: Vector2<f64>,
+    mount: Vector2<f64>,
     clone: Option<Isometry3<f64>>,
-    /// Covariance of (δx, δx_clone); only the top-left 9x9 block without a clone.
-    p: M18,
+    /// Covariance of (δx, δpose_clone); only the top-left N x N block without a clone.
+    p: MA,
 }
 
 impl Augmented {
     fn new(s: &State) -> Augmented {
-        let mut p = M18::zeros();
+        let mut p = MA::zeros();
         p.fixed_view_mut::<N, N>(0, 0).copy_from(&s.full);
-        Augmented { pose: s.pose, bias: s.gyro_bias, clone: None, p }
+        Augmented {
+            pose: s.pose,
+            bias: s.gyro_bias,
+            slip: s.wheel_slip,
+            mount: s.relative_mount_tilt,
+            clone: None,
+            p,
+        }
     }
 
     fn start_clone(&mut self) {
-        let pxx = self.p.fixed_view::<N, N>(0, 0).into_owned();
-        self.p.fixed_view_mut::<N, N>(0, N).copy_from(&pxx);
-        self.p.fixed_view_mut::<N, N>(N, 0).copy_from(&pxx);
-        self.p.fixed_view_mut::<N, N>(N, N).copy_from(&pxx);
+        let rows = self.p.fixed_view::<6, N>(0, 0).into_owned();
+        self.p.fixed_view_mut::<6, N>(N, 0).copy_from(&rows);
+        self.p.fixed_view_mut::<N, 6>(0, N).copy_from(&rows.transpose());
+        self.p.fixed_view_mut::<6, 6>(N, N).copy_from(&rows.fixed_view::<6, 6>(0, 0));
         self.clone = Some(self.pose);
     }
 
     fn drop_clone(&mut self) {
         self.clone = None;
         let pxx = self.p.fixed_view::<N, N>(0, 0).into_owned();
-        self.p = M18::zeros();
+        self.p = MA::zeros();
         self.p.fixed_view_mut::<N, N>(0, 0).copy_from(&pxx);
     }
 
@@ -214,7 +307,15 @@ impl Augmented {
         let mut full = self.p.fixed_view::<N, N>(0, 0).into_owned();
         full = (full + full.transpose()) * 0.5;
         let covariance = full.fixed_view::<6, 6>(0, 0).into_owned();
-        State { stamp, pose: self.pose, covariance, gyro_bias: self.bias, full }
+        State {
+            stamp,
+            pose: self.pose,
+            covariance,
+            gyro_bias: self.bias,
+            wheel_slip: self.slip,
+            relative_mount_tilt: self.mount,
+            full,
+        }
     }
 
     /// One filter step: the prediction over `dt` seconds with `inc`, then its gravity correction.
@@ -228,20 +329,27 @@ impl Augmented {
     /// One step of `dt` seconds with increment `inc`.
     fn predict(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
         let r = self.pose.rotation.to_rotation_matrix().into_inner();
-        let rd = r * inc.translation;
+        let d = inc.translation;
+        // The slip's Jacobian J: along-track scale, sideways slide per metre driven.
+        let mut j = SMatrix::<f64, 3, 2>::zeros();
+        j[(0, 0)] = d.x;
+        j[(1, 1)] = d.x.abs();
+        let rd = r * (d + j * self.slip);
+        let rj = r * j;
         let gdt = inc.gyro_dt.max(0.0);
         let rotation = self.pose.rotation * inc.rotation * UnitQuaternion::from_scaled_axis(-self.bias * gdt);
         let r_next = rotation.to_rotation_matrix().into_inner();
-        // P <- F P F^T + Q with F = I except F[p, θ] = -[R d]x and F[θ, b] = -R' Δt_gyro: rows,
-        // then columns (each from the blocks as they were).
+        // P <- F P F^T + Q with F = I except F[p, θ] = -[R d]x, F[p, σ] = R J and
+        // F[θ, b] = -R' Δt_gyro: rows, then columns (each from the blocks as they were).
         let s = -rd.cross_matrix();
         let g = -r_next * gdt;
-        let rows_p = s * self.p.fixed_rows::<3>(3);
-        let rows_t = g * self.p.fixed_rows::<3>(6);
+        let rows_p = s * self.p.fixed_rows::<3>(3) + rj * self.p.fixed_rows::<2>(SLIP);
+        let rows_t = g * self.p.fixed_rows::<3>(BIAS);
         self.p.fixed_rows_mut::<3>(0).add_assign(&rows_p);
         self.p.fixed_rows_mut::<3>(3).add_assign(&rows_t);
-        let cols_p = self.p.fixed_columns::<3>(3) * s.transpose();
-        let cols_t = self.p.fixed_columns::<3>(6) * g.transpose();
+        let cols_p =
+            self.p.fixed_columns::<3>(3) * s.transpose() + self.p.fixed_columns::<2>(SLIP) * rj.transpose();
+        let cols_t = self.p.fixed_columns::<3>(BIAS) * g.transpose();
         self.p.fixed_columns_mut::<3>(0).add_assign(&cols_p);
         self.p.fixed_columns_mut::<3>(3).add_assign(&cols_t);
         let mut q = self.p.fixed_view_mut::<3, 3>(0, 0);
@@ -253,23 +361,33 @@ impl Augmented {
         self.p[(3, 3)] += walk;
         self.p[(4, 4)] += walk;
         let bias_walk = p.gyro_bias_walk * p.gyro_bias_walk * dt;
-        for i in 6..9 {
+        for i in BIAS..BIAS + 3 {
             self.p[(i, i)] += bias_walk;
         }
+        let travelled = d.norm();
+        for i in 0..2 {
+            self.p[(SLIP + i, SLIP + i)] += p.wheel_slip_walk[i].powi(2) * travelled;
+        }
+        self.p[(SLIP + 1, SLIP + 1)] += p.wheel_slip_turn_walk.powi(2) * inc.rotation.scaled_axis().z.abs();
         self.pose = Isometry3::from_parts(Translation3::from(self.pose.translation.vector + rd), rotation);
     }
 
     /// A Kalman update with innovation `y` (measured minus predicted), Jacobian `h` of the predicted
-    /// measurement with respect to the error state, and noise `n`. Returns the squared Mahalanobis
-    /// distance; with a gate `(from, gate)`, refuses (and returns it) when the distance of the
-    /// innovation's rows from `from` on exceeds the gate.
+    /// measurement with respect to the error state, and noise `n`, the states `considered` not
+    /// corrected ([`consider_update`]). Returns the squared Mahalanobis distance; with a gate
+    /// `(from, gate)`, refuses (and returns it) when the distance of the innovation's rows from
+    /// `from` on exceeds the gate.
     fn update<const M: usize>(
         &mut self,
         y: &SVector<f64, M>,
-        h: &SMatrix<f64, M, 18>,
+        h: &SMatrix<f64, M, A>,
         n: &SMatrix<f64, M, M>,
         gate: Option<(usize, f64)>,
+        considered: &[usize],
     ) -> Result<f64, f64> {
+        // S as H P H^T: with no states considered the update's arithmetic is the plain filter's,
+        // to the bit, whatever states there are (zero rows add exact zeros).
+        let pht = self.p * h.transpose();
         let s = h * self.p * h.transpose() + n;
         let Some(s_inv) = s.try_inverse() else { return Err(f64::INFINITY) };
         let d2 = (y.transpose() * s_inv * y)[0];
@@ -282,7 +400,12 @@ impl Augmented {
                 return Err(gd2);
             }
         }
-        let k = self.p * h.transpose() * s_inv;
+        if !considered.is_empty() {
+            let dx = consider_update(&mut self.p, &pht, &s, y, considered).ok_or(f64::INFINITY)?;
+            self.apply(&dx);
+            return Ok(d2);
+        }
+        let k = pht * s_inv;
         let dx = k * y;
         // P - K S K^T (cheaper than Joseph's form; symmetrized where a state is stored).
         self.p -= k * s * k.transpose();
@@ -291,9 +414,10 @@ impl Augmented {
     }
 
     /// The accelerometer's vertical corrects the state, the tilt only: the heading (the rotation
-    /// about the `map` vertical, here and in a clone) and the gyro bias are consider states of
-    /// this update (Schmidt-Kalman: their gain rows are zero, their covariance unchanged, their
-    /// correlations with the corrected states kept right). Gravity cannot see the heading; it reached it, and
+    /// about the `map` vertical, here and in a clone), the gyro bias, the wheels' slip and the
+    /// mount tilt are consider states of this update (Schmidt-Kalman: their gain rows are zero,
+    /// their covariance unchanged, their correlations with the corrected states kept right).
+    /// Gravity cannot see the heading; it reached it, and
     /// the body-z bias, only through correlations built by the bias on sloped ground, so that the
     /// vertical's errors that are no white noise (vibration in skid turns, what is left of the
     /// centripetal and linear accelerations, the accelerometer's bias) were learnt as a heading
@@ -307,13 +431,16 @@ impl Augmented {
         let hb = rt * Vector3::z().cross_matrix();
         let n = Matrix3::identity() * sigma * sigma;
         // Without a clone its rows and columns are zero: the update of the state's own block.
-        let mut dx = SVector::<f64, 18>::zeros();
+        let mut dx = SVector::<f64, A>::zeros();
         if self.clone.is_some() {
-            let Some(d) = consider_update(&mut self.p, &hb, &y, &n, &CONSIDERED_BY_GRAVITY) else { return };
+            let (pht, s) = rotation_only(&self.p, &hb, &n);
+            let Some(d) = consider_update(&mut self.p, &pht, &s, &y, &CONSIDERED_BY_GRAVITY) else { return };
             dx = d;
         } else {
             let mut p = self.p.fixed_view::<N, N>(0, 0).into_owned();
-            let Some(d) = consider_update(&mut p, &hb, &y, &n, &CONSIDERED_BY_GRAVITY[..4]) else { return };
+            let (pht, s) = rotation_only(&p, &hb, &n);
+            let considered = &CONSIDERED_BY_GRAVITY[..N_CONSIDERED];
+            let Some(d) = consider_update(&mut p, &pht, &s, &y, considered) else { return };
             self.p.fixed_view_mut::<N, N>(0, 0).copy_from(&p);
             dx.fixed_rows_mut::<N>(0).copy_from(&d);
         }
@@ -321,40 +448,62 @@ impl Augmented {
     }
 
     /// Applies an error-state correction to the state (and the clone).
-    fn apply(&mut self, dx: &SVector<f64, 18>) {
+    fn apply(&mut self, dx: &SVector<f64, A>) {
         let apply = |pose: &mut Isometry3<f64>, d: SVector<f64, 6>| {
             pose.translation.vector += Vector3::new(d[0], d[1], d[2]);
             pose.rotation = UnitQuaternion::from_scaled_axis(Vector3::new(d[3], d[4], d[5])) * pose.rotation;
         };
         apply(&mut self.pose, dx.fixed_rows::<6>(0).into_owned());
-        self.bias += dx.fixed_rows::<3>(6);
+        self.bias += dx.fixed_rows::<3>(BIAS);
+        self.slip += dx.fixed_rows::<2>(SLIP);
+        self.mount += dx.fixed_rows::<2>(MOUNT);
         if let Some(c) = &mut self.clone {
             apply(c, dx.fixed_rows::<6>(N).into_owned());
         }
     }
 
-    fn relative(&mut self, m: &RelativePose, gate: f64) -> Result<f64, f64> {
+    /// A relative measurement between the clone and the state: the measured translation taken back
+    /// through the mount tilt's estimate, compared with the filter's motion; the residual's
+    /// Jacobian covers the tilt (the rotation's dependence on it is of second order).
+    /// `considered`: the mount tilt's states ([`CONSIDERED_BY_RELATIVE`]), or none when it is
+    /// taken as calibrated.
+    fn relative(&mut self, m: &RelativePose, gate: f64, considered: &[usize]) -> Result<f64, f64> {
+        let (y, h) = self.relative_model(m);
+        // Gated on the rotation only: the gyro that predicted it is reliable, while the wheels that
+        // predicted the translation slip by more than any Gaussian says (a spinning wheel, a
+        // stall) exactly when vision matters most.
+        self.update(&y, &h, &m.covariance, Some((3, gate)), considered)
+    }
+
+    /// The innovation of a relative measurement (measured minus predicted, translation then
+    /// rotation) and its Jacobian with respect to the augmented error state.
+    fn relative_model(&self, m: &RelativePose) -> (Vector6<f64>, SMatrix<f64, 6, A>) {
         let a = self.clone.expect("a clone for a relative measurement");
         let b = self.pose;
         let ra = a.rotation.to_rotation_matrix().into_inner();
         let rb = b.rotation.to_rotation_matrix().into_inner();
         let dp = b.translation.vector - a.translation.vector;
-        let r_p = ra.transpose() * dp - m.delta.translation.vector;
+        let t_measured = m.delta.translation.vector;
+        let t_corrected = if self.mount == Vector2::zeros() {
+            t_measured
+        } else {
+            UnitQuaternion::from_scaled_axis(Vector3::new(-self.mount.x, -self.mount.y, 0.0)) * t_measured
+        };
+        let r_p = ra.transpose() * dp - t_corrected;
         let e = m.delta.rotation.inverse() * a.rotation.inverse() * b.rotation;
         let r_t = e.scaled_axis();
         let mut y = Vector6::zeros();
         y.fixed_rows_mut::<3>(0).copy_from(&-r_p);
         y.fixed_rows_mut::<3>(3).copy_from(&-r_t);
-        let mut h = SMatrix::<f64, 6, 18>::zeros();
+        let mut h = SMatrix::<f64, 6, A>::zeros();
         h.fixed_view_mut::<3, 3>(0, 0).copy_from(&ra.transpose());
         h.fixed_view_mut::<3, 3>(0, N).copy_from(&-ra.transpose());
         h.fixed_view_mut::<3, 3>(0, N + 3).copy_from(&(ra.transpose() * dp.cross_matrix()));
         h.fixed_view_mut::<3, 3>(3, 3).copy_from(&rb.transpose());
         h.fixed_view_mut::<3, 3>(3, N + 3).copy_from(&-rb.transpose());
-        // Gated on the rotation only: the gyro that predicted it is reliable, while the wheels that
-        // predicted the translation slip by more than any Gaussian says (a spinning wheel, a
-        // stall) exactly when vision matters most.
-        self.update(&y, &h, &m.covariance, Some((3, gate)))
+        // The measured motion is Exp(ε) u for the body's u: δε moves it by -[u]x δε.
+        h.fixed_view_mut::<3, 2>(0, MOUNT).copy_from(&(-t_corrected.cross_matrix()).fixed_columns::<2>(0));
+        (y, h)
     }
 
     /// The squared Mahalanobis distance of a landmark fix from the current state.
@@ -374,8 +523,8 @@ impl Augmented {
         let r = self.pose.rotation.to_rotation_matrix().into_inner();
         let drift = r * Vector3::new(y.x, y.y, y.z);
         let states: &[usize] = if self.clone.is_some() { &[0, N] } else { &[0] };
-        let mut g_position = SVector::<f64, 18>::zeros();
-        let mut g_heading = SVector::<f64, 18>::zeros();
+        let mut g_position = SVector::<f64, A>::zeros();
+        let mut g_heading = SVector::<f64, A>::zeros();
         for &o in states {
             g_position.fixed_rows_mut::<3>(o).copy_from(&drift);
             g_heading[o + 5] = y.w;
@@ -387,28 +536,38 @@ impl Augmented {
     /// when one is given.
     fn landmark(&mut self, fix: &LandmarkFix, gate: Option<f64>) -> Result<f64, f64> {
         let (y, h6, n) = fix.model(&self.pose);
-        let mut h = SMatrix::<f64, 4, 18>::zeros();
+        let mut h = SMatrix::<f64, 4, A>::zeros();
         h.fixed_view_mut::<4, 6>(0, 0).copy_from(&h6);
-        self.update(&y, &h, &n, gate.map(|g| (0, g)))
+        self.update(&y, &h, &n, gate.map(|g| (0, g)), &[])
     }
 }
 
-/// A Schmidt-Kalman update of covariance `p` (D states) by a measurement with innovation `y`,
-/// noise `n` and Jacobian `hb` on the rotation block alone (columns 3..6), the states `considered`
-/// not corrected: their gain rows are zero, their own block unchanged, their correlations with the
-/// corrected states kept right. Returns the correction. With Ks the gain with those rows zeroed and
-/// A = Ks (P H^T)^T, the Joseph form P - Ks H P - P H^T Ks^T + Ks S Ks^T is P - A on the corrected
-/// rows and P - A^T on the considered ones (Ks S is P H^T with the considered rows zeroed), one
-/// outer product. Symmetric up to rounding; symmetrized where a state is stored.
-fn consider_update<const D: usize>(
-    p: &mut SMatrix<f64, D, D>,
+/// P H^T and the innovation's covariance S = H P H^T + `n` of a measurement whose Jacobian `hb` is
+/// on the rotation block alone (columns 3..6): the products take only the columns it touches.
+fn rotation_only<const D: usize>(
+    p: &SMatrix<f64, D, D>,
     hb: &Matrix3<f64>,
-    y: &Vector3<f64>,
     n: &Matrix3<f64>,
-    considered: &[usize],
-) -> Option<SVector<f64, D>> {
+) -> (SMatrix<f64, D, 3>, Matrix3<f64>) {
     let pht: SMatrix<f64, D, 3> = p.fixed_columns::<3>(3) * hb.transpose();
     let s = hb * pht.fixed_rows::<3>(3) + n;
+    (pht, s)
+}
+
+/// A Schmidt-Kalman update of covariance `p` (D states) by a measurement with innovation `y`,
+/// `pht` = P H^T and innovation covariance `s`, the states `considered` not corrected: their gain
+/// rows are zero, their own block unchanged, their correlations with the corrected states kept
+/// right. Returns the correction. With Ks the gain with those rows zeroed and A = Ks (P H^T)^T, the
+/// Joseph form P - Ks H P - P H^T Ks^T + Ks S Ks^T is P - A on the corrected rows and P - A^T on
+/// the considered ones (Ks S is P H^T with the considered rows zeroed), one outer product.
+/// Symmetric up to rounding; symmetrized where a state is stored.
+fn consider_update<const D: usize, const M: usize>(
+    p: &mut SMatrix<f64, D, D>,
+    pht: &SMatrix<f64, D, M>,
+    s: &SMatrix<f64, M, M>,
+    y: &SVector<f64, M>,
+    considered: &[usize],
+) -> Option<SVector<f64, D>> {
     let mut ks = pht * s.try_inverse()?;
     for &i in considered {
         ks.row_mut(i).fill(0.0);
@@ -431,7 +590,7 @@ impl PoseFilter {
         params: FilterParams,
     ) -> PoseFilter {
         PoseFilter {
-            base: State::new(stamp, pose, covariance, params.gyro_bias_sigma),
+            base: State::new(stamp, pose, covariance, &params),
             params,
             steps: VecDeque::new(),
             last_relative_end: None,
@@ -501,7 +660,9 @@ impl PoseFilter {
             self.advance_step(&mut a, k);
         }
         // Refused, a re-run reproduces what the steps were.
-        let outcome = a.relative(&m, self.params.relative_gate);
+        let considered: &[usize] =
+            if self.params.relative_mount_tilt_sigma > 0.0 { &CONSIDERED_BY_RELATIVE } else { &[] };
+        let outcome = a.relative(&m, self.params.relative_gate, considered);
         a.drop_clone();
         if ia < ib {
             self.store(ib - 1, &a);
@@ -599,6 +760,8 @@ impl PoseFilter {
 
 #[cfg(test)]
 mod bias_tests;
+#[cfg(test)]
+mod calibration_tests;
 #[cfg(test)]
 mod tests;
 #[cfg(test)]

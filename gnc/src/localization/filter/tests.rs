@@ -86,14 +86,26 @@ fn params() -> FilterParams {
     FilterParams { gravity_sigma: 0.02, ..Default::default() }
 }
 
+/// The filter with the wheels' slip and the mount tilt estimated.
+fn params_with_states() -> FilterParams {
+    FilterParams {
+        wheel_slip_sigma: [0.05, 0.05],
+        wheel_slip_walk: [0.01, 0.01],
+        wheel_slip_turn_walk: 0.03,
+        relative_mount_tilt_sigma: 0.01,
+        ..params()
+    }
+}
+
 /// Runs the filter, handing each relative measurement in `delay` steps after its end.
 fn run(
     poses: &[Isometry3<f64>],
     inc: &[Increment],
     rel: &[RelativePose],
     delay: usize,
+    params: FilterParams,
 ) -> (PoseFilter, Vec<State>) {
-    let mut f = PoseFilter::new(stamp(0), poses[0], Matrix6::identity() * 1e-6, params());
+    let mut f = PoseFilter::new(stamp(0), poses[0], Matrix6::identity() * 1e-6, params);
     let mut states = Vec::new();
     for (i, step) in inc.iter().enumerate() {
         for o in f.predict(step.clone()) {
@@ -107,16 +119,22 @@ fn run(
     (f, states)
 }
 
+/// With the slip and mount states or without.
 #[test]
 fn late_relative_measurements_give_the_same_result_as_timely_ones() {
+    late_relative_measurements_give_the_same_result(params());
+    late_relative_measurements_give_the_same_result(params_with_states());
+}
+
+fn late_relative_measurements_give_the_same_result(params: FilterParams) {
     let poses = truth(500);
     let mut g = Gauss(7);
     let inc = increments(&poses, &mut g, 0.002, 0.001, 0.01);
     let rel = relatives(&poses, 10, &mut g, 0.002);
-    let (timely, _) = run(&poses, &inc, &rel, 0);
-    let (late, _) = run(&poses, &inc, &rel, 7);
+    let (timely, _) = run(&poses, &inc, &rel, 0, params);
+    let (late, _) = run(&poses, &inc, &rel, 7, params);
     // Measurements that end in the future wait for the filter to get there.
-    let mut early = PoseFilter::new(stamp(0), poses[0], Matrix6::identity() * 1e-6, params());
+    let mut early = PoseFilter::new(stamp(0), poses[0], Matrix6::identity() * 1e-6, params);
     for (i, step) in inc.iter().enumerate() {
         for m in rel.iter().filter(|m| m.from == stamp(i)) {
             assert!(early.relative(m.clone()).expect("deferred").is_nan());
@@ -129,7 +147,8 @@ fn late_relative_measurements_give_the_same_result_as_timely_ones() {
     let (a, b) = (timely.state(), late.state());
     let c = early.state();
     assert_eq!(a.pose, c.pose);
-    assert_eq!(a.covariance, c.covariance);
+    assert_eq!(a.full, c.full);
+    assert_eq!((a.wheel_slip, a.relative_mount_tilt), (c.wheel_slip, c.relative_mount_tilt));
     // The late run misses the measurement that ended within the last `delay` steps.
     let mut late = late;
     for m in rel.iter().filter(|m| m.to > stamp(inc.len() - 7)) {
@@ -138,7 +157,31 @@ fn late_relative_measurements_give_the_same_result_as_timely_ones() {
     let b2 = late.state();
     assert_ne!(b.pose, b2.pose);
     assert_eq!(a.pose, b2.pose);
-    assert_eq!(a.covariance, b2.covariance);
+    assert_eq!(a.full, b2.full);
+    assert_eq!((a.wheel_slip, a.relative_mount_tilt), (b2.wheel_slip, b2.relative_mount_tilt));
+}
+
+/// Not estimated (the defaults), the slip and mount states stay exactly zero with no
+/// covariance through predictions, gravity and relative updates: the filter is the one without
+/// them. Estimated, vision teaches the slip.
+#[test]
+fn slip_and_mount_states_that_are_off_stay_out_of_the_filter() {
+    let poses = truth(500);
+    let mut g = Gauss(9);
+    let inc = increments(&poses, &mut g, 0.002, 0.001, 0.01);
+    let rel = relatives(&poses, 10, &mut g, 0.002);
+    let (off, _) = run(&poses, &inc, &rel, 3, params());
+    let s = off.state();
+    assert_eq!((s.wheel_slip, s.relative_mount_tilt), (Vector2::zeros(), Vector2::zeros()));
+    for i in SLIP..N {
+        assert!(s.full.row(i).iter().chain(s.full.column(i).iter()).all(|v| *v == 0.0), "state {i}");
+    }
+    let (on, _) = run(&poses, &inc, &rel, 3, params_with_states());
+    let s = on.state();
+    assert!(s.wheel_slip != Vector2::zeros() && s.wheel_slip_sigma().x < 0.05);
+    // The mount tilt is considered, never learnt from vision: unchanged, its uncertainty too.
+    assert_eq!(s.relative_mount_tilt, Vector2::zeros());
+    assert!((s.relative_mount_tilt_sigma() - Vector2::repeat(0.01)).abs().max() < 1e-15);
 }
 
 #[test]
@@ -208,7 +251,7 @@ fn the_covariance_is_consistent_with_the_error() {
         let mut g = Gauss(100 + seed);
         let inc = increments(&poses, &mut g, 0.002, 0.0005, 0.01);
         let rel = relatives(&poses, 10, &mut g, 0.003);
-        let (f, _) = run(&poses, &inc, &rel, 3);
+        let (f, _) = run(&poses, &inc, &rel, 3, params());
         let s = f.state();
         let t = poses[inc.len()];
         let dp = t.translation.vector - s.pose.translation.vector;
@@ -276,7 +319,8 @@ fn the_consider_update_is_the_joseph_form_with_the_considered_gains_zeroed() {
         }
         let joseph = p - ks * h * p - p * h.transpose() * ks.transpose() + ks * s * ks.transpose();
         let mut q = p;
-        let dx = consider_update(&mut q, hb, y, n, c).unwrap();
+        let (pht, s_rot) = rotation_only(&q, hb, n);
+        let dx = consider_update(&mut q, &pht, &s_rot, y, c).unwrap();
         assert!((q - joseph).abs().max() < 1e-12, "{}", (q - joseph).abs().max());
         assert!((dx - ks * y).abs().max() < 1e-12);
         // The considered states' own block is unchanged.
@@ -286,6 +330,23 @@ fn the_consider_update_is_the_joseph_form_with_the_considered_gains_zeroed() {
             }
         }
     }
-    check::<9>(&mut g, &hb, &y, &n, &CONSIDERED_BY_GRAVITY[..4]);
-    check::<18>(&mut g, &hb, &y, &n, &CONSIDERED_BY_GRAVITY);
+    check::<N>(&mut g, &hb, &y, &n, &CONSIDERED_BY_GRAVITY[..N_CONSIDERED]);
+    check::<A>(&mut g, &hb, &y, &n, &CONSIDERED_BY_GRAVITY);
+    // A relative measurement's: any H over the augmented state, the mount tilt considered.
+    let l = SMatrix::<f64, A, A>::from_fn(|_, _| g.next() * 0.1);
+    let p = l * l.transpose() + SMatrix::<f64, A, A>::identity() * 1e-3;
+    let h = SMatrix::<f64, 6, A>::from_fn(|_, _| g.next());
+    let n = Matrix6::identity() * 1e-3;
+    let y = Vector6::from_fn(|_, _| g.next() * 0.01);
+    let s = h * p * h.transpose() + n;
+    let mut ks = p * h.transpose() * s.try_inverse().unwrap();
+    for &i in &CONSIDERED_BY_RELATIVE {
+        ks.row_mut(i).fill(0.0);
+    }
+    let joseph = p - ks * h * p - p * h.transpose() * ks.transpose() + ks * s * ks.transpose();
+    let mut q = p;
+    let dx = consider_update(&mut q, &(p * h.transpose()), &s, &y, &CONSIDERED_BY_RELATIVE).unwrap();
+    assert!((q - joseph).abs().max() < 1e-10, "{}", (q - joseph).abs().max());
+    assert!((dx - ks * y).abs().max() < 1e-12);
+    assert_eq!(dx.fixed_rows::<2>(MOUNT).into_owned(), Vector2::zeros());
 }

@@ -605,17 +605,14 @@ pub fn gravity_direction(
 /// The filter's slip and mount-tilt parameters: finite, not negative, a walk only for a slip that
 /// is estimated, a tilt small enough for the filter's small-angle model.
 fn validate_states(p: &FusionParams) -> Result<(), String> {
-    let states = [
+    crate::params::require_non_negative(&[
         ("wheel_slip_sigma", p.wheel_slip_sigma[0]),
         ("wheel_slip_sigma", p.wheel_slip_sigma[1]),
         ("wheel_slip_walk", p.wheel_slip_walk[0]),
         ("wheel_slip_walk", p.wheel_slip_walk[1]),
         ("wheel_slip_turn_walk", p.wheel_slip_turn_walk),
         ("visual_mount_tilt_sigma_deg", p.visual_mount_tilt_sigma_deg),
-    ];
-    if let Some((name, v)) = states.iter().find(|(_, v)| !v.is_finite() || *v < 0.0) {
-        return Err(format!("{name} must be finite and not negative, got {v}"));
-    }
+    ])?;
     let walks = [p.wheel_slip_walk[0], p.wheel_slip_walk[1].max(p.wheel_slip_turn_walk)];
     if let Some(i) = (0..2).find(|&i| walks[i] > 0.0 && p.wheel_slip_sigma[i] == 0.0) {
         let which = ["along-track scale", "sideways slide"][i];

@@ -12,18 +12,7 @@ fn pose(t: f64) -> Isometry3<f64> {
     )
 }
 
-/// Deterministic Gaussian numbers (LCG + Box-Muller).
-struct Gauss(u64);
-impl Gauss {
-    fn next(&mut self) -> f64 {
-        let mut uniform = || {
-            self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-            ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-        };
-        let (a, b) = (uniform(), uniform());
-        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
-    }
-}
+use super::tests::Gauss;
 
 /// Drives 100 s (30 m) on wheels that slip `slip` (the body moves (1 + slip.x) times as far as
 /// they say, and slides slip.y sideways per metre), claiming the fusion's white slip noise of

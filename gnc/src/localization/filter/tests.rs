@@ -1,13 +1,13 @@
 use super::*;
 
-/// Deterministic Gaussian numbers (LCG + Box-Muller).
-struct Gauss(u64);
+/// Deterministic Gaussian numbers (LCG + Box-Muller), shared with the calibration tests.
+pub(super) struct Gauss(pub(super) u64);
 impl Gauss {
     fn uniform(&mut self) -> f64 {
         self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((self.0 >> 11) as f64 + 0.5) / (1u64 << 53) as f64
     }
-    fn next(&mut self) -> f64 {
+    pub(super) fn next(&mut self) -> f64 {
         let (a, b) = (self.uniform(), self.uniform());
         (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
     }

@@ -55,6 +55,45 @@ fn inverse_kinematics_round_trips_forward_kinematics_within_a_millimetre_and_a_t
     assert!(worst_mm < 1.0 && worst_deg < 0.1, "worst {worst_mm:.4} mm, {worst_deg:.4} deg");
 }
 
+/// The tool moved straight up from `q` in 2 cm steps, each solved from the one before with no
+/// other start (as ManipulatorControl's lifts are): the arm's values, or the step that failed.
+fn lift(arm: &ArmKinematics, q: &[f64], height: f64) -> Result<Vec<f64>, String> {
+    let start = arm.forward(q).unwrap();
+    let n = (height / 0.02).ceil() as usize;
+    let mut seed = q.to_vec();
+    for k in 1..=n {
+        let goal = Isometry3::translation(0.0, 0.0, height * k as f64 / n as f64) * start;
+        seed = arm.inverse(&goal, &seed, &[]).map_err(|e| format!("step {k}: {e}"))?;
+    }
+    Ok(seed)
+}
+
+#[test]
+fn a_stuck_lift_over_the_stowage_slot_goes_on_up_to_its_top_within_reach() {
+    // Session 39's canister run 8: after the canister was let go in the stowage slot, the open
+    // fingers' 12 cm lift (along the fingers, 2 cm a move) stuck on its fifth move, and the retry
+    // asked for 12 cm more straight up from there: beyond the wrist pitch's limit (2 rad) with the
+    // fingers down, so "the arm cannot reach that pose (0.6 mm from it at best)" ended the
+    // mission. The retry now goes up to the lift's top. The arm's values are the run's (its
+    // believed model; here the nominal one): where the lift started, and where it stuck.
+    let m = mechanism();
+    let arm = ArmKinematics::new(&m, "gripper_tcp").unwrap();
+    let start = [2.60490, -1.52137, 1.55897, -0.00988, 1.54439, 2.58469];
+    let stuck = [2.60524, -1.49868, 1.30376, -0.01432, 1.73963, 2.58581];
+    let from = arm.forward(&start).unwrap();
+    let top = from * Isometry3::translation(-0.12, 0.0, 0.0);
+    let at = arm.forward(&stuck).unwrap();
+    let rise = top.translation.z - at.translation.z;
+    assert!(rise > 0.02 && rise < 0.06, "{rise}");
+    let q = lift(&arm, &stuck, rise).unwrap_or_else(|e| panic!("{e}"));
+    let got = arm.forward(&q).unwrap();
+    assert!((got.translation.z - top.translation.z).abs() < 1e-3);
+    assert!(q[4] < 2.0);
+    // What the retry asked for before: a whole lift more, out of reach.
+    let e = lift(&arm, &stuck, 0.12).unwrap_err();
+    assert!(e.contains("cannot reach"), "{e}");
+}
+
 #[test]
 fn the_configured_poses_are_clear_and_the_tool_reaches_its_work_space_and_the_stowage_slot() {
     let m = mechanism();

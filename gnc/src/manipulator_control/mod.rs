@@ -510,7 +510,7 @@ impl ManipulatorControl {
                     if job.lifting_free && !job.lift_retried =>
                 {
                     // A finger caught firmly stalls a servo: the move fails rather than stops short.
-                    self.lift_again(ctx, job, &format!("failed: {r}"))?;
+                    self.lift_again(ctx, job, deadline.map(|(_, q)| q), &format!("failed: {r}"))?;
                 }
                 Some(AckStatus::Failed(r))
                     if r.contains("stalled") && job.planned.is_some() && job.replanned.is_none() =>
@@ -536,7 +536,7 @@ impl ManipulatorControl {
                     }
                     if far && job.lifting_free && !job.lift_retried {
                         let why = format!("stopped {:.1} mm from its goal", off * 1e3);
-                        self.lift_again(ctx, job, &why)?;
+                        self.lift_again(ctx, job, Some(goal), &why)?;
                         return Ok(None);
                     }
                     if far && job.planned.is_some() && job.replanned.is_none() {

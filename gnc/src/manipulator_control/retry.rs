@@ -6,6 +6,18 @@ use super::{Action, Group, Job, ManipulatorControl, Wait};
 use framework::prelude::*;
 use std::collections::VecDeque;
 
+/// Drops the rest of a lift (its contact moves at the front of `actions`); the last one's goal,
+/// the lift's top.
+fn drop_rest_of_lift(actions: &mut VecDeque<Action>) -> Option<Vec<f64>> {
+    let mut top = None;
+    while let Some(Action::Straight { contact: true, .. }) = actions.front() {
+        if let Some(Action::Straight { to, .. }) = actions.pop_front() {
+            top = Some(to);
+        }
+    }
+    top
+}
+
 /// The actions of a planned move that stalled, to `goal`, planned again: the rest of its
 /// segments (at the front) dropped, the motors out of fault, the move planned from where the arm
 /// is; what follows the move unchanged.
@@ -20,14 +32,27 @@ fn plan_again_from_here(actions: &mut VecDeque<Action>, goal: Vec<f64>) {
 impl ManipulatorControl {
     /// The lift of the open fingers off an object let go got stuck (`why`): a finger caught on it
     /// (a handle clamped in its slot). The rest of that lift is dropped, the motors are taken out
-    /// of fault and the tool goes straight up instead, once.
-    pub(super) fn lift_again(&mut self, ctx: &mut Ctx<'_>, job: &mut Job, why: &str) -> Result<(), String> {
+    /// of fault and the tool goes straight up instead, once, to the height the lift was going to
+    /// (its last goal among the rest, or `goal`, the move that stuck): a whole lift more from
+    /// where it stuck can be out of the arm's reach (over the stowage slot the wrist pitch is then
+    /// near its limit: session 39's canister run 8).
+    pub(super) fn lift_again(
+        &mut self,
+        ctx: &mut Ctx<'_>,
+        job: &mut Job,
+        goal: Option<Vec<f64>>,
+        why: &str,
+    ) -> Result<(), String> {
         job.lift_retried = true;
-        while matches!(job.actions.front(), Some(Action::Straight { contact: true, .. })) {
-            job.actions.pop_front();
-        }
+        let top = drop_rest_of_lift(&mut job.actions).or(goal);
         let (q, _) = self.arm_now(ctx)?;
-        let up = self.vertical(&q, self.params.lift_m)?;
+        let rise = match top {
+            Some(top) => {
+                self.kinematics.forward(&top)?.translation.z - self.kinematics.forward(&q)?.translation.z
+            }
+            None => self.params.lift_m,
+        };
+        let up = self.vertical(&q, rise.clamp(self.params.descent_step_m, self.params.lift_m))?;
         for p in up.into_iter().rev() {
             job.actions.push_front(Action::Straight { to: p, contact: true });
         }
@@ -58,7 +83,7 @@ impl ManipulatorControl {
 
 #[cfg(test)]
 mod tests {
-    use super::{Action, Group, plan_again_from_here};
+    use super::{Action, Group, drop_rest_of_lift, plan_again_from_here};
     use std::collections::VecDeque;
 
     #[test]
@@ -85,5 +110,18 @@ mod tests {
         let mut actions = VecDeque::new();
         plan_again_from_here(&mut actions, goal.clone());
         assert_eq!(Vec::from(actions), vec![Action::Recover(Group::Arm), Action::Plan(goal)]);
+    }
+
+    #[test]
+    fn a_stuck_lift_drops_its_remaining_moves_and_keeps_its_top() {
+        let step = |z: f64| Action::Straight { to: vec![z; 6], contact: true };
+        let mut actions: VecDeque<Action> =
+            VecDeque::from(vec![step(0.1), step(0.2), Action::Gripper(vec![0.04, 0.04]), step(0.3)]);
+        assert_eq!(drop_rest_of_lift(&mut actions), Some(vec![0.2; 6]));
+        assert_eq!(Vec::from(actions), vec![Action::Gripper(vec![0.04, 0.04]), step(0.3)]);
+        // Stuck on its last move: nothing left, the caller's goal is the top.
+        let mut actions = VecDeque::from(vec![Action::Straight { to: vec![0.0; 6], contact: false }]);
+        assert_eq!(drop_rest_of_lift(&mut actions), None);
+        assert_eq!(actions.len(), 1);
     }
 }

@@ -18,8 +18,8 @@
 //!
 //! The wheels' noise here is the fusion's own model of slip (per metre, along, across and up), not
 //! the wheel odometry's: it is what lets vision correct a slipping drive. Their systematic slip
-//! (`wheel_slip_sigma`: along-track scale, sideways slide per metre) is a state of the filter that
-//! vision teaches, and visual odometry's mount tilt (`visual_mount_tilt_sigma_deg`) a consider
+//! (`wheel_slip_sigma`: along-track scale, sideways slide per metre; `wheel_pitch_sigma_deg`: the
+//! rise per metre the body's x axis misses) is a state of the filter that vision teaches, and visual odometry's mount tilt (`visual_mount_tilt_sigma_deg`) a consider
 //! state whose uncertainty the covariance carries; both are noted every 10 m driven.
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
@@ -61,6 +61,14 @@ pub struct FusionParams {
     /// Random walk of the sideways slide per sqrt(rad) turned (the slope's side turns with the
     /// rover); needs the sideways slide estimated.
     pub wheel_slip_turn_walk: f64,
+    /// Uncertainty of the wheels' pitch (1 sigma), degrees, at most 10: the direction of travel
+    /// pitched up from the body's x axis (the body rides pitched on its suspension), so that the
+    /// wheels' height drifts by its tangent per metre driven; a state of the filter, which vision
+    /// teaches as well as its own mount tilt is known (0: not estimated).
+    pub wheel_pitch_sigma_deg: f64,
+    /// Random walk of the wheels' pitch per sqrt(m) travelled, degrees (the load on the
+    /// suspension changes with the slope); needs the pitch estimated.
+    pub wheel_pitch_walk_deg: f64,
     /// Uncertainty of visual odometry's mount tilt (roll and pitch of the localization pair's
     /// mounting that its calibration missed, 1 sigma), degrees, at most 5: a consider state of
     /// the filter (its uncertainty counted in every visual update, never learnt from vision and
@@ -129,6 +137,8 @@ impl Default for FusionParams {
             wheel_slip_sigma: [0.0; 2],
             wheel_slip_walk: [0.0; 2],
             wheel_slip_turn_walk: 0.0,
+            wheel_pitch_sigma_deg: 0.0,
+            wheel_pitch_walk_deg: 0.0,
             visual_mount_tilt_sigma_deg: 0.0,
             gravity_sigma: 0.02,
             tilt_random_walk: 0.003,
@@ -337,8 +347,16 @@ impl LocalizationDataFusion {
             tilt_random_walk: p.tilt_random_walk,
             gyro_bias_sigma: p.gyro_bias_sigma,
             gyro_bias_walk: p.gyro_bias_walk,
-            wheel_slip_sigma: p.wheel_slip_sigma,
-            wheel_slip_walk: p.wheel_slip_walk,
+            wheel_slip_sigma: [
+                p.wheel_slip_sigma[0],
+                p.wheel_slip_sigma[1],
+                p.wheel_pitch_sigma_deg.to_radians(),
+            ],
+            wheel_slip_walk: [
+                p.wheel_slip_walk[0],
+                p.wheel_slip_walk[1],
+                p.wheel_pitch_walk_deg.to_radians(),
+            ],
             wheel_slip_turn_walk: p.wheel_slip_turn_walk,
             relative_mount_tilt_sigma: p.visual_mount_tilt_sigma_deg.to_radians(),
         };
@@ -431,8 +449,9 @@ impl LocalizationDataFusion {
             }
             self.last_mech = Some((mech.stamp, mech.value.pose));
             self.travelled_m += ds;
-            let estimates =
-                p.wheel_slip_sigma.iter().any(|s| *s > 0.0) || p.visual_mount_tilt_sigma_deg > 0.0;
+            let estimates = p.wheel_slip_sigma.iter().any(|s| *s > 0.0)
+                || p.wheel_pitch_sigma_deg > 0.0
+                || p.visual_mount_tilt_sigma_deg > 0.0;
             // (A walk is refused without its slip estimated: `validate_states`.)
             if self.travelled_m >= self.next_slip_note_m && estimates {
                 self.next_slip_note_m += SLIP_NOTE_EVERY_M;
@@ -443,12 +462,14 @@ impl LocalizationDataFusion {
                     s.relative_mount_tilt_sigma().map(f64::to_degrees),
                 );
                 ctx.note(format!(
-                    "after {:.0} m: wheel slip along {:+.2} +/- {:.2} %, sideways {:+.2} +/- {:.2} cm per m; visual odometry's mount tilt roll {:+.3} +/- {:.3} deg, pitch {:+.3} +/- {:.3} deg",
+                    "after {:.0} m: wheel slip along {:+.2} +/- {:.2} %, sideways {:+.2} +/- {:.2} cm per m, pitch {:+.2} +/- {:.2} deg; visual odometry's mount tilt roll {:+.3} +/- {:.3} deg, pitch {:+.3} +/- {:.3} deg",
                     self.travelled_m,
                     slip.x * 100.0,
                     sigma.x * 100.0,
                     slip.y * 100.0,
                     sigma.y * 100.0,
+                    slip.z.atan().to_degrees(),
+                    sigma.z.to_degrees(),
                     tilt.x,
                     tilt_sigma.x,
                     tilt.y,
@@ -611,13 +632,27 @@ fn validate_states(p: &FusionParams) -> Result<(), String> {
         ("wheel_slip_walk", p.wheel_slip_walk[0]),
         ("wheel_slip_walk", p.wheel_slip_walk[1]),
         ("wheel_slip_turn_walk", p.wheel_slip_turn_walk),
+        ("wheel_pitch_sigma_deg", p.wheel_pitch_sigma_deg),
+        ("wheel_pitch_walk_deg", p.wheel_pitch_walk_deg),
         ("visual_mount_tilt_sigma_deg", p.visual_mount_tilt_sigma_deg),
     ])?;
-    let walks = [p.wheel_slip_walk[0], p.wheel_slip_walk[1].max(p.wheel_slip_turn_walk)];
-    if let Some(i) = (0..2).find(|&i| walks[i] > 0.0 && p.wheel_slip_sigma[i] == 0.0) {
-        let which = ["along-track scale", "sideways slide"][i];
+    let walks =
+        [p.wheel_slip_walk[0], p.wheel_slip_walk[1].max(p.wheel_slip_turn_walk), p.wheel_pitch_walk_deg];
+    let sigmas = [p.wheel_slip_sigma[0], p.wheel_slip_sigma[1], p.wheel_pitch_sigma_deg];
+    if let Some(i) = (0..3).find(|&i| walks[i] > 0.0 && sigmas[i] == 0.0) {
+        let (which, sigma) = [
+            ("along-track scale", "wheel_slip_sigma[0]"),
+            ("sideways slide", "wheel_slip_sigma[1]"),
+            ("pitch", "wheel_pitch_sigma_deg"),
+        ][i];
         return Err(format!(
-            "the wheels' {which} has a random walk but is not estimated: give wheel_slip_sigma[{i}] a value above 0, or set its walks to 0"
+            "the wheels' {which} has a random walk but is not estimated: give {sigma} a value above 0, or set its walks to 0"
+        ));
+    }
+    if p.wheel_pitch_sigma_deg > MAX_WHEEL_PITCH_SIGMA_DEG {
+        return Err(format!(
+            "wheel_pitch_sigma_deg must be at most {MAX_WHEEL_PITCH_SIGMA_DEG} (the filter takes the pitch as a small angle), got {}",
+            p.wheel_pitch_sigma_deg
         ));
     }
     if p.visual_mount_tilt_sigma_deg > MAX_MOUNT_TILT_SIGMA_DEG {
@@ -629,8 +664,10 @@ fn validate_states(p: &FusionParams) -> Result<(), String> {
     Ok(())
 }
 
-/// The largest mount tilt uncertainty the filter's small-angle model is meant for, degrees.
+/// The largest mount tilt and wheel pitch uncertainties the filter's small-angle model is meant
+/// for, degrees.
 const MAX_MOUNT_TILT_SIGMA_DEG: f64 = 5.0;
+const MAX_WHEEL_PITCH_SIGMA_DEG: f64 = 10.0;
 
 #[cfg(test)]
 mod tests {
@@ -642,6 +679,8 @@ mod tests {
             wheel_slip_sigma: [0.05, 0.05],
             wheel_slip_walk: [0.01, 0.01],
             wheel_slip_turn_walk: 0.03,
+            wheel_pitch_sigma_deg: 1.0,
+            wheel_pitch_walk_deg: 0.1,
             visual_mount_tilt_sigma_deg: 0.5,
             ..FusionParams::default()
         };
@@ -665,6 +704,12 @@ mod tests {
             FusionParams { wheel_slip_sigma: [0.05, 0.0], wheel_slip_walk: [0.01, 0.0], ..on.clone() };
         assert!(err(turn_only).contains("sideways slide"));
         assert!(err(FusionParams { visual_mount_tilt_sigma_deg: 20.0, ..on.clone() }).contains("at most 5"));
+        assert!(err(FusionParams { wheel_pitch_sigma_deg: 20.0, ..on.clone() }).contains("at most 10"));
+        assert!(
+            err(FusionParams { wheel_pitch_walk_deg: -0.1, ..on.clone() }).contains("wheel_pitch_walk_deg")
+        );
+        let pitch_walk_only = err(FusionParams { wheel_pitch_sigma_deg: 0.0, ..on.clone() });
+        assert!(pitch_walk_only.contains("wheel_pitch_sigma_deg"), "{pitch_walk_only}");
     }
 
     #[test]

@@ -5,7 +5,7 @@
 //!
 //! - State: position p, orientation R (`map` from `base_link`), a residual gyro bias b (what the
 //!   inertial module's standstill learning missed, rad/s, body frame), the wheels' slip
-//!   σ = (σ_a, σ_c) and the tilt ε = (ε_x, ε_y) of the frame the relative measurements come in;
+//!   σ = (σ_a, σ_c, σ_v) and the tilt ε = (ε_x, ε_y) of the frame the relative measurements come in;
 //!   error state δx = (δp, δθ, δb, δσ, δε) with p_true = p + δp, R_true = Exp(δθ) R (world-frame,
 //!   left perturbation), b_true = b + δb, σ_true = σ + δσ, ε_true = ε + δε. The
 //!   pose covariance is over (x, y, z) in m, then small rotations about the `map` axes in rad,
@@ -14,11 +14,15 @@
 //!   body frame; the bias walks. Vision's rotations make the bias observable: a rover that never
 //!   stood still long enough to learn it (sliding on a slope) still gets its heading right.
 //! - Wheel slip: the increment's translation d is the wheels'; the body moved d + J σ with
-//!   J = [[d_x, 0], [0, |d_x|], [0, 0]]: σ_a is the along-track scale error (a wheel spinning on
-//!   loose ground, a stall; σ_a < 0 where the body moved less than the wheels turned) and σ_c the
-//!   sideways slide per metre driven, to the body's left (down a slope, whichever way the rover
-//!   drives). Both are random walks per metre travelled; σ_c also walks per radian turned, since
-//!   a rover that turns to cross the slope the other way slides to its other side. A skid-steer rover's slip is
+//!   J = diag(d_x, |d_x|, d_x): σ_a is the along-track scale error (a wheel spinning on loose
+//!   ground, a stall; σ_a < 0 where the body moved less than the wheels turned), σ_c the sideways
+//!   slide per metre driven, to the body's left (down a slope, whichever way the rover drives),
+//!   and σ_v the rise per metre driven that the body's x axis misses: the direction of travel
+//!   pitched up from it (the body rides pitched on its suspension, by a load that changes with
+//!   the slope; in session 39's traverse sweep the fused height ended 0.2-0.4 m low over 30 m).
+//!   All are random walks per metre travelled; σ_c also walks per radian turned, since a rover
+//!   that turns to cross the slope the other way slides to its other side. Vision teaches σ_v
+//!   only as well as its own mount tilt is known. A skid-steer rover's slip is
 //!   systematic: taken as white noise per step it averages out over thousands of steps, and the
 //!   fusion followed the slipping wheels against vision. As states, vision (or a landmark) learns
 //!   them and the covariance grows with the distance, not its square root.
@@ -75,11 +79,12 @@ pub struct FilterParams {
     pub gyro_bias_sigma: f64,
     /// Random walk of the gyro bias, rad/s/sqrt(s).
     pub gyro_bias_walk: f64,
-    /// Initial uncertainty of the wheels' slip (1 sigma): along-track scale error and sideways
-    /// slide per metre driven (0: the wheels' translation is taken as it comes).
-    pub wheel_slip_sigma: [f64; 2],
+    /// Initial uncertainty of the wheels' slip (1 sigma): along-track scale error, sideways
+    /// slide per metre driven and rise per metre driven (0: the wheels' translation is taken as
+    /// it comes).
+    pub wheel_slip_sigma: [f64; 3],
     /// Random walk of the wheels' slip, per sqrt(m) travelled: the ground changes.
-    pub wheel_slip_walk: [f64; 2],
+    pub wheel_slip_walk: [f64; 3],
     /// Random walk of the sideways slide per sqrt(rad) turned: the slope's side turns with the
     /// rover.
     pub wheel_slip_turn_walk: f64,
@@ -98,8 +103,8 @@ impl Default for FilterParams {
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
             gyro_bias_walk: 2e-5,
-            wheel_slip_sigma: [0.0; 2],
-            wheel_slip_walk: [0.0; 2],
+            wheel_slip_sigma: [0.0; 3],
+            wheel_slip_walk: [0.0; 3],
             wheel_slip_turn_walk: 0.0,
             relative_mount_tilt_sigma: 0.0,
         }
@@ -171,8 +176,8 @@ pub struct State {
     pub covariance: Matrix6<f64>,
     /// The residual gyro bias, rad/s, body frame.
     pub gyro_bias: Vector3<f64>,
-    /// The wheels' slip: along-track scale error, sideways slide per metre driven.
-    pub wheel_slip: Vector2<f64>,
+    /// The wheels' slip: along-track scale error, sideways slide and rise per metre driven.
+    pub wheel_slip: Vector3<f64>,
     /// The relative measurements' mount tilt: rotation about the body's x and y axes, rad.
     pub relative_mount_tilt: Vector2<f64>,
     /// Covariance of the whole error state (δp, δθ, δb, δσ, δε).
@@ -186,8 +191,10 @@ impl State {
         for i in 0..3 {
             full[(BIAS + i, BIAS + i)] = p.gyro_bias_sigma.powi(2);
         }
-        for i in 0..2 {
+        for i in 0..3 {
             full[(SLIP + i, SLIP + i)] = p.wheel_slip_sigma[i].powi(2);
+        }
+        for i in 0..2 {
             full[(MOUNT + i, MOUNT + i)] = p.relative_mount_tilt_sigma.powi(2);
         }
         State {
@@ -195,25 +202,25 @@ impl State {
             pose,
             covariance,
             gyro_bias: Vector3::zeros(),
-            wheel_slip: Vector2::zeros(),
+            wheel_slip: Vector3::zeros(),
             relative_mount_tilt: Vector2::zeros(),
             full,
         }
     }
 
-    /// The 1 sigma uncertainty of the two states from `at`.
-    fn sigma2(&self, at: usize) -> Vector2<f64> {
-        Vector2::new(self.full[(at, at)], self.full[(at + 1, at + 1)]).map(|v| v.max(0.0).sqrt())
+    /// The 1 sigma uncertainty of the `K` states from `at`.
+    fn sigmas<const K: usize>(&self, at: usize) -> SVector<f64, K> {
+        SVector::from_fn(|i, _| self.full[(at + i, at + i)].max(0.0).sqrt())
     }
 
     /// The 1 sigma uncertainty of `wheel_slip`.
-    pub fn wheel_slip_sigma(&self) -> Vector2<f64> {
-        self.sigma2(SLIP)
+    pub fn wheel_slip_sigma(&self) -> Vector3<f64> {
+        self.sigmas(SLIP)
     }
 
     /// The 1 sigma uncertainty of `relative_mount_tilt`.
     pub fn relative_mount_tilt_sigma(&self) -> Vector2<f64> {
-        self.sigma2(MOUNT)
+        self.sigmas(MOUNT)
     }
 }
 
@@ -244,16 +251,16 @@ pub struct PoseFilter {
 /// state.
 const BIAS: usize = 6;
 const SLIP: usize = 9;
-const MOUNT: usize = 11;
-/// Error-state size: pose (6), gyro bias (3), wheel slip (2), mount tilt (2).
-const N: usize = 13;
+const MOUNT: usize = 12;
+/// Error-state size: pose (6), gyro bias (3), wheel slip (3), mount tilt (2).
+const N: usize = 14;
 /// With a clone of the pose (the clone is never propagated: it needs no bias or slip).
 const A: usize = N + 6;
 type MA = SMatrix<f64, A, A>;
 
 /// The states a gravity update does not correct: the heading (δθ_z), the gyro bias, the wheel
 /// slip, the mount tilt and the clone's heading. Without a clone, the first `N_CONSIDERED` of them.
-const CONSIDERED_BY_GRAVITY: [usize; 9] = [5, 6, 7, 8, SLIP, SLIP + 1, MOUNT, MOUNT + 1, N + 5];
+const CONSIDERED_BY_GRAVITY: [usize; 10] = [5, 6, 7, 8, SLIP, SLIP + 1, SLIP + 2, MOUNT, MOUNT + 1, N + 5];
 const N_CONSIDERED: usize = CONSIDERED_BY_GRAVITY.len() - 1;
 
 /// The states a relative measurement does not correct: the mount tilt. Against the wheels it is
@@ -267,7 +274,7 @@ const CONSIDERED_BY_RELATIVE: [usize; 2] = [MOUNT, MOUNT + 1];
 struct Augmented {
     pose: Isometry3<f64>,
     bias: Vector3<f64>,
-    slip: Vector2<f64>,
+    slip: Vector3<f64>,
     mount: Vector2<f64>,
     clone: Option<Isometry3<f64>>,
     /// Covariance of (δx, δpose_clone); only the top-left N x N block without a clone.
@@ -330,10 +337,8 @@ impl Augmented {
     fn predict(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
         let r = self.pose.rotation.to_rotation_matrix().into_inner();
         let d = inc.translation;
-        // The slip's Jacobian J: along-track scale, sideways slide per metre driven.
-        let mut j = SMatrix::<f64, 3, 2>::zeros();
-        j[(0, 0)] = d.x;
-        j[(1, 1)] = d.x.abs();
+        // The slip's Jacobian J: along-track scale, sideways slide and rise per metre driven.
+        let j = Matrix3::from_diagonal(&Vector3::new(d.x, d.x.abs(), d.x));
         let rd = r * (d + j * self.slip);
         let rj = r * j;
         let gdt = inc.gyro_dt.max(0.0);
@@ -343,12 +348,12 @@ impl Augmented {
         // F[θ, b] = -R' Δt_gyro: rows, then columns (each from the blocks as they were).
         let s = -rd.cross_matrix();
         let g = -r_next * gdt;
-        let rows_p = s * self.p.fixed_rows::<3>(3) + rj * self.p.fixed_rows::<2>(SLIP);
+        let rows_p = s * self.p.fixed_rows::<3>(3) + rj * self.p.fixed_rows::<3>(SLIP);
         let rows_t = g * self.p.fixed_rows::<3>(BIAS);
         self.p.fixed_rows_mut::<3>(0).add_assign(&rows_p);
         self.p.fixed_rows_mut::<3>(3).add_assign(&rows_t);
         let cols_p =
-            self.p.fixed_columns::<3>(3) * s.transpose() + self.p.fixed_columns::<2>(SLIP) * rj.transpose();
+            self.p.fixed_columns::<3>(3) * s.transpose() + self.p.fixed_columns::<3>(SLIP) * rj.transpose();
         let cols_t = self.p.fixed_columns::<3>(BIAS) * g.transpose();
         self.p.fixed_columns_mut::<3>(0).add_assign(&cols_p);
         self.p.fixed_columns_mut::<3>(3).add_assign(&cols_t);
@@ -365,7 +370,7 @@ impl Augmented {
             self.p[(i, i)] += bias_walk;
         }
         let travelled = d.norm();
-        for i in 0..2 {
+        for i in 0..3 {
             self.p[(SLIP + i, SLIP + i)] += p.wheel_slip_walk[i].powi(2) * travelled;
         }
         self.p[(SLIP + 1, SLIP + 1)] += p.wheel_slip_turn_walk.powi(2) * inc.rotation.scaled_axis().z.abs();
@@ -455,7 +460,7 @@ impl Augmented {
         };
         apply(&mut self.pose, dx.fixed_rows::<6>(0).into_owned());
         self.bias += dx.fixed_rows::<3>(BIAS);
-        self.slip += dx.fixed_rows::<2>(SLIP);
+        self.slip += dx.fixed_rows::<3>(SLIP);
         self.mount += dx.fixed_rows::<2>(MOUNT);
         if let Some(c) = &mut self.clone {
             apply(c, dx.fixed_rows::<6>(N).into_owned());

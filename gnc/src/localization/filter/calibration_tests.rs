@@ -15,11 +15,12 @@ fn pose(t: f64) -> Isometry3<f64> {
 use super::tests::Gauss;
 
 /// Drives 100 s (30 m) on wheels that slip `slip` (the body moves (1 + slip.x) times as far as
-/// they say, and slides slip.y sideways per metre), claiming the fusion's white slip noise of
+/// they say, slides slip.y sideways per metre and rises slip.z per metre more than they say),
+/// claiming the fusion's white slip noise of
 /// 20 % per metre, with an exact gyro and visual odometry every 0.5 s whose translations are
 /// tilted by `tilt` (its mount's roll and pitch, rad), with `sigma_t` (m) and 0.05 deg of white
 /// noise (as claimed). Returns the final state.
-fn drive(params: FilterParams, slip: Vector2<f64>, tilt: Vector2<f64>, sigma_t: f64) -> State {
+fn drive(params: FilterParams, slip: Vector3<f64>, tilt: Vector2<f64>, sigma_t: f64) -> State {
     let tilt = UnitQuaternion::from_scaled_axis(Vector3::new(tilt.x, tilt.y, 0.0));
     let mut f = PoseFilter::new(Time::ZERO, pose(0.0), Matrix6::identity() * 1e-8, params);
     let mut g = Gauss(3);
@@ -30,7 +31,7 @@ fn drive(params: FilterParams, slip: Vector2<f64>, tilt: Vector2<f64>, sigma_t: 
         let d = pose(t - 0.02).inverse() * pose(t);
         let truth = d.translation.vector;
         let along = truth.x / (1.0 + slip.x);
-        let wheels = Vector3::new(along, truth.y - slip.y * along.abs(), truth.z);
+        let wheels = Vector3::new(along, truth.y - slip.y * along.abs(), truth.z - slip.z * along);
         f.predict(Increment {
             stamp: Time::from_secs_f64(t),
             translation: wheels,
@@ -71,16 +72,19 @@ fn error(s: &State) -> (f64, f64) {
     (e.norm(), (e.transpose() * p.try_inverse().expect("a covariance") * e)[0])
 }
 
-/// Wheels that read 5 % short and slide 3 cm sideways per metre (a loose slope): taken as white
-/// noise, their slip averages out over the 5000 steps into a precise but wrong reference, which
+/// Wheels that read 5 % short, slide 3 cm sideways per metre (a loose slope) and miss a rise of
+/// 1 cm per metre (the body pitched 0.6 deg on its suspension): taken as white noise, their slip averages out over the 5000 steps into a precise but wrong reference, which
 /// the fusion follows against vision and ends outside its covariance. As states, vision teaches
 /// the filter the slip, and the error shrinks into the covariance.
 #[test]
 fn vision_teaches_the_filter_the_wheels_slip_and_the_error_stays_in_the_covariance() {
-    let slip = Vector2::new(0.05, 0.03);
+    let slip = Vector3::new(0.05, 0.03, 0.01);
     let white = drive(FilterParams::default(), slip, Vector2::zeros(), 0.005);
-    let states =
-        FilterParams { wheel_slip_sigma: [0.05, 0.05], wheel_slip_walk: [0.01, 0.01], ..Default::default() };
+    let states = FilterParams {
+        wheel_slip_sigma: [0.05, 0.05, 0.02],
+        wheel_slip_walk: [0.01, 0.01, 0.002],
+        ..Default::default()
+    };
     let learnt = drive(states, slip, Vector2::zeros(), 0.005);
     let (e_white, d2_white) = error(&white);
     let (e_learnt, d2_learnt) = error(&learnt);
@@ -89,11 +93,11 @@ fn vision_teaches_the_filter_the_wheels_slip_and_the_error_stays_in_the_covarian
     assert!(d2_learnt < 11.3, "states: {e_learnt} m, squared distance {d2_learnt}");
     assert!(e_learnt < 0.5 * e_white, "states {e_learnt} m, white noise {e_white} m");
     let (got, sigma) = (learnt.wheel_slip, learnt.wheel_slip_sigma());
-    for i in 0..2 {
+    for i in 0..3 {
         assert!((got[i] - slip[i]).abs() < 2.0 * sigma[i] && sigma[i] < 0.02, "slip {got:?} +/- {sigma:?}");
     }
     // Not estimated: none.
-    assert_eq!(white.wheel_slip, Vector2::zeros());
+    assert_eq!(white.wheel_slip, Vector3::zeros());
 }
 
 /// Visual odometry whose mount is pitched 0.3 deg and rolled -0.2 deg sees the ground rise 5 m per
@@ -108,9 +112,9 @@ fn visual_odometry_s_mount_tilt_as_a_consider_state_keeps_the_height_inside_its_
         let dz = s.pose.translation.z - pose(100.0).translation.z;
         (dz, dz.abs() / s.covariance[(2, 2)].sqrt())
     };
-    let white = drive(FilterParams::default(), Vector2::zeros(), tilt, 0.002);
+    let white = drive(FilterParams::default(), Vector3::zeros(), tilt, 0.002);
     let states = FilterParams { relative_mount_tilt_sigma: 0.5f64.to_radians(), ..Default::default() };
-    let considered = drive(states, Vector2::zeros(), tilt, 0.002);
+    let considered = drive(states, Vector3::zeros(), tilt, 0.002);
     let ((dz_white, white_sigmas), (dz_considered, considered_sigmas)) = (z(&white), z(&considered));
     // Measured: 0.15 m (6.3 sigma) as white noise, 0.002 m (0.02 sigma) as a consider state (the
     // wheels' height, no longer outweighed by vision's).
@@ -122,7 +126,7 @@ fn visual_odometry_s_mount_tilt_as_a_consider_state_keeps_the_height_inside_its_
 }
 
 /// The prediction's slip terms against finite differences: the body moves by R J more for a
-/// slip larger by one unit (J = [[d_x, 0], [0, |d_x|], [0, 0]]), and the position's covariance
+/// slip larger by one unit (J = diag(d_x, |d_x|, d_x)), and the position's covariance
 /// with the slip is R J times the slip's.
 #[test]
 fn the_slip_jacobian_matches_the_motion_it_predicts() {
@@ -130,9 +134,9 @@ fn the_slip_jacobian_matches_the_motion_it_predicts() {
         Translation3::new(1.0, -2.0, 0.3),
         UnitQuaternion::from_euler_angles(0.05, -0.1, 0.7),
     );
-    let params = FilterParams { wheel_slip_sigma: [0.05, 0.04], ..Default::default() };
+    let params = FilterParams { wheel_slip_sigma: [0.05, 0.04, 0.02], ..Default::default() };
     let mut state = State::new(Time::ZERO, pose, Matrix6::zeros(), &params);
-    state.wheel_slip = Vector2::new(0.02, -0.01);
+    state.wheel_slip = Vector3::new(0.02, -0.01, 0.005);
     let inc = Increment {
         stamp: Time::from_secs_f64(0.02),
         translation: Vector3::new(-0.3, 0.02, 0.01),
@@ -142,7 +146,7 @@ fn the_slip_jacobian_matches_the_motion_it_predicts() {
         gyro_dt: 0.0,
         gravity: None,
     };
-    let after = |slip: Vector2<f64>| {
+    let after = |slip: Vector3<f64>| {
         let mut start = state;
         start.wheel_slip = slip;
         let mut a = Augmented::new(&start);
@@ -152,10 +156,10 @@ fn the_slip_jacobian_matches_the_motion_it_predicts() {
     let base = after(state.wheel_slip);
     let r = pose.rotation.to_rotation_matrix().into_inner();
     let d = inc.translation;
-    let j = SMatrix::<f64, 3, 2>::new(d.x, 0.0, 0.0, d.x.abs(), 0.0, 0.0);
-    for i in 0..2 {
+    let j = Matrix3::from_diagonal(&Vector3::new(d.x, d.x.abs(), d.x));
+    for i in 0..3 {
         let step = 1e-3;
-        let moved = after(state.wheel_slip + Vector2::ith(i, step));
+        let moved = after(state.wheel_slip + Vector3::ith(i, step));
         let fd = (moved.pose.translation.vector - base.pose.translation.vector) / step;
         let expected = r * j.column(i);
         assert!((fd - expected).norm() < 1e-9, "slip {i}: {fd:?} vs {expected:?}");
@@ -164,9 +168,10 @@ fn the_slip_jacobian_matches_the_motion_it_predicts() {
         let expected = r * j.column(i) * params.wheel_slip_sigma[i].powi(2);
         assert!((cross - expected).norm() < 1e-15, "slip {i}: {cross:?} vs {expected:?}");
     }
-    // The body moves in reverse (d_x < 0): along-track slip scales the reversing too, the
+    // The body moves in reverse (d_x < 0): along-track slip scales the reversing too, and the
+    // pitch tilts it (a body pitched up climbs driving forwards, descends in reverse); the
     // sideways slide takes the distance, whichever way.
-    assert!(j[(0, 0)] < 0.0 && j[(1, 1)] > 0.0);
+    assert!(j[(0, 0)] < 0.0 && j[(1, 1)] > 0.0 && j[(2, 2)] < 0.0);
 }
 
 /// The relative measurement's Jacobian with respect to the mount tilt against finite differences

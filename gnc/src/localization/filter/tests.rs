@@ -89,8 +89,8 @@ fn params() -> FilterParams {
 /// The filter with the wheels' slip and the mount tilt estimated.
 fn params_with_states() -> FilterParams {
     FilterParams {
-        wheel_slip_sigma: [0.05, 0.05],
-        wheel_slip_walk: [0.01, 0.01],
+        wheel_slip_sigma: [0.05, 0.05, 0.02],
+        wheel_slip_walk: [0.01, 0.01, 0.002],
         wheel_slip_turn_walk: 0.03,
         relative_mount_tilt_sigma: 0.01,
         ..params()
@@ -172,13 +172,13 @@ fn slip_and_mount_states_that_are_off_stay_out_of_the_filter() {
     let rel = relatives(&poses, 10, &mut g, 0.002);
     let (off, _) = run(&poses, &inc, &rel, 3, params());
     let s = off.state();
-    assert_eq!((s.wheel_slip, s.relative_mount_tilt), (Vector2::zeros(), Vector2::zeros()));
+    assert_eq!((s.wheel_slip, s.relative_mount_tilt), (Vector3::zeros(), Vector2::zeros()));
     for i in SLIP..N {
         assert!(s.full.row(i).iter().chain(s.full.column(i).iter()).all(|v| *v == 0.0), "state {i}");
     }
     let (on, _) = run(&poses, &inc, &rel, 3, params_with_states());
     let s = on.state();
-    assert!(s.wheel_slip != Vector2::zeros() && s.wheel_slip_sigma().x < 0.05);
+    assert!(s.wheel_slip != Vector3::zeros() && s.wheel_slip_sigma().x < 0.05);
     // The mount tilt is considered, never learnt from vision: unchanged, its uncertainty too.
     assert_eq!(s.relative_mount_tilt, Vector2::zeros());
     assert!((s.relative_mount_tilt_sigma() - Vector2::repeat(0.01)).abs().max() < 1e-15);

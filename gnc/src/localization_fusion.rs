@@ -63,7 +63,7 @@ pub struct FusionParams {
     pub wheel_slip_turn_walk: f64,
     /// Uncertainty of the wheels' pitch (1 sigma), degrees, at most 10: the direction of travel
     /// pitched up from the body's x axis (the body rides pitched on its suspension), so that the
-    /// wheels' height drifts by its tangent per metre driven; a state of the filter, which vision
+    /// wheels' height drifts by it (rad, a small angle) per metre driven; a state of the filter, which vision
     /// teaches as well as its own mount tilt is known (0: not estimated).
     pub wheel_pitch_sigma_deg: f64,
     /// Random walk of the wheels' pitch per sqrt(m) travelled, degrees (the load on the
@@ -468,7 +468,7 @@ impl LocalizationDataFusion {
                     sigma.x * 100.0,
                     slip.y * 100.0,
                     sigma.y * 100.0,
-                    slip.z.atan().to_degrees(),
+                    slip.z.to_degrees(),
                     sigma.z.to_degrees(),
                     tilt.x,
                     tilt_sigma.x,

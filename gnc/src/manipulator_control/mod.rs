@@ -83,7 +83,8 @@ enum Action {
     Descend,
     /// Did the fingers stop on the handle?
     CheckGrip,
-    /// Straight up by the lift height.
+    /// Up by the lift height: a held object along the vertical, the open fingers along the tool's
+    /// x axis (a stuck one then straight up to the height it was going to: `retry`).
     Lift,
     /// The object is let go: the manipulator holds nothing.
     Released,

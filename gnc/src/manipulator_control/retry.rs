@@ -52,7 +52,9 @@ impl ManipulatorControl {
             }
             None => self.params.lift_m,
         };
-        let up = self.vertical(&q, rise.clamp(self.params.descent_step_m, self.params.lift_m))?;
+        // At least a descent step, at most a lift (`max` then `min`: a step configured longer
+        // than the lift must not panic here).
+        let up = self.vertical(&q, rise.max(self.params.descent_step_m).min(self.params.lift_m))?;
         for p in up.into_iter().rev() {
             job.actions.push_front(Action::Straight { to: p, contact: true });
         }

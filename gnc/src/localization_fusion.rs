@@ -19,8 +19,9 @@
 //! The wheels' noise here is the fusion's own model of slip (per metre, along, across and up), not
 //! the wheel odometry's: it is what lets vision correct a slipping drive. Their systematic slip
 //! (`wheel_slip_sigma`: along-track scale, sideways slide per metre; `wheel_pitch_sigma_deg`: the
-//! rise per metre the body's x axis misses) is a state of the filter that vision teaches, and visual odometry's mount tilt (`visual_mount_tilt_sigma_deg`) a consider
-//! state whose uncertainty the covariance carries; both are noted every 10 m driven.
+//! rise per metre the body's x axis misses) is a state of the filter that vision teaches, and
+//! visual odometry's mount tilt (`visual_mount_tilt_sigma_deg`) a consider state whose
+//! uncertainty the covariance carries; both are noted every 10 m driven.
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
 use crate::localization::landmark::{Disagreement, DriftEvidence, LandmarkFix};
@@ -63,8 +64,8 @@ pub struct FusionParams {
     pub wheel_slip_turn_walk: f64,
     /// Uncertainty of the wheels' pitch (1 sigma), degrees, at most 10: the direction of travel
     /// pitched up from the body's x axis (the body rides pitched on its suspension), so that the
-    /// wheels' height drifts by it (rad, a small angle) per metre driven; a state of the filter, which vision
-    /// teaches as well as its own mount tilt is known (0: not estimated).
+    /// wheels' height drifts by it (rad, a small angle) per metre driven; a state of the filter,
+    /// which vision teaches as well as its own mount tilt is known (0: not estimated).
     pub wheel_pitch_sigma_deg: f64,
     /// Random walk of the wheels' pitch per sqrt(m) travelled, degrees (the load on the
     /// suspension changes with the slope); needs the pitch estimated.

@@ -50,6 +50,16 @@ pub struct FusionParams {
     /// skid-steer turn scrubs, and where it turns about depends on the ground. Without it, vision's
     /// view of a turn's sideways motion would be taken for a heading error.
     pub wheel_sigma_per_rad: f64,
+    /// The turning centre's wander as a random walk, m per sqrt(rad) turned (1 sigma, along and
+    /// across; 0: none). `wheel_sigma_per_rad` is white noise per step (σ = it times the step's
+    /// angle), so its sum over a turn shrinks as the steps get shorter: 0.7 cm (1 sigma) over
+    /// the end-to-end short run's 90 degree turn in place (9.5 s of 50 Hz steps), over which
+    /// the twin's rover moved 27 cm. With the slip states on and no walk, the 2 cm vision saw
+    /// the body move sideways over a 2 s keyframe of that turn could only be the sideways
+    /// slide state times the little the wheels rolled forward and back; the slide it learnt
+    /// moved the position 0.2 m per keyframe and the run ended 0.91 m off (0.2 m with this at
+    /// 0.03-0.1; test `a_turn_in_place_teaches_no_sideways_slip`).
+    pub wheel_turn_walk: f64,
     /// Heading noise per radian turned when the heading comes from the wheels, rad/rad.
     pub wheel_yaw_sigma_per_rad: f64,
     /// The wheels' systematic slip, estimated as states of the filter (vision and landmarks teach
@@ -134,6 +144,7 @@ impl Default for FusionParams {
             initial_sigma: [0.02, 0.5],
             wheel_sigma_per_m: [0.2, 0.2, 0.2],
             wheel_sigma_per_rad: 0.1,
+            wheel_turn_walk: 0.0,
             wheel_yaw_sigma_per_rad: 0.15,
             wheel_slip_sigma: [0.0; 2],
             wheel_slip_walk: [0.0; 2],
@@ -340,28 +351,7 @@ impl LocalizationDataFusion {
         cov[(3, 3)] = tilt_var;
         cov[(4, 4)] = tilt_var;
         cov[(5, 5)] = sy.to_radians().powi(2);
-        let fp = FilterParams {
-            history_s: p.history_s,
-            gravity_sigma: p.gravity_sigma,
-            relative_gate: p.visual_gate,
-            landmark_gate: p.landmark_gate,
-            tilt_random_walk: p.tilt_random_walk,
-            gyro_bias_sigma: p.gyro_bias_sigma,
-            gyro_bias_walk: p.gyro_bias_walk,
-            wheel_slip_sigma: [
-                p.wheel_slip_sigma[0],
-                p.wheel_slip_sigma[1],
-                p.wheel_pitch_sigma_deg.to_radians(),
-            ],
-            wheel_slip_walk: [
-                p.wheel_slip_walk[0],
-                p.wheel_slip_walk[1],
-                p.wheel_pitch_walk_deg.to_radians(),
-            ],
-            wheel_slip_turn_walk: p.wheel_slip_turn_walk,
-            relative_mount_tilt_sigma: p.visual_mount_tilt_sigma_deg.to_radians(),
-        };
-        PoseFilter::new(stamp, pose, cov, fp)
+        PoseFilter::new(stamp, pose, cov, filter_params(p))
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
@@ -396,9 +386,7 @@ impl LocalizationDataFusion {
             let d = last_pose.inverse() * mech.value.pose;
             let ds = d.translation.vector.norm();
             let translation = d.translation.vector;
-            let turn = (p.wheel_sigma_per_rad * d.rotation.angle()).powi(2);
-            let [sa, sc, su] = p.wheel_sigma_per_m.map(|s| (s * ds).powi(2));
-            let translation_covariance = Matrix3::from_diagonal(&Vector3::new(sa + turn, sc + turn, su));
+            let translation_covariance = wheel_translation_covariance(&p, ds, d.rotation.angle());
             // Heading from the wheels (the IMU silent, or its next sample to be re-anchored on);
             // tilt unknown to them: a small random walk.
             let wheel_rotation = || {
@@ -624,6 +612,36 @@ pub fn gravity_direction(
     (f.try_normalize(1e-9)? * G - rate.cross(velocity)).try_normalize(1e-9)
 }
 
+/// The pose filter's parameters from the module's.
+fn filter_params(p: &FusionParams) -> FilterParams {
+    FilterParams {
+        history_s: p.history_s,
+        gravity_sigma: p.gravity_sigma,
+        relative_gate: p.visual_gate,
+        landmark_gate: p.landmark_gate,
+        tilt_random_walk: p.tilt_random_walk,
+        gyro_bias_sigma: p.gyro_bias_sigma,
+        gyro_bias_walk: p.gyro_bias_walk,
+        wheel_slip_sigma: [
+            p.wheel_slip_sigma[0],
+            p.wheel_slip_sigma[1],
+            p.wheel_pitch_sigma_deg.to_radians(),
+        ],
+        wheel_slip_walk: [p.wheel_slip_walk[0], p.wheel_slip_walk[1], p.wheel_pitch_walk_deg.to_radians()],
+        wheel_slip_turn_walk: p.wheel_slip_turn_walk,
+        relative_mount_tilt_sigma: p.visual_mount_tilt_sigma_deg.to_radians(),
+    }
+}
+
+/// The covariance (body frame, m^2) of a wheel displacement of length `ds` m over which the body
+/// turned by `turned` rad: the slip per metre and the scrubbing per radian as white noise per
+/// step, plus the turning centre's wander as a random walk per radian.
+fn wheel_translation_covariance(p: &FusionParams, ds: f64, turned: f64) -> Matrix3<f64> {
+    let turn = (p.wheel_sigma_per_rad * turned).powi(2) + p.wheel_turn_walk.powi(2) * turned;
+    let [sa, sc, su] = p.wheel_sigma_per_m.map(|s| (s * ds).powi(2));
+    Matrix3::from_diagonal(&Vector3::new(sa + turn, sc + turn, su))
+}
+
 /// The filter's slip and mount-tilt parameters: finite, not negative, a walk only for a slip that
 /// is estimated, a tilt small enough for the filter's small-angle model.
 fn validate_states(p: &FusionParams) -> Result<(), String> {
@@ -633,6 +651,7 @@ fn validate_states(p: &FusionParams) -> Result<(), String> {
         ("wheel_slip_walk", p.wheel_slip_walk[0]),
         ("wheel_slip_walk", p.wheel_slip_walk[1]),
         ("wheel_slip_turn_walk", p.wheel_slip_turn_walk),
+        ("wheel_turn_walk", p.wheel_turn_walk),
         ("wheel_pitch_sigma_deg", p.wheel_pitch_sigma_deg),
         ("wheel_pitch_walk_deg", p.wheel_pitch_walk_deg),
         ("visual_mount_tilt_sigma_deg", p.visual_mount_tilt_sigma_deg),
@@ -711,6 +730,93 @@ mod tests {
         );
         let pitch_walk_only = err(FusionParams { wheel_pitch_sigma_deg: 0.0, ..on.clone() });
         assert!(pitch_walk_only.contains("wheel_pitch_sigma_deg"), "{pitch_walk_only}");
+    }
+
+    /// The slip and tilt states on, as measured on the sweeps (sessions 39-40).
+    fn with_states(wheel_turn_walk: f64) -> FusionParams {
+        FusionParams {
+            wheel_slip_sigma: [0.05, 0.05],
+            wheel_slip_walk: [0.01, 0.01],
+            wheel_slip_turn_walk: 0.03,
+            wheel_pitch_sigma_deg: 1.0,
+            wheel_pitch_walk_deg: 0.1,
+            visual_mount_tilt_sigma_deg: 0.5,
+            wheel_turn_walk,
+            ..FusionParams::default()
+        }
+    }
+
+    #[test]
+    fn the_turning_centres_walk_does_not_shrink_with_the_step() {
+        let p = FusionParams { wheel_turn_walk: 0.1, ..FusionParams::default() };
+        let quarter = std::f64::consts::FRAC_PI_2;
+        let summed = |n: usize, p: &FusionParams| {
+            (0..n).map(|_| wheel_translation_covariance(p, 0.0, quarter / n as f64)[(1, 1)]).sum::<f64>()
+        };
+        // The walk: 0.1 m per sqrt(rad), 12.5 cm over a quarter turn however it is cut.
+        let walk_only = FusionParams { wheel_sigma_per_rad: 0.0, ..p.clone() };
+        for n in [1, 10, 1000] {
+            assert!((summed(n, &walk_only) - 0.01 * quarter).abs() < 1e-12, "{n} steps");
+        }
+        // The white noise per step: a hundredth of it in 100 steps.
+        let white_only = FusionParams { wheel_turn_walk: 0.0, ..p };
+        assert!((summed(100, &white_only) * 100.0 - summed(1, &white_only)).abs() < 1e-12);
+    }
+
+    /// A turn in place about a centre 15 cm to the body's side (the body moves 1.5 cm sideways
+    /// per 0.1 rad), the wheels' increments jittering 0.5 mm forward and back, visual odometry
+    /// exact over 2 s keyframes. Without the turning centre's walk the sideways motion vision
+    /// sees can only be the sideways slip state times the jitter's 5 cm per keyframe: it learnt a
+    /// slide of tens of cm per metre (session 41: short_cameras' position jumped 0.2 m per
+    /// keyframe). With it, the slide stays near its prior's mean.
+    #[test]
+    fn a_turn_in_place_teaches_no_sideways_slip() {
+        let (rate, centre, dt) = (0.1, 0.15, 0.02);
+        let slide = |walk: f64| {
+            let p = with_states(walk);
+            let mut f = PoseFilter::new(
+                Time::ZERO,
+                Isometry3::identity(),
+                Matrix6::identity() * 1e-6,
+                filter_params(&p),
+            );
+            let mut truth = vec![Isometry3::identity()];
+            for i in 1..=300 {
+                let dpsi = rate * dt;
+                let step = Isometry3::from_parts(
+                    Translation3::new(0.0, centre * dpsi, 0.0),
+                    UnitQuaternion::from_euler_angles(0.0, 0.0, dpsi),
+                );
+                truth.push(truth[i - 1] * step);
+                let jitter = if i % 2 == 0 { 5e-4 } else { -5e-4 };
+                let stamp = Time::from_secs_f64(i as f64 * dt);
+                for r in f.predict(Increment {
+                    stamp,
+                    translation: Vector3::new(jitter, 0.0, 0.0),
+                    rotation: step.rotation,
+                    translation_covariance: wheel_translation_covariance(&p, jitter.abs(), dpsi),
+                    rotation_covariance: Matrix3::identity() * 1e-8,
+                    gyro_dt: dt,
+                    gravity: Some(Vector3::z()),
+                }) {
+                    r.expect("applied");
+                }
+                if i % 100 == 0 {
+                    let from = i - 100;
+                    f.relative(RelativePose {
+                        from: Time::from_secs_f64(from as f64 * dt),
+                        to: stamp,
+                        delta: truth[from].inverse() * truth[i],
+                        covariance: Matrix6::identity() * 1e-6,
+                    })
+                    .expect("applied");
+                }
+            }
+            f.state().wheel_slip.y
+        };
+        let (without, with) = (slide(0.0), slide(0.1));
+        assert!(without.abs() > 0.1, "without the walk: {without}");
+        assert!(with.abs() < 0.01, "with it: {with}");
     }
 
     #[test]

@@ -695,15 +695,7 @@ mod tests {
 
     #[test]
     fn slip_and_tilt_parameters_are_validated() {
-        let on = FusionParams {
-            wheel_slip_sigma: [0.05, 0.05],
-            wheel_slip_walk: [0.01, 0.01],
-            wheel_slip_turn_walk: 0.03,
-            wheel_pitch_sigma_deg: 1.0,
-            wheel_pitch_walk_deg: 0.1,
-            visual_mount_tilt_sigma_deg: 0.5,
-            ..FusionParams::default()
-        };
+        let on = with_states(0.0);
         assert_eq!(validate_states(&on), Ok(()));
         assert_eq!(validate_states(&FusionParams::default()), Ok(()));
         let err = |p: FusionParams| validate_states(&p).expect_err("refused");

@@ -48,7 +48,9 @@ pub struct FusionParams {
     pub wheel_sigma_per_m: [f64; 3],
     /// Noise of the wheel displacement per radian turned, m/rad (1 sigma, along and across): a
     /// skid-steer turn scrubs, and where it turns about depends on the ground. Without it, vision's
-    /// view of a turn's sideways motion would be taken for a heading error.
+    /// view of a turn's sideways motion would be taken for a heading error. White per step, so
+    /// its sum over a turn shrinks with the step: the wander over a whole turn is
+    /// `wheel_turn_walk`'s.
     pub wheel_sigma_per_rad: f64,
     /// The turning centre's wander as a random walk, m per sqrt(rad) turned (1 sigma, along and
     /// across; 0: none). `wheel_sigma_per_rad` is white noise per step (σ = it times the step's

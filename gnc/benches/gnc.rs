@@ -307,6 +307,8 @@ fn filter_increment(i: usize) -> Increment {
         rotation_covariance: nalgebra::Matrix3::identity() * 1e-8,
         gyro_dt: 0.02,
         gravity: Some(Vector3::new(0.01, -0.02, 1.0).normalize()),
+        gyro_bias_shift: Vector3::zeros(),
+        still: false,
     }
 }
 

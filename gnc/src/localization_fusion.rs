@@ -4,17 +4,21 @@
 //! Each new wheel odometry reading (`localization/mechanical`) is one prediction step of the
 //! [`PoseFilter`]: the wheels' body-frame displacement since the previous reading, the gyro's
 //! rotation over the same interval (`localization/inertial`, or the wheels' heading change with its
-//! much larger noise while the IMU is silent), and the accelerometer's gravity direction for roll
-//! and pitch (the turn's centripetal acceleration taken out: [`gravity_direction`]; it
-//! corrects the tilt only, never the heading or the gyro bias). Each closed visual odometry
-//! keyframe (`localization/visual`) is a relative pose measurement applied at its images' capture
-//! times, however late it arrives. The estimate is published as `localization/pose` in `map`,
-//! stamped with the data's time. Each sighting of a surveyed landmark (`landmarks`: an object the
-//! operator surveyed in the yard, as TrackingMarker reports it in `tracking/objects`) fixes the
-//! position and heading (seed 000, 10: localization with respect to a fixed object); where the estimate has drifted beyond what its covariance
-//! says, the gate refuses every sighting: `landmark_drift_sightings` refused in a row that agree
-//! with each other on where the rover is (within `landmark_drift_agree_m`, each within
-//! `landmark_drift_gate`) relocalize it on the landmark ([`PoseFilter::relocalize`]).
+//! much larger noise while the IMU is silent; the change of the bias the inertial module subtracts,
+//! which the filter's residual bias follows the other way; and whether the wheels have stood still
+//! for `still_settle_s`, where the body turns about no z axis and the gyro's rate about it is a
+//! zero angular rate update of the bias), and the accelerometer's gravity direction for roll and
+//! pitch (the turn's centripetal acceleration taken out: [`gravity_direction`]; it corrects the
+//! tilt only, never the heading or the gyro bias). Each closed visual odometry keyframe
+//! (`localization/visual`) is a relative pose measurement applied at its images' capture times,
+//! however late it arrives. The estimate is published as `localization/pose` in `map`, stamped with
+//! the data's time. Each sighting of a surveyed landmark (`landmarks`: an object the operator
+//! surveyed in the yard, as TrackingMarker reports it in `tracking/objects`) fixes the position and
+//! heading (seed 000, 10: localization with respect to a fixed object); where the estimate has
+//! drifted beyond what its covariance says, the gate refuses every sighting:
+//! `landmark_drift_sightings` refused in a row that agree with each other on where the rover is
+//! (within `landmark_drift_agree_m`, each within `landmark_drift_gate`) relocalize it on the
+//! landmark ([`PoseFilter::relocalize`]).
 //!
 //! The wheels' noise here is the fusion's own model of slip (per metre, along, across and up), not
 //! the wheel odometry's: it is what lets vision correct a slipping drive. Their systematic slip
@@ -25,6 +29,7 @@
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
 use crate::localization::landmark::{Disagreement, DriftEvidence, LandmarkFix};
+use crate::localization::standstill::Standstill;
 use crate::localization_inertial::G;
 use crate::params::require_positive;
 use framework::data::{AttitudeEstimate, ObjectPoses, PoseEstimate, VisualOdometry};
@@ -96,8 +101,25 @@ pub struct FusionParams {
     /// Uncertainty of the gyro bias the inertial module did not learn (1 sigma), rad/s: the
     /// filter estimates it from vision's rotations.
     pub gyro_bias_sigma: f64,
+    /// Follow the bias the inertial module subtracts: when its standstill learning changes it,
+    /// the filter's residual bias moves the other way, so that the filter's estimate of the
+    /// gyro's whole bias (learnt from vision over minutes, and from `still_settle_s`'s updates)
+    /// stays (false: the residual is taken as unchanged, the filter before session 42).
+    pub follow_inertial_bias: bool,
+    /// Uncertainty of the gyro bias when the filter starts before the inertial module has learnt
+    /// any (the gyro's turn-on bias, 1 sigma), rad/s, with `follow_inertial_bias` (the
+    /// standstills teach it; without, the start's is `gyro_bias_sigma`).
+    pub gyro_turn_on_bias_sigma: f64,
     /// Random walk of the gyro bias, rad/s/sqrt(s).
     pub gyro_bias_walk: f64,
+    /// The wheels must have stood still this long before the body is taken to stand (it turns
+    /// about no z axis, and the gyro's rate about it measures the residual bias: a zero angular
+    /// rate update), s; 0: never. Only once the inertial module has learnt a bias (before, it
+    /// reports a standing rover's rate as zero).
+    pub still_settle_s: f64,
+    /// A standing body's gyro rate further than this from the bias (squared Mahalanobis
+    /// distance, 1 dof) is refused: the body rocked, or something turned it.
+    pub still_gate: f64,
     /// How long the filter keeps its steps for late measurements, s.
     pub history_s: f64,
     /// Visual measurements whose rotation is beyond this squared Mahalanobis distance from the
@@ -158,7 +180,11 @@ impl Default for FusionParams {
             gravity_sigma: 0.02,
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
+            follow_inertial_bias: false,
+            gyro_turn_on_bias_sigma: 0.005,
             gyro_bias_walk: 2e-5,
+            still_settle_s: 0.0,
+            still_gate: 16.0,
             history_s: 10.0,
             visual_gate: 50.0,
             use_visual: true,
@@ -202,6 +228,11 @@ pub struct LocalizationDataFusion {
     filter: Option<PoseFilter>,
     last_mech: Option<(Time, Isometry3<f64>)>,
     last_gyro: Option<(Time, UnitQuaternion<f64>)>,
+    /// The bias the inertial module subtracted at its last sample: the filter's residual bias is
+    /// relative to it, and moves the other way when it changes.
+    last_gyro_bias: Option<Vector3<f64>>,
+    /// Whether and since when the wheels stand.
+    standstill: Standstill,
     last_visual_seq: u64,
     imu_silent: bool,
     /// The gyro's integrated attitude must be re-anchored on its next sample (after a silence, or
@@ -237,6 +268,8 @@ impl LocalizationDataFusion {
             filter: None,
             last_mech: None,
             last_gyro: None,
+            last_gyro_bias: None,
+            standstill: Standstill::default(),
             last_visual_seq: 0,
             imu_silent: false,
             gyro_resync: false,
@@ -354,7 +387,11 @@ impl LocalizationDataFusion {
         cov[(3, 3)] = tilt_var;
         cov[(4, 4)] = tilt_var;
         cov[(5, 5)] = sy.to_radians().powi(2);
-        PoseFilter::new(stamp, pose, cov, filter_params(p))
+        let mut fp = filter_params(p);
+        if p.follow_inertial_bias && !att.is_some_and(|a| a.bias_learnt) {
+            fp.gyro_bias_sigma = p.gyro_turn_on_bias_sigma;
+        }
+        PoseFilter::new(stamp, pose, cov, fp)
     }
 
     fn cycle(&mut self, ctx: &mut Ctx<'_>) -> StateResult {
@@ -368,6 +405,8 @@ impl LocalizationDataFusion {
             self.next_slip_note_m = SLIP_NOTE_EVERY_M;
             self.last_mech = Some((mech.stamp, mech.value.pose));
             self.last_gyro = att.as_ref().map(|a| (a.stamp, a.value.gyro_attitude));
+            self.last_gyro_bias = att.as_ref().map(|a| a.value.gyro_bias);
+            self.standstill = Standstill::default();
             self.publish(ctx);
             return Ok(());
         }
@@ -396,12 +435,31 @@ impl LocalizationDataFusion {
                 let dyaw = d.rotation.euler_angles().2;
                 let mut c = Matrix3::identity() * 1e-6 * ds;
                 c[(2, 2)] += (p.wheel_yaw_sigma_per_rad * dyaw).powi(2);
-                (d.rotation, c, None, 0.0)
+                (d.rotation, c, None, 0.0, false)
             };
+            // The inertial module's learnt bias moved: the residual bias moves the other way (the
+            // filter's estimate of the gyro's whole bias stays).
+            let gyro_bias_shift = match (fresh_att, self.last_gyro_bias) {
+                (Some(a), Some(b)) if p.follow_inertial_bias => a.value.gyro_bias - b,
+                _ => Vector3::zeros(),
+            };
+            if let Some(a) = fresh_att {
+                self.last_gyro_bias = Some(a.value.gyro_bias);
+            }
+            self.standstill.reading(last_t, &last_pose, &mech.value.pose);
+            let standing = self.standstill.since().is_some();
             let resync = self.gyro_resync || self.last_gyro.is_none();
-            let (rotation, rotation_covariance, gravity, gyro_dt) = match (fresh_att, self.last_gyro) {
+            let (rotation, rotation_covariance, gravity, gyro_dt, still) = match (fresh_att, self.last_gyro) {
                 (Some(a), Some((t0, g0))) if !resync => {
                     let dt = (a.stamp - t0).as_secs_f64().max(0.0);
+                    // The body stands over the gyro's whole interval (the IMU runs ahead of the
+                    // encoders: a sample past this reading may have seen a drive start) and the
+                    // inertial module's rate is real (before it has learnt a bias, a standing
+                    // rover's is zeroed).
+                    let still = p.still_settle_s > 0.0
+                        && a.value.bias_learnt
+                        && a.stamp <= mech.stamp
+                        && self.standstill.settled(t0, mech.stamp, p.still_settle_s);
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
                     let var = a.value.gyro_noise.powi(2) * dt;
                     let rotation = g0.inverse() * a.value.gyro_attitude;
@@ -410,7 +468,17 @@ impl LocalizationDataFusion {
                     let rate = if dt > 0.0 { rotation.scaled_axis() / dt } else { a.value.angular_rate };
                     let velocity = translation / (mech.stamp - last_t).as_secs_f64();
                     let gravity = a.value.gravity.and_then(|f| gravity_direction(&f, &rate, &velocity));
-                    (rotation, Matrix3::identity() * var, gravity, dt)
+                    // The zeroed rate of a standing rover before the bias is learnt: no residual
+                    // bias acted on it (with the turn-on prior, integrating it would correlate the
+                    // heading with a bias that never turned it).
+                    let zeroed = p.follow_inertial_bias && standing && !a.value.bias_learnt;
+                    (
+                        rotation,
+                        Matrix3::identity() * var,
+                        gravity,
+                        if zeroed { 0.0 } else { dt },
+                        still && dt > 0.0,
+                    )
                 }
                 (Some(a), _) => {
                     self.last_gyro = Some((a.stamp, a.value.gyro_attitude));
@@ -419,7 +487,7 @@ impl LocalizationDataFusion {
                 }
                 _ if !imu_silent => {
                     // No new gyro sample yet: the next one carries this step's rotation.
-                    (UnitQuaternion::identity(), Matrix3::identity() * 1e-12, None, 0.0)
+                    (UnitQuaternion::identity(), Matrix3::identity() * 1e-12, None, 0.0, false)
                 }
                 _ => {
                     self.gyro_resync = true;
@@ -434,6 +502,8 @@ impl LocalizationDataFusion {
                 rotation_covariance,
                 gyro_dt,
                 gravity,
+                gyro_bias_shift,
+                still,
             };
             let filter = self.filter.as_mut().expect("started");
             for outcome in filter.predict(inc) {
@@ -566,7 +636,9 @@ impl Module for LocalizationDataFusion {
             ("gravity_sigma", p.gravity_sigma),
             ("tilt_random_walk", p.tilt_random_walk),
             ("gyro_bias_sigma", p.gyro_bias_sigma),
+            ("gyro_turn_on_bias_sigma", p.gyro_turn_on_bias_sigma),
             ("gyro_bias_walk", p.gyro_bias_walk),
+            ("still_gate", p.still_gate),
             ("history_s", p.history_s),
             ("visual_gate", p.visual_gate),
             ("silent_after_s", p.silent_after_s),
@@ -576,6 +648,7 @@ impl Module for LocalizationDataFusion {
             ("landmark_drift_gate", p.landmark_drift_gate),
         ])?;
         validate_states(p)?;
+        validate_standstills(p)?;
         if p.landmark_drift_sightings == 1 {
             return Err("landmark_drift_sightings must be 0 (never) or at least 2: one refused sighting is no evidence of drift".into());
         }
@@ -625,6 +698,7 @@ fn filter_params(p: &FusionParams) -> FilterParams {
         tilt_random_walk: p.tilt_random_walk,
         gyro_bias_sigma: p.gyro_bias_sigma,
         gyro_bias_walk: p.gyro_bias_walk,
+        still_gate: p.still_gate,
         wheel_slip_sigma: [
             p.wheel_slip_sigma[0],
             p.wheel_slip_sigma[1],
@@ -687,158 +761,20 @@ fn validate_states(p: &FusionParams) -> Result<(), String> {
     Ok(())
 }
 
+/// The standstills' parameters: a settling time that is a duration, and the inertial module's bias
+/// followed only with the zero angular rate updates that learn what its learning gave.
+fn validate_standstills(p: &FusionParams) -> Result<(), String> {
+    crate::params::require_non_negative(&[("still_settle_s", p.still_settle_s)])?;
+    if p.follow_inertial_bias && p.still_settle_s == 0.0 {
+        return Err("follow_inertial_bias needs the zero angular rate updates (still_settle_s above 0): without them the inertial module's learning is lost to the filter, which starts from the turn-on bias".into());
+    }
+    Ok(())
+}
+
 /// The largest mount tilt and wheel pitch uncertainties the filter's small-angle model is meant
 /// for, degrees.
 const MAX_MOUNT_TILT_SIGMA_DEG: f64 = 5.0;
 const MAX_WHEEL_PITCH_SIGMA_DEG: f64 = 10.0;
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn slip_and_tilt_parameters_are_validated() {
-        let on = with_states(0.0);
-        assert_eq!(validate_states(&on), Ok(()));
-        assert_eq!(validate_states(&FusionParams::default()), Ok(()));
-        let err = |p: FusionParams| validate_states(&p).expect_err("refused");
-        assert!(
-            err(FusionParams { wheel_slip_walk: [0.01, -0.01], ..on.clone() }).contains("wheel_slip_walk")
-        );
-        assert!(
-            err(FusionParams { wheel_slip_sigma: [f64::NAN, 0.05], ..on.clone() })
-                .contains("wheel_slip_sigma")
-        );
-        // A walk on a slip that is not estimated would grow and be learnt all the same.
-        let walk_only = err(FusionParams { wheel_slip_sigma: [0.05, 0.0], ..on.clone() });
-        assert!(
-            walk_only.contains("sideways slide") && walk_only.contains("wheel_slip_sigma[1]"),
-            "{walk_only}"
-        );
-        let turn_only =
-            FusionParams { wheel_slip_sigma: [0.05, 0.0], wheel_slip_walk: [0.01, 0.0], ..on.clone() };
-        assert!(err(turn_only).contains("sideways slide"));
-        assert!(err(FusionParams { visual_mount_tilt_sigma_deg: 20.0, ..on.clone() }).contains("at most 5"));
-        for walk in [-0.1, f64::NAN] {
-            assert!(err(FusionParams { wheel_turn_walk: walk, ..on.clone() }).contains("wheel_turn_walk"));
-        }
-        assert!(err(FusionParams { wheel_pitch_sigma_deg: 20.0, ..on.clone() }).contains("at most 10"));
-        assert!(
-            err(FusionParams { wheel_pitch_walk_deg: -0.1, ..on.clone() }).contains("wheel_pitch_walk_deg")
-        );
-        let pitch_walk_only = err(FusionParams { wheel_pitch_sigma_deg: 0.0, ..on.clone() });
-        assert!(pitch_walk_only.contains("wheel_pitch_sigma_deg"), "{pitch_walk_only}");
-    }
-
-    /// The slip and tilt states on, as measured on the sweeps (sessions 39-40).
-    fn with_states(wheel_turn_walk: f64) -> FusionParams {
-        FusionParams {
-            wheel_slip_sigma: [0.05, 0.05],
-            wheel_slip_walk: [0.01, 0.01],
-            wheel_slip_turn_walk: 0.03,
-            wheel_pitch_sigma_deg: 1.0,
-            wheel_pitch_walk_deg: 0.1,
-            visual_mount_tilt_sigma_deg: 0.5,
-            wheel_turn_walk,
-            ..FusionParams::default()
-        }
-    }
-
-    #[test]
-    fn the_turning_centres_walk_does_not_shrink_with_the_step() {
-        let p = FusionParams { wheel_turn_walk: 0.1, ..FusionParams::default() };
-        let quarter = std::f64::consts::FRAC_PI_2;
-        let summed = |n: usize, p: &FusionParams| {
-            (0..n).map(|_| wheel_translation_covariance(p, 0.0, quarter / n as f64)[(1, 1)]).sum::<f64>()
-        };
-        // The walk: 0.1 m per sqrt(rad), 12.5 cm over a quarter turn however it is cut.
-        let walk_only = FusionParams { wheel_sigma_per_rad: 0.0, ..p.clone() };
-        for n in [1, 10, 1000] {
-            assert!((summed(n, &walk_only) - 0.01 * quarter).abs() < 1e-12, "{n} steps");
-        }
-        // The white noise per step: a hundredth of it in 100 steps.
-        let white_only = FusionParams { wheel_turn_walk: 0.0, ..p };
-        assert!((summed(100, &white_only) * 100.0 - summed(1, &white_only)).abs() < 1e-12);
-    }
-
-    /// A turn in place about a centre 15 cm to the body's side (the body moves 1.5 cm sideways
-    /// per 0.1 rad), the wheels' increments jittering 0.5 mm forward and back, visual odometry
-    /// exact over 2 s keyframes. Without the turning centre's walk the sideways motion vision
-    /// sees can only be the sideways slip state times the jitter's 5 cm per keyframe: it learnt a
-    /// slide of tens of cm per metre (session 41: short_cameras' position jumped 0.2 m per
-    /// keyframe). With it, the slide stays near its prior's mean.
-    #[test]
-    fn a_turn_in_place_teaches_no_sideways_slip() {
-        let (rate, centre, dt) = (0.1, 0.15, 0.02);
-        let slide = |walk: f64| {
-            let p = with_states(walk);
-            let mut f = PoseFilter::new(
-                Time::ZERO,
-                Isometry3::identity(),
-                Matrix6::identity() * 1e-6,
-                filter_params(&p),
-            );
-            let mut truth = vec![Isometry3::identity()];
-            for i in 1..=300 {
-                let dpsi = rate * dt;
-                let step = Isometry3::from_parts(
-                    Translation3::new(0.0, centre * dpsi, 0.0),
-                    UnitQuaternion::from_euler_angles(0.0, 0.0, dpsi),
-                );
-                truth.push(truth[i - 1] * step);
-                let jitter = if i % 2 == 0 { 5e-4 } else { -5e-4 };
-                let stamp = Time::from_secs_f64(i as f64 * dt);
-                let pending = f.predict(Increment {
-                    stamp,
-                    translation: Vector3::new(jitter, 0.0, 0.0),
-                    rotation: step.rotation,
-                    translation_covariance: wheel_translation_covariance(&p, jitter.abs(), dpsi),
-                    rotation_covariance: Matrix3::identity() * 1e-8,
-                    gyro_dt: dt,
-                    gravity: Some(Vector3::z()),
-                });
-                assert!(pending.is_empty(), "each keyframe is applied when it closes");
-                if i % 100 == 0 {
-                    let from = i - 100;
-                    let d2 = f
-                        .relative(RelativePose {
-                            from: Time::from_secs_f64(from as f64 * dt),
-                            to: stamp,
-                            delta: truth[from].inverse() * truth[i],
-                            covariance: Matrix6::identity() * 1e-6,
-                        })
-                        .expect("applied");
-                    assert!(d2.is_finite(), "applied now, not deferred");
-                }
-            }
-            let s = f.state();
-            let off = (s.pose.translation.vector - truth[300].translation.vector).norm();
-            (s.wheel_slip.y, off)
-        };
-        let ((without, _), (with, off)) = (slide(0.0), slide(0.1));
-        assert!(without.abs() > 0.1, "without the walk: {without}");
-        assert!(with.abs() < 0.01, "with it: {with}");
-        // And the position follows vision: the body moved 9 cm over the turn.
-        assert!(off < 0.005, "{off} m off");
-    }
-
-    #[test]
-    fn gravity_has_the_centripetal_acceleration_of_a_turn_taken_out() {
-        // Turning left at 0.5 rad/s, 0.3 m/s forward, about a centre 0.2 m ahead (base_link moves
-        // 0.1 m/s to the right), on level ground: the accelerometer feels 0.15 m/s^2 to the left
-        // and 0.05 m/s^2 forward on top of gravity (0.9 and 0.3 degrees of false roll and pitch).
-        let rate = Vector3::new(0.0, 0.0, 0.5);
-        let velocity = Vector3::new(0.3, -0.1, 0.0);
-        let f = Vector3::new(0.05, 0.15, G).normalize();
-        assert!(f.y > 0.015 && f.x > 0.005);
-        let up = gravity_direction(&f, &rate, &velocity).unwrap();
-        assert!(up.xy().norm() < 1e-5, "{up:?}");
-        // Driving straight over a crest (pitching down at 0.2 rad/s) on a 5.7 degree slope: 0.06 m/s^2
-        // less up, which uncompensated tilts the vertical by 0.03 degrees.
-        let level = Vector3::new(0.1, 0.0, 1.0).normalize();
-        let f = (level * G + Vector3::new(0.0, 0.0, -0.06)).normalize();
-        assert!((f - level).norm() > 5e-4);
-        let up = gravity_direction(&f, &Vector3::new(0.0, 0.2, 0.0), &Vector3::new(0.3, 0.0, 0.0)).unwrap();
-        assert!((up - level).norm() < 1e-4, "{up:?}");
-    }
-}
+mod tests;

@@ -13,6 +13,16 @@
 //! - Prediction: p ← p + R (d + J σ), R ← R ΔR Exp(-b Δt_gyro), with the increment's noise in the
 //!   body frame; the bias walks. Vision's rotations make the bias observable: a rover that never
 //!   stood still long enough to learn it (sliding on a slope) still gets its heading right.
+//! - The residual bias is relative to the bias the gyro's source subtracts (the inertial module's,
+//!   a moving average over each standstill's samples, 2-4e-4 rad/s off where it ends): when that
+//!   one changes by Δ, b ← b - Δ (each step carries the change since the previous), so that the
+//!   filter's estimate of the gyro's whole bias (learnt from vision over minutes, and from the
+//!   zero angular rate updates) stays. Unshifted, each relearning is a step of the residual that
+//!   vision has to learn again.
+//! - Zero angular rate update: on a step where the body stands (its wheels still for a while),
+//!   the body turns about no z axis: the gyro's rate about it is not integrated but measures b_z
+//!   (noise: the step's rotation noise over its duration), which the heading follows through its
+//!   correlation with the bias.
 //! - Wheel slip: the increment's translation d is the wheels'; the body moved d + J σ with
 //!   J = diag(d_x, |d_x|, d_x): σ_a is the along-track scale error (a wheel spinning on loose
 //!   ground, a stall; σ_a < 0 where the body moved less than the wheels turned), σ_c the sideways
@@ -79,6 +89,10 @@ pub struct FilterParams {
     pub gyro_bias_sigma: f64,
     /// Random walk of the gyro bias, rad/s/sqrt(s).
     pub gyro_bias_walk: f64,
+    /// A standing body's gyro rate about its z axis (a zero angular rate update of the residual
+    /// bias) further than this from the bias (squared Mahalanobis distance, 1 dof) is refused: the
+    /// body rocked, or was turned, and the step is predicted as a moving one.
+    pub still_gate: f64,
     /// Initial uncertainty of the wheels' slip (1 sigma): along-track scale error, sideways
     /// slide per metre driven and rise per metre driven (0: the wheels' translation is taken as
     /// it comes).
@@ -103,6 +117,7 @@ impl Default for FilterParams {
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
             gyro_bias_walk: 2e-5,
+            still_gate: 16.0,
             wheel_slip_sigma: [0.0; 3],
             wheel_slip_walk: [0.0; 3],
             wheel_slip_turn_walk: 0.0,
@@ -130,6 +145,13 @@ pub struct Increment {
     /// The accelerometer's unit specific force in the body frame (up when at rest) at the step's
     /// end, when it may be taken as gravity.
     pub gravity: Option<Vector3<f64>>,
+    /// How much the bias the gyro's source subtracts changed since the previous step (its own
+    /// standstill learning), rad/s, body frame: the residual bias moves the other way.
+    pub gyro_bias_shift: Vector3<f64>,
+    /// The body stood still over the step (its wheels have for a while): it did not turn about
+    /// its z axis, and the gyro's rate about it is a measurement of the residual bias (a zero
+    /// angular rate update) instead of a rotation, unless the gate (`still_gate`) refuses it.
+    pub still: bool,
 }
 
 /// A relative pose measurement: the body at `to` seen from the body at `from`.
@@ -327,14 +349,40 @@ impl Augmented {
 
     /// One filter step: the prediction over `dt` seconds with `inc`, then its gravity correction.
     fn advance(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
-        self.predict(inc, dt, p);
+        self.bias -= inc.gyro_bias_shift;
+        // A standing body's rate beyond the gate was a turn (or the body rocked): predicted as
+        // one, the rotation integrated and its noise counted.
+        let still = inc.still && inc.gyro_dt > 0.0 && {
+            let (y, _, n) = self.zero_rate_model(inc);
+            y[0] * y[0] / (self.p[(BIAS + 2, BIAS + 2)] + n[(0, 0)]) <= p.still_gate
+        };
+        self.predict(inc, dt, p, still);
         if let Some(g) = &inc.gravity {
             self.gravity(g, p.gravity_sigma);
         }
+        if still {
+            let (y, h, n) = self.zero_rate_model(inc);
+            let _ = self.update(&y, &h, &n, None, &[]);
+        }
     }
 
-    /// One step of `dt` seconds with increment `inc`.
-    fn predict(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
+    /// The zero angular rate update of a standing body: the gyro's residual rate about the body's
+    /// z axis over the step measures the residual bias about it, with the rate noise of the
+    /// step's rotation; its innovation, Jacobian and noise. The heading follows through its
+    /// correlation with the bias (the rotation the bias made of it since it was last known).
+    fn zero_rate_model(&self, inc: &Increment) -> (SVector<f64, 1>, SMatrix<f64, 1, A>, SMatrix<f64, 1, 1>) {
+        let dt = inc.gyro_dt;
+        let rate = inc.rotation.scaled_axis().z / dt;
+        let y = SVector::<f64, 1>::new(rate - self.bias.z);
+        let mut h = SMatrix::<f64, 1, A>::zeros();
+        h[(0, BIAS + 2)] = 1.0;
+        let n = SMatrix::<f64, 1, 1>::new(inc.rotation_covariance[(2, 2)] / (dt * dt));
+        (y, h, n)
+    }
+
+    /// One step of `dt` seconds with increment `inc`; `still`: the body stood (its gyro's rate
+    /// about its z axis is the zero angular rate update's, not integrated).
+    fn predict(&mut self, inc: &Increment, dt: f64, p: &FilterParams, still: bool) {
         let r = self.pose.rotation.to_rotation_matrix().into_inner();
         let d = inc.translation;
         // The slip's Jacobian J: along-track scale, sideways slide and rise per metre driven.
@@ -342,12 +390,21 @@ impl Augmented {
         let rd = r * (d + j * self.slip);
         let rj = r * j;
         let gdt = inc.gyro_dt.max(0.0);
-        let rotation = self.pose.rotation * inc.rotation * UnitQuaternion::from_scaled_axis(-self.bias * gdt);
+        // Standing still, the body turns about no z axis: neither the gyro's rate about it nor
+        // the bias is integrated there (the rate is the bias's measurement).
+        let axes = Vector3::new(1.0, 1.0, 0.0);
+        let rotation = if still {
+            self.pose.rotation
+                * UnitQuaternion::from_scaled_axis(inc.rotation.scaled_axis().component_mul(&axes))
+                * UnitQuaternion::from_scaled_axis(-self.bias.component_mul(&axes) * gdt)
+        } else {
+            self.pose.rotation * inc.rotation * UnitQuaternion::from_scaled_axis(-self.bias * gdt)
+        };
         let r_next = rotation.to_rotation_matrix().into_inner();
         // P <- F P F^T + Q with F = I except F[p, θ] = -[R d]x, F[p, σ] = R J and
         // F[θ, b] = -R' Δt_gyro: rows, then columns (each from the blocks as they were).
         let s = -rd.cross_matrix();
-        let g = -r_next * gdt;
+        let g = if still { -r_next * Matrix3::from_diagonal(&axes) * gdt } else { -r_next * gdt };
         let rows_p = s * self.p.fixed_rows::<3>(3) + rj * self.p.fixed_rows::<3>(SLIP);
         let rows_t = g * self.p.fixed_rows::<3>(BIAS);
         self.p.fixed_rows_mut::<3>(0).add_assign(&rows_p);
@@ -360,7 +417,12 @@ impl Augmented {
         let mut q = self.p.fixed_view_mut::<3, 3>(0, 0);
         q += r * inc.translation_covariance * r.transpose();
         let mut q = self.p.fixed_view_mut::<3, 3>(3, 3);
-        q += r_next * inc.rotation_covariance * r_next.transpose();
+        if still {
+            let a = Matrix3::from_diagonal(&axes);
+            q += r_next * (a * inc.rotation_covariance * a) * r_next.transpose();
+        } else {
+            q += r_next * inc.rotation_covariance * r_next.transpose();
+        }
         let dt = dt.max(0.0);
         let walk = p.tilt_random_walk * p.tilt_random_walk * dt;
         self.p[(3, 3)] += walk;

@@ -255,6 +255,8 @@ mod tests {
             rotation_covariance: Matrix3::identity() * 1e-10,
             gyro_dt: 0.1,
             gravity: Some(Vector3::z()),
+            gyro_bias_shift: Vector3::zeros(),
+            still: false,
         }
     }
 

@@ -40,6 +40,8 @@ fn drive(params: FilterParams, slip: Vector3<f64>, tilt: Vector2<f64>, sigma_t: 
             rotation_covariance: Matrix3::identity() * 1e-10,
             gyro_dt: 0.02,
             gravity: Some(Vector3::z()),
+            gyro_bias_shift: Vector3::zeros(),
+            still: false,
         });
         if t - last >= 0.5 - 1e-9 {
             let d = pose(last).inverse() * pose(t);
@@ -145,12 +147,14 @@ fn the_slip_jacobian_matches_the_motion_it_predicts() {
         rotation_covariance: Matrix3::zeros(),
         gyro_dt: 0.0,
         gravity: None,
+        gyro_bias_shift: Vector3::zeros(),
+        still: false,
     };
     let after = |slip: Vector3<f64>| {
         let mut start = state;
         start.wheel_slip = slip;
         let mut a = Augmented::new(&start);
-        a.predict(&inc, 0.02, &params);
+        a.predict(&inc, 0.02, &params, false);
         a
     };
     let base = after(state.wheel_slip);

@@ -11,7 +11,7 @@ impl Gauss {
         let (a, b) = (self.uniform(), self.uniform());
         (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
     }
-    fn vec3(&mut self, sigma: f64) -> Vector3<f64> {
+    pub(super) fn vec3(&mut self, sigma: f64) -> Vector3<f64> {
         Vector3::new(self.next(), self.next(), self.next()) * sigma
     }
 }
@@ -56,6 +56,8 @@ fn increments(poses: &[Isometry3<f64>], g: &mut Gauss, sd: f64, sr: f64, sg: f64
                 // Every third step without gravity (the rover accelerating).
                 gravity: (i % 3 != 0)
                     .then(|| (w[1].rotation.inverse() * Vector3::z() + g.vec3(sg)).normalize()),
+                gyro_bias_shift: Vector3::zeros(),
+                still: false,
             }
         })
         .collect()
@@ -203,6 +205,8 @@ fn gravity_gives_the_tilt_on_a_static_slope() {
             rotation_covariance: Matrix3::identity() * 1e-8,
             gyro_dt: DT,
             gravity: Some((tilt.inverse() * Vector3::z() + g.vec3(0.02)).normalize()),
+            gyro_bias_shift: Vector3::zeros(),
+            still: false,
         });
     }
     let (r, p, y) = f.state().pose.rotation.euler_angles();
@@ -233,6 +237,8 @@ fn a_biased_vertical_moves_the_tilt_not_the_gyro_bias() {
             rotation_covariance: Matrix3::identity() * 1e-8,
             gyro_dt: DT,
             gravity: Some(off * truth.inverse() * Vector3::z()),
+            gyro_bias_shift: Vector3::zeros(),
+            still: false,
         });
     }
     let s = f.state();

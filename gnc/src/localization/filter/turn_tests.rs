@@ -23,6 +23,8 @@ fn perfect_measurements_between_steps_add_no_rotation() {
             rotation_covariance: Matrix3::identity() * 1e-8,
             gyro_dt: 0.02,
             gravity: Some(Vector3::z()),
+            gyro_bias_shift: Vector3::zeros(),
+            still: false,
         });
         if t - last_to >= 0.7 {
             let to = t - 0.013;

@@ -13,11 +13,16 @@
 //! normalized estimation error squared (NEES) of the fused 6D pose, e^T P^-1 e over (x, y, z, and
 //! the rotation error about the `map` axes), is inside its 95 % bound when below the chi-square
 //! quantile of 6 degrees of freedom.
+//!
+//! Visual odometry's closed keyframes are scored alone too (`visual_keyframes`): each relative pose
+//! against the true motion over the same capture times, its error's NEES with the covariance it
+//! claims (what the fusion weighs it by), and the error of its rotation about the body's z axis,
+//! which adds up into the heading.
 
 use framework::data::{PoseEstimate, VisualOdometry, VisualOdometryStatus};
 use framework::time::Time;
 use framework::{BlackBoard, Reader};
-use nalgebra::{Isometry3, UnitQuaternion, Vector6};
+use nalgebra::{Isometry3, Matrix6, UnitQuaternion, Vector6};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, VecDeque};
 
@@ -31,8 +36,9 @@ pub const SOURCES: [(&str, &str); 3] = [
     ("visual", gnc::localization_visual::POSE_SLOT),
 ];
 
-/// How long truth is kept to compare late estimates with, s.
-const TRUTH_HISTORY_S: f64 = 3.0;
+/// How long truth is kept to compare late estimates and keyframes (a standing rover's last 4 s
+/// and more) with, s.
+const TRUTH_HISTORY_S: f64 = 8.0;
 
 /// One source's errors (horizontal position, heading), sampled at 10 Hz.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -65,6 +71,70 @@ pub struct LocalizationMetrics {
     pub visual_frames: u64,
     /// See `visual_frames`.
     pub visual_lost: u64,
+    /// Visual odometry's closed keyframes against the truth, where it ran.
+    #[serde(default)]
+    pub visual_keyframes: Option<KeyframeScore>,
+}
+
+/// Visual odometry's closed keyframes against the truth: how well the covariance it claims
+/// describes its error.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct KeyframeScore {
+    /// Keyframes scored (both capture times within the truth kept).
+    pub keyframes: u64,
+    /// Mean NEES of a keyframe's relative pose (translation in the keyframe's body frame, then
+    /// rotation; 6 for a covariance that describes the error).
+    pub nees_mean: f64,
+    /// Share of the keyframes whose NEES is inside its 95 % bound.
+    pub nees_within_95_fraction: f64,
+    /// Root-mean-square error of the rotation about the body's z axis, degrees ...
+    pub yaw_error_rms_deg: f64,
+    /// ... the mean of the 1 sigma claimed for it, degrees ...
+    pub yaw_sigma_mean_deg: f64,
+    /// ... and the sum of those errors, degrees: what they add up to in a heading from vision
+    /// alone.
+    pub yaw_error_sum_deg: f64,
+}
+
+/// Sums over the scored keyframes.
+#[derive(Default)]
+struct KeyframeAcc {
+    n: u64,
+    nees_sum: f64,
+    within: u64,
+    yaw_sq_sum: f64,
+    yaw_sigma_sum: f64,
+    yaw_sum: f64,
+}
+
+impl KeyframeAcc {
+    /// Scores a keyframe's relative pose `delta` (`body_then_from_body_now`, its covariance
+    /// `covariance`: translation, then rotation as a right perturbation) against the true one.
+    fn add(&mut self, delta: &Isometry3<f64>, covariance: &Matrix6<f64>, truth: &Isometry3<f64>) {
+        let dt = delta.translation.vector - truth.translation.vector;
+        let dr = (truth.rotation.inverse() * delta.rotation).scaled_axis();
+        let e = Vector6::new(dt.x, dt.y, dt.z, dr.x, dr.y, dr.z);
+        let Some(inv) = covariance.try_inverse() else { return };
+        let nees = (e.transpose() * inv * e)[0];
+        self.n += 1;
+        self.nees_sum += nees;
+        self.within += u64::from(nees <= CHI2_6DOF_95);
+        self.yaw_sq_sum += dr.z * dr.z;
+        self.yaw_sigma_sum += covariance[(5, 5)].max(0.0).sqrt();
+        self.yaw_sum += dr.z;
+    }
+
+    fn score(&self) -> Option<KeyframeScore> {
+        let n = self.n as f64;
+        (self.n > 0).then(|| KeyframeScore {
+            keyframes: self.n,
+            nees_mean: self.nees_sum / n,
+            nees_within_95_fraction: self.within as f64 / n,
+            yaw_error_rms_deg: (self.yaw_sq_sum / n).sqrt().to_degrees(),
+            yaw_sigma_mean_deg: (self.yaw_sigma_sum / n).to_degrees(),
+            yaw_error_sum_deg: self.yaw_sum.to_degrees(),
+        })
+    }
 }
 
 #[derive(Default)]
@@ -91,6 +161,7 @@ pub struct LocalizationScorer {
     visual_seq: u64,
     visual_frames: u64,
     visual_lost: u64,
+    keyframes: KeyframeAcc,
 }
 
 impl LocalizationScorer {
@@ -112,6 +183,7 @@ impl LocalizationScorer {
             visual_seq: 0,
             visual_frames: 0,
             visual_lost: 0,
+            keyframes: KeyframeAcc::default(),
         }
     }
 
@@ -132,6 +204,14 @@ impl LocalizationScorer {
             self.visual_seq = v.seq;
             self.visual_frames += 1;
             self.visual_lost += u64::from(v.value.status == VisualOdometryStatus::Lost);
+            if let (true, Some(delta)) = (v.value.keyframe_closed, v.value.delta)
+                && self.truth.front().is_some_and(|(t, _)| *t <= v.value.keyframe_stamp)
+                && let (Some(a), Some(b)) =
+                    (self.truth_at(v.value.keyframe_stamp), self.truth_at(v.value.stamp))
+            {
+                let truth = a.inverse() * b;
+                self.keyframes.add(&delta, &v.value.covariance, &truth);
+            }
         }
         if !force && self.last_sample.is_some_and(|t| (now - t).as_secs_f64() < 0.1 - 1e-9) {
             return;
@@ -206,6 +286,46 @@ impl LocalizationScorer {
             nees_mean: (n > 0.0).then(|| self.nees.iter().sum::<f64>() / n),
             visual_frames: self.visual_frames,
             visual_lost: self.visual_lost,
+            visual_keyframes: self.keyframes.score(),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Translation3;
+
+    /// A keyframe off by 1 mm along x and 1 mrad about z, each 1 sigma of what it claims: NEES 2;
+    /// the rotation's error and sigma in degrees, summed over keyframes with the sign they have.
+    #[test]
+    fn a_keyframe_is_scored_against_the_true_motion_with_its_covariance() {
+        let truth = Isometry3::from_parts(
+            Translation3::new(0.2, 0.01, 0.0),
+            UnitQuaternion::from_euler_angles(0.0, 0.0, 0.05),
+        );
+        let off = Isometry3::from_parts(
+            Translation3::new(truth.translation.x + 0.001, truth.translation.y, 0.0),
+            truth.rotation * UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001),
+        );
+        let mut covariance = Matrix6::identity() * 1e-6;
+        covariance[(0, 0)] = 1e-6;
+        let mut acc = KeyframeAcc::default();
+        acc.add(&off, &covariance, &truth);
+        let back = Isometry3::from_parts(
+            truth.translation,
+            truth.rotation * UnitQuaternion::from_euler_angles(0.0, 0.0, -0.003),
+        );
+        acc.add(&back, &covariance, &truth);
+        let s = acc.score().expect("two keyframes");
+        assert_eq!(s.keyframes, 2);
+        // NEES 2 and 9: mean 5.5, both inside the bound.
+        assert!((s.nees_mean - 5.5).abs() < 1e-6, "{}", s.nees_mean);
+        assert_eq!(s.nees_within_95_fraction, 1.0);
+        assert!((s.yaw_error_sum_deg - (-0.002f64).to_degrees()).abs() < 1e-6, "{}", s.yaw_error_sum_deg);
+        let rms = ((0.001f64.powi(2) + 0.003f64.powi(2)) / 2.0).sqrt().to_degrees();
+        assert!((s.yaw_error_rms_deg - rms).abs() < 1e-6);
+        assert!((s.yaw_sigma_mean_deg - 0.001f64.to_degrees()).abs() < 1e-9);
+        assert_eq!(KeyframeAcc::default().score(), None);
     }
 }

@@ -204,8 +204,8 @@ impl LocalizationScorer {
             self.visual_seq = v.seq;
             self.visual_frames += 1;
             self.visual_lost += u64::from(v.value.status == VisualOdometryStatus::Lost);
+            // (`truth_at` has nothing for a keyframe older than the truth kept.)
             if let (true, Some(delta)) = (v.value.keyframe_closed, v.value.delta)
-                && self.truth.front().is_some_and(|(t, _)| *t <= v.value.keyframe_stamp)
                 && let (Some(a), Some(b)) =
                     (self.truth_at(v.value.keyframe_stamp), self.truth_at(v.value.stamp))
             {
@@ -308,8 +308,7 @@ mod tests {
             Translation3::new(truth.translation.x + 0.001, truth.translation.y, 0.0),
             truth.rotation * UnitQuaternion::from_euler_angles(0.0, 0.0, 0.001),
         );
-        let mut covariance = Matrix6::identity() * 1e-6;
-        covariance[(0, 0)] = 1e-6;
+        let covariance = Matrix6::identity() * 1e-6;
         let mut acc = KeyframeAcc::default();
         acc.add(&off, &covariance, &truth);
         let back = Isometry3::from_parts(

@@ -351,17 +351,17 @@ impl Augmented {
     fn advance(&mut self, inc: &Increment, dt: f64, p: &FilterParams) {
         self.bias -= inc.gyro_bias_shift;
         // A standing body's rate beyond the gate was a turn (or the body rocked): predicted as
-        // one, the rotation integrated and its noise counted.
-        let still = inc.still && inc.gyro_dt > 0.0 && {
-            let (y, _, n) = self.zero_rate_model(inc);
-            y[0] * y[0] / (self.p[(BIAS + 2, BIAS + 2)] + n[(0, 0)]) <= p.still_gate
-        };
-        self.predict(inc, dt, p, still);
+        // one, the rotation integrated and its noise counted. Neither the prediction nor gravity
+        // (which takes the bias as a consider state) changes the bias, so the model made for the
+        // gate is the update's.
+        let zero_rate = (inc.still && inc.gyro_dt > 0.0)
+            .then(|| self.zero_rate_model(inc))
+            .filter(|(y, _, n)| y[0] * y[0] / (self.p[(BIAS + 2, BIAS + 2)] + n[(0, 0)]) <= p.still_gate);
+        self.predict(inc, dt, p, zero_rate.is_some());
         if let Some(g) = &inc.gravity {
             self.gravity(g, p.gravity_sigma);
         }
-        if still {
-            let (y, h, n) = self.zero_rate_model(inc);
+        if let Some((y, h, n)) = zero_rate {
             let _ = self.update(&y, &h, &n, None, &[]);
         }
     }
@@ -393,6 +393,7 @@ impl Augmented {
         // Standing still, the body turns about no z axis: neither the gyro's rate about it nor
         // the bias is integrated there (the rate is the bias's measurement).
         let axes = Vector3::new(1.0, 1.0, 0.0);
+        let no_z = Matrix3::from_diagonal(&axes);
         let rotation = if still {
             self.pose.rotation
                 * UnitQuaternion::from_scaled_axis(inc.rotation.scaled_axis().component_mul(&axes))
@@ -404,7 +405,7 @@ impl Augmented {
         // P <- F P F^T + Q with F = I except F[p, θ] = -[R d]x, F[p, σ] = R J and
         // F[θ, b] = -R' Δt_gyro: rows, then columns (each from the blocks as they were).
         let s = -rd.cross_matrix();
-        let g = if still { -r_next * Matrix3::from_diagonal(&axes) * gdt } else { -r_next * gdt };
+        let g = if still { -r_next * no_z * gdt } else { -r_next * gdt };
         let rows_p = s * self.p.fixed_rows::<3>(3) + rj * self.p.fixed_rows::<3>(SLIP);
         let rows_t = g * self.p.fixed_rows::<3>(BIAS);
         self.p.fixed_rows_mut::<3>(0).add_assign(&rows_p);
@@ -418,8 +419,7 @@ impl Augmented {
         q += r * inc.translation_covariance * r.transpose();
         let mut q = self.p.fixed_view_mut::<3, 3>(3, 3);
         if still {
-            let a = Matrix3::from_diagonal(&axes);
-            q += r_next * (a * inc.rotation_covariance * a) * r_next.transpose();
+            q += r_next * (no_z * inc.rotation_covariance * no_z) * r_next.transpose();
         } else {
             q += r_next * inc.rotation_covariance * r_next.transpose();
         }

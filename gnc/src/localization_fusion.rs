@@ -25,7 +25,8 @@
 //! (`wheel_slip_sigma`: along-track scale, sideways slide per metre; `wheel_pitch_sigma_deg`: the
 //! rise per metre the body's x axis misses) is a state of the filter that vision teaches, and
 //! visual odometry's mount tilt (`visual_mount_tilt_sigma_deg`) a consider state whose
-//! uncertainty the covariance carries; both are noted every 10 m driven.
+//! uncertainty the covariance carries; its yaw drift per metre (`visual_yaw_drift_sigma_deg_per_m`)
+//! a state learnt against the gyro; all are noted every 10 m driven.
 
 use crate::localization::filter::{FilterParams, Increment, PoseFilter, RelativeError, RelativePose};
 use crate::localization::landmark::{Disagreement, DriftEvidence, LandmarkFix};
@@ -93,6 +94,13 @@ pub struct FusionParams {
     /// the filter (its uncertainty counted in every visual update, never learnt from vision and
     /// the wheels; landmarks correct it) (0: taken as calibrated).
     pub visual_mount_tilt_sigma_deg: f64,
+    /// Uncertainty of visual odometry's yaw drift (1 sigma), degrees per metre of the translation
+    /// it measures, at most 1: the turn its pair's calibration error adds to every motion it
+    /// measures, a state of the filter learnt against the gyro (0: none estimated).
+    pub visual_yaw_drift_sigma_deg_per_m: f64,
+    /// Random walk of that drift per sqrt(m) travelled, degrees per metre; needs the drift
+    /// estimated.
+    pub visual_yaw_drift_walk_deg_per_m: f64,
     /// Noise of the gravity direction (1 sigma), rad.
     pub gravity_sigma: f64,
     /// Random walk of roll and pitch, rad/sqrt(s) (gravity cannot pin the tilt below the
@@ -177,6 +185,8 @@ impl Default for FusionParams {
             wheel_pitch_sigma_deg: 0.0,
             wheel_pitch_walk_deg: 0.0,
             visual_mount_tilt_sigma_deg: 0.0,
+            visual_yaw_drift_sigma_deg_per_m: 0.0,
+            visual_yaw_drift_walk_deg_per_m: 0.0,
             gravity_sigma: 0.02,
             tilt_random_walk: 0.003,
             gyro_bias_sigma: 0.001,
@@ -513,7 +523,8 @@ impl LocalizationDataFusion {
             self.travelled_m += ds;
             let estimates = p.wheel_slip_sigma.iter().any(|s| *s > 0.0)
                 || p.wheel_pitch_sigma_deg > 0.0
-                || p.visual_mount_tilt_sigma_deg > 0.0;
+                || p.visual_mount_tilt_sigma_deg > 0.0
+                || p.visual_yaw_drift_sigma_deg_per_m > 0.0;
             // (A walk is refused without its slip estimated: `validate_states`.)
             if self.travelled_m >= self.next_slip_note_m && estimates {
                 self.next_slip_note_m += SLIP_NOTE_EVERY_M;
@@ -524,7 +535,7 @@ impl LocalizationDataFusion {
                     s.relative_mount_tilt_sigma().map(f64::to_degrees),
                 );
                 ctx.note(format!(
-                    "after {:.0} m: wheel slip along {:+.2} +/- {:.2} %, sideways {:+.2} +/- {:.2} cm per m, pitch {:+.2} +/- {:.2} deg; visual odometry's mount tilt roll {:+.3} +/- {:.3} deg, pitch {:+.3} +/- {:.3} deg",
+                    "after {:.0} m: wheel slip along {:+.2} +/- {:.2} %, sideways {:+.2} +/- {:.2} cm per m, pitch {:+.2} +/- {:.2} deg; visual odometry's mount tilt roll {:+.3} +/- {:.3} deg, pitch {:+.3} +/- {:.3} deg, yaw drift {:+.3} +/- {:.3} mrad per m",
                     self.travelled_m,
                     slip.x * 100.0,
                     sigma.x * 100.0,
@@ -535,7 +546,9 @@ impl LocalizationDataFusion {
                     tilt.x,
                     tilt_sigma.x,
                     tilt.y,
-                    tilt_sigma.y
+                    tilt_sigma.y,
+                    s.relative_yaw_drift * 1e3,
+                    s.relative_yaw_drift_sigma() * 1e3
                 ));
             }
             let w = fresh_att.map_or(mech.value.velocity.omega, |a| a.value.angular_rate.z);
@@ -707,6 +720,8 @@ fn filter_params(p: &FusionParams) -> FilterParams {
         wheel_slip_walk: [p.wheel_slip_walk[0], p.wheel_slip_walk[1], p.wheel_pitch_walk_deg.to_radians()],
         wheel_slip_turn_walk: p.wheel_slip_turn_walk,
         relative_mount_tilt_sigma: p.visual_mount_tilt_sigma_deg.to_radians(),
+        relative_yaw_drift_sigma: p.visual_yaw_drift_sigma_deg_per_m.to_radians(),
+        relative_yaw_drift_walk: p.visual_yaw_drift_walk_deg_per_m.to_radians(),
     }
 }
 
@@ -732,6 +747,8 @@ fn validate_states(p: &FusionParams) -> Result<(), String> {
         ("wheel_pitch_sigma_deg", p.wheel_pitch_sigma_deg),
         ("wheel_pitch_walk_deg", p.wheel_pitch_walk_deg),
         ("visual_mount_tilt_sigma_deg", p.visual_mount_tilt_sigma_deg),
+        ("visual_yaw_drift_sigma_deg_per_m", p.visual_yaw_drift_sigma_deg_per_m),
+        ("visual_yaw_drift_walk_deg_per_m", p.visual_yaw_drift_walk_deg_per_m),
     ])?;
     let walks =
         [p.wheel_slip_walk[0], p.wheel_slip_walk[1].max(p.wheel_slip_turn_walk), p.wheel_pitch_walk_deg];
@@ -750,6 +767,15 @@ fn validate_states(p: &FusionParams) -> Result<(), String> {
         return Err(format!(
             "wheel_pitch_sigma_deg must be at most {MAX_WHEEL_PITCH_SIGMA_DEG} (the filter takes the pitch as a small angle), got {}",
             p.wheel_pitch_sigma_deg
+        ));
+    }
+    if p.visual_yaw_drift_walk_deg_per_m > 0.0 && p.visual_yaw_drift_sigma_deg_per_m == 0.0 {
+        return Err("visual odometry's yaw drift has a random walk but is not estimated: give visual_yaw_drift_sigma_deg_per_m a value above 0, or set visual_yaw_drift_walk_deg_per_m to 0".into());
+    }
+    if p.visual_yaw_drift_sigma_deg_per_m > MAX_YAW_DRIFT_SIGMA_DEG_PER_M {
+        return Err(format!(
+            "visual_yaw_drift_sigma_deg_per_m must be at most {MAX_YAW_DRIFT_SIGMA_DEG_PER_M} (the filter takes a keyframe's drift as a small angle), got {}",
+            p.visual_yaw_drift_sigma_deg_per_m
         ));
     }
     if p.visual_mount_tilt_sigma_deg > MAX_MOUNT_TILT_SIGMA_DEG {
@@ -775,6 +801,8 @@ fn validate_standstills(p: &FusionParams) -> Result<(), String> {
 /// for, degrees.
 const MAX_MOUNT_TILT_SIGMA_DEG: f64 = 5.0;
 const MAX_WHEEL_PITCH_SIGMA_DEG: f64 = 10.0;
+/// The largest yaw drift uncertainty, degrees per metre.
+const MAX_YAW_DRIFT_SIGMA_DEG_PER_M: f64 = 1.0;
 
 #[cfg(test)]
 mod tests;

@@ -41,6 +41,21 @@ fn slip_and_tilt_parameters_are_validated() {
     assert!(err(FusionParams { wheel_pitch_walk_deg: -0.1, ..on.clone() }).contains("wheel_pitch_walk_deg"));
     let pitch_walk_only = err(FusionParams { wheel_pitch_sigma_deg: 0.0, ..on.clone() });
     assert!(pitch_walk_only.contains("wheel_pitch_sigma_deg"), "{pitch_walk_only}");
+    let drift = FusionParams {
+        visual_yaw_drift_sigma_deg_per_m: 0.1,
+        visual_yaw_drift_walk_deg_per_m: 0.01,
+        ..on.clone()
+    };
+    assert_eq!(validate_states(&drift), Ok(()));
+    let drift_walk_only = err(FusionParams { visual_yaw_drift_sigma_deg_per_m: 0.0, ..drift.clone() });
+    assert!(drift_walk_only.contains("visual_yaw_drift_sigma_deg_per_m"), "{drift_walk_only}");
+    assert!(
+        err(FusionParams { visual_yaw_drift_sigma_deg_per_m: 2.0, ..drift.clone() }).contains("at most 1")
+    );
+    assert!(
+        err(FusionParams { visual_yaw_drift_walk_deg_per_m: f64::NAN, ..drift })
+            .contains("visual_yaw_drift_walk")
+    );
 }
 
 /// The slip and tilt states on, as measured on the sweeps (sessions 39-40).

@@ -39,9 +39,8 @@
 //!   them and the covariance grows with the distance, not its square root.
 //! - Gravity: the accelerometer's unit specific force measures R^T e_z (valid when not accelerating
 //!   hard); H = `[0, R^T [e_z]x]`. It corrects the tilt only: the heading, the bias, the wheels'
-//!   slip and the mount tilt are consider states of this update (Schmidt-Kalman), since its
-//!   errors are no white noise (on a
-//!   slope the body-z bias is correlated with the tilt, and a turn's vibration or the
+//!   slip, the mount tilt and the yaw drift are consider states of this update (Schmidt-Kalman),
+//!   since its errors are no white noise (on a slope the body-z bias is correlated with the tilt, and a turn's vibration or the
 //!   accelerometer's bias learnt through that correlation became a heading rate).
 //! - Relative measurement (t_a, t_b, D): r = (R_a^T (p_b - p_a) - Exp(-ε) t_D,
 //!   Log(Exp(ν |t_D| e_z) R_D^T R_a^T R_b)), by stochastic cloning: the pose at t_a is cloned into an augmented
@@ -58,8 +57,8 @@
 //! - The relative measurements' yaw drift ν: a stereo pair's calibration error (the two cameras'
 //!   relative rotation, their focal lengths) bends every motion it measures the same way, about
 //!   its z axis by ν per metre of the translation it measures (in a traverse sweep one draw's
-//!   visual odometry turned -2.2 mrad per metre, 6 degrees over 30 m, where its keyframes' yaw
-//!   noise is 1 mrad each). Taken as white noise, that drift is followed into the heading and the
+//!   visual odometry turned -2.2 mrad per metre, 6 degrees over the 46 m it measured, where its
+//!   keyframes' yaw noise is 1 mrad each). Taken as white noise, that drift is followed into the heading and the
 //!   covariance never shows it. As a state (a random walk per metre travelled) it is learnt
 //!   against the gyro wherever the gyro's bias is known apart from it: at standstills (the zero
 //!   angular rate updates), and in turns in place, where vision translates little.
@@ -514,8 +513,8 @@ impl Augmented {
     }
 
     /// The accelerometer's vertical corrects the state, the tilt only: the heading (the rotation
-    /// about the `map` vertical, here and in a clone), the gyro bias, the wheels' slip and the
-    /// mount tilt are consider states of this update (Schmidt-Kalman: their gain rows are zero,
+    /// about the `map` vertical, here and in a clone), the gyro bias, the wheels' slip, the mount
+    /// tilt and the relative measurements' yaw drift are consider states of this update (Schmidt-Kalman: their gain rows are zero,
     /// their covariance unchanged, their correlations with the corrected states kept right).
     /// Gravity cannot see the heading; it reached it, and
     /// the body-z bias, only through correlations built by the bias on sloped ground, so that the
@@ -564,8 +563,9 @@ impl Augmented {
     }
 
     /// A relative measurement between the clone and the state: the measured translation taken back
-    /// through the mount tilt's estimate, compared with the filter's motion; the residual's
-    /// Jacobian covers the tilt (the rotation's dependence on it is of second order).
+    /// through the mount tilt's estimate and its rotation through the yaw drift's, compared with
+    /// the filter's motion; the residual's Jacobian covers the tilt (the rotation's dependence on
+    /// it is of second order) and the yaw drift.
     /// `considered`: the mount tilt's states ([`CONSIDERED_BY_RELATIVE`]), or none when it is
     /// taken as calibrated.
     fn relative(&mut self, m: &RelativePose, gate: f64, considered: &[usize]) -> Result<f64, f64> {

@@ -163,7 +163,7 @@ fn late_relative_measurements_give_the_same_result(params: FilterParams) {
     assert_eq!((a.wheel_slip, a.relative_mount_tilt), (b2.wheel_slip, b2.relative_mount_tilt));
 }
 
-/// Not estimated (the defaults), the slip and mount states stay exactly zero with no
+/// Not estimated (the defaults), the slip, mount and yaw drift states stay exactly zero with no
 /// covariance through predictions, gravity and relative updates: the filter is the one without
 /// them. Estimated, vision teaches the slip.
 #[test]
@@ -175,6 +175,7 @@ fn slip_and_mount_states_that_are_off_stay_out_of_the_filter() {
     let (off, _) = run(&poses, &inc, &rel, 3, params());
     let s = off.state();
     assert_eq!((s.wheel_slip, s.relative_mount_tilt), (Vector3::zeros(), Vector2::zeros()));
+    assert_eq!(s.relative_yaw_drift, 0.0);
     for i in SLIP..N {
         assert!(s.full.row(i).iter().chain(s.full.column(i).iter()).all(|v| *v == 0.0), "state {i}");
     }

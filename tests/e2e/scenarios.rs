@@ -15,27 +15,6 @@ fn run(scenario: &Path, out: &Path, extra: &[&str]) -> Output {
     rover_twin().arg("run").arg(scenario).arg("--out").arg(out).arg("--quiet").args(extra).output().unwrap()
 }
 
-/// Messages per topic of an MCAP file, checking CRCs, the summary and monotonic log times.
-fn read_mcap(path: &Path) -> BTreeMap<String, Vec<serde_json::Value>> {
-    let bytes = std::fs::read(path).unwrap();
-    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
-    let stats = summary.stats.as_ref().expect("statistics");
-    assert!(!summary.chunk_indexes.is_empty(), "chunk indexes");
-    let mut out: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
-    let mut last = 0u64;
-    for m in mcap::MessageStream::new(&bytes).unwrap() {
-        let m = m.unwrap();
-        assert!(m.log_time >= last, "log times go backwards on {}", m.channel.topic);
-        last = m.log_time;
-        let schema = m.channel.schema.as_ref().expect("every channel has a schema");
-        assert_eq!(schema.encoding, "jsonschema");
-        serde_json::from_slice::<serde_json::Value>(&schema.data).expect("schema is JSON");
-        out.entry(m.channel.topic.clone()).or_default().push(serde_json::from_slice(&m.data).unwrap());
-    }
-    assert_eq!(stats.message_count, out.values().map(|v| v.len() as u64).sum::<u64>());
-    out
-}
-
 /// Entity paths of a Rerun recording's data store.
 fn rrd_entities(path: &Path) -> BTreeSet<String> {
     use rerun::external::re_log_encoding::DecoderApp;
@@ -534,48 +513,6 @@ fn a_hung_module_ends_the_run_naming_it_with_finalized_logs() {
 }
 
 #[test]
-fn the_navigator_goes_round_a_barrier_and_reports_a_walled_off_goal() {
-    // Round a barrier of rocks across the straight line: the ToF maps, traversability and the
-    // planner find the way; nothing is hit.
-    let dir = tempfile::tempdir().unwrap();
-    let o = run(&data("nav_barrier.toml"), dir.path(), &[]);
-    assert!(o.status.success(), "{}", show(&o));
-    let s = score(dir.path());
-    assert_eq!(s["metrics"]["collisions"], 0, "{s}");
-    let mcap = read_mcap(&dir.path().join("run.mcap"));
-    let path = mcap.get("/navigation_path").expect("paths logged");
-    // Some path leaves the straight line by more than the barrier's half-length plus a margin.
-    let detour = path.iter().any(|m| {
-        m["poses"].as_array().unwrap().iter().any(|p| p["position"]["y"].as_f64().unwrap().abs() > 1.8)
-    });
-    assert!(detour, "no path goes round the barrier");
-    assert!(mcap.contains_key("/maps/perception_global_dem") && mcap.contains_key("/maps/navigation_map"));
-    // A goal inside a closed ring of rocks: the navigation fails, saying there is no path.
-    let dir = tempfile::tempdir().unwrap();
-    let o = run(&data("nav_ring.toml"), dir.path(), &[]);
-    assert_eq!(o.status.code(), Some(1), "{}", show(&o));
-    let s = score(dir.path());
-    let reason = s["phases"][0]["reason"].as_str().unwrap_or_default().to_string();
-    assert!(reason.contains("no path"), "{reason}");
-}
-
-#[test]
-fn the_path_follower_turns_a_corner_on_a_slope_where_arcs_stall() {
-    // A right-angle corner on an 8 degree rise, friction 0.8, in full dynamics (where a sweep's
-    // mission stalled). Pure pursuit's arc into the corner is tighter than the rover can skid
-    // round: with the arcs unlimited (max_curvature 0, the follower as it was) a wheel stalls;
-    // with max_curvature 1/m the rover turns in place instead and reaches the end.
-    let dir = tempfile::tempdir().unwrap();
-    let o = run(&data("follow_corner_slope.toml"), dir.path(), &["--set", "logging.rrd=false"]);
-    assert!(o.status.success(), "{}", show(&o));
-    let unlimited = tempfile::tempdir().unwrap();
-    let args = ["--set", "logging.rrd=false", "--set", "modules.locomotion.params.max_curvature=0"];
-    let o = run(&data("follow_corner_slope.toml"), unlimited.path(), &args);
-    assert!(!o.status.success(), "the corner was driven with unlimited arcs: {}", show(&o));
-    assert!(show(&o).contains("stalled"), "{}", show(&o));
-}
-
-#[test]
 fn a_wheel_that_stalls_a_move_of_the_acquisition_is_recovered_from_and_the_move_driven_again() {
     // acquire_stall: a wheel jams as the rover drives the last 0.4 m to the grasp distance.
     // Locomotion faults naming the wheel and the motion; CoordinatorManipulation clears the fault
@@ -592,29 +529,6 @@ fn a_wheel_that_stalls_a_move_of_the_acquisition_is_recovered_from_and_the_move_
     let stalled = at("stalled while driving forward").expect("the jammed wheel stalls the drive");
     let recovered = at("the move stalled").expect("the coordinator recovers");
     assert!(stalled < recovered, "{notes:#?}");
-}
-
-#[test]
-fn the_path_follower_tracks_a_circle() {
-    // Pure pursuit with its cross-track integral round a 2.5 m circle in full dynamics: the error
-    // it controls (its pose estimate against the path) stays small; the truth adds the
-    // localization's drift. (5.2 cm since the pose comes from the data fusion, stamped at the
-    // encoders' capture time; it was 4.6 cm on the wheel-gyro odometry: an open question.)
-    let dir = tempfile::tempdir().unwrap();
-    let o = run(&data("follow_circle.toml"), dir.path(), &["--set", "logging.rrd=false"]);
-    assert!(o.status.success(), "{}", show(&o));
-    let mcap = read_mcap(&dir.path().join("run.mcap"));
-    let done = mcap["/messages"]
-        .iter()
-        .find(|m| {
-            m["body"]["Ack"]["command"] == "follow_path"
-                && m["body"]["Ack"]["status"]["status"] == "completed"
-        })
-        .expect("follow_path completed");
-    let detail = &done["body"]["Ack"]["status"]["detail"];
-    let rms = detail["rms_cross_track_m"].as_f64().unwrap();
-    assert!(rms < 0.055, "rms cross-track {rms} m ({detail})");
-    assert!(score(dir.path())["metrics"]["distance_m"].as_f64().unwrap() > 15.0);
 }
 
 #[test]

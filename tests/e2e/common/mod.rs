@@ -3,6 +3,7 @@
 
 #![allow(dead_code)]
 
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -38,4 +39,25 @@ pub fn json(path: &Path) -> serde_json::Value {
 /// A run's `score.json`.
 pub fn score(out: &Path) -> serde_json::Value {
     json(&out.join("score.json"))
+}
+
+/// Messages per topic of an MCAP file, checking CRCs, the summary and monotonic log times.
+pub fn read_mcap(path: &Path) -> BTreeMap<String, Vec<serde_json::Value>> {
+    let bytes = std::fs::read(path).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().expect("a summary section");
+    let stats = summary.stats.as_ref().expect("statistics");
+    assert!(!summary.chunk_indexes.is_empty(), "chunk indexes");
+    let mut out: BTreeMap<String, Vec<serde_json::Value>> = BTreeMap::new();
+    let mut last = 0u64;
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        assert!(m.log_time >= last, "log times go backwards on {}", m.channel.topic);
+        last = m.log_time;
+        let schema = m.channel.schema.as_ref().expect("every channel has a schema");
+        assert_eq!(schema.encoding, "jsonschema");
+        serde_json::from_slice::<serde_json::Value>(&schema.data).expect("schema is JSON");
+        out.entry(m.channel.topic.clone()).or_default().push(serde_json::from_slice(&m.data).unwrap());
+    }
+    assert_eq!(stats.message_count, out.values().map(|v| v.len() as u64).sum::<u64>());
+    out
 }

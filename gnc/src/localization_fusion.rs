@@ -750,38 +750,58 @@ fn validate_states(p: &FusionParams) -> Result<(), String> {
         ("visual_yaw_drift_sigma_deg_per_m", p.visual_yaw_drift_sigma_deg_per_m),
         ("visual_yaw_drift_walk_deg_per_m", p.visual_yaw_drift_walk_deg_per_m),
     ])?;
-    let walks =
-        [p.wheel_slip_walk[0], p.wheel_slip_walk[1].max(p.wheel_slip_turn_walk), p.wheel_pitch_walk_deg];
-    let sigmas = [p.wheel_slip_sigma[0], p.wheel_slip_sigma[1], p.wheel_pitch_sigma_deg];
-    if let Some(i) = (0..3).find(|&i| walks[i] > 0.0 && sigmas[i] == 0.0) {
-        let (which, sigma) = [
-            ("along-track scale", "wheel_slip_sigma[0]"),
-            ("sideways slide", "wheel_slip_sigma[1]"),
-            ("pitch", "wheel_pitch_sigma_deg"),
-        ][i];
+    // Each walk needs its state estimated: the state, its sigma's key and the walk's keys.
+    let walked = [
+        (
+            p.wheel_slip_walk[0],
+            p.wheel_slip_sigma[0],
+            "the wheels' along-track scale",
+            "wheel_slip_sigma[0]",
+            "its walks",
+        ),
+        (
+            p.wheel_slip_walk[1].max(p.wheel_slip_turn_walk),
+            p.wheel_slip_sigma[1],
+            "the wheels' sideways slide",
+            "wheel_slip_sigma[1]",
+            "its walks",
+        ),
+        (
+            p.wheel_pitch_walk_deg,
+            p.wheel_pitch_sigma_deg,
+            "the wheels' pitch",
+            "wheel_pitch_sigma_deg",
+            "its walks",
+        ),
+        (
+            p.visual_yaw_drift_walk_deg_per_m,
+            p.visual_yaw_drift_sigma_deg_per_m,
+            "visual odometry's yaw drift",
+            "visual_yaw_drift_sigma_deg_per_m",
+            "visual_yaw_drift_walk_deg_per_m",
+        ),
+    ];
+    if let Some((_, _, which, sigma, walks)) =
+        walked.iter().find(|(walk, sigma, ..)| *walk > 0.0 && *sigma == 0.0)
+    {
         return Err(format!(
-            "the wheels' {which} has a random walk but is not estimated: give {sigma} a value above 0, or set its walks to 0"
+            "{which} has a random walk but is not estimated: give {sigma} a value above 0, or set {walks} to 0"
         ));
     }
-    if p.wheel_pitch_sigma_deg > MAX_WHEEL_PITCH_SIGMA_DEG {
+    // The uncertainties the filter's small-angle model is meant for.
+    let bounded = [
+        ("wheel_pitch_sigma_deg", p.wheel_pitch_sigma_deg, MAX_WHEEL_PITCH_SIGMA_DEG, "the pitch"),
+        (
+            "visual_yaw_drift_sigma_deg_per_m",
+            p.visual_yaw_drift_sigma_deg_per_m,
+            MAX_YAW_DRIFT_SIGMA_DEG_PER_M,
+            "a keyframe's drift",
+        ),
+        ("visual_mount_tilt_sigma_deg", p.visual_mount_tilt_sigma_deg, MAX_MOUNT_TILT_SIGMA_DEG, "the tilt"),
+    ];
+    if let Some((key, value, most, what)) = bounded.iter().find(|(_, value, most, _)| value > most) {
         return Err(format!(
-            "wheel_pitch_sigma_deg must be at most {MAX_WHEEL_PITCH_SIGMA_DEG} (the filter takes the pitch as a small angle), got {}",
-            p.wheel_pitch_sigma_deg
-        ));
-    }
-    if p.visual_yaw_drift_walk_deg_per_m > 0.0 && p.visual_yaw_drift_sigma_deg_per_m == 0.0 {
-        return Err("visual odometry's yaw drift has a random walk but is not estimated: give visual_yaw_drift_sigma_deg_per_m a value above 0, or set visual_yaw_drift_walk_deg_per_m to 0".into());
-    }
-    if p.visual_yaw_drift_sigma_deg_per_m > MAX_YAW_DRIFT_SIGMA_DEG_PER_M {
-        return Err(format!(
-            "visual_yaw_drift_sigma_deg_per_m must be at most {MAX_YAW_DRIFT_SIGMA_DEG_PER_M} (the filter takes a keyframe's drift as a small angle), got {}",
-            p.visual_yaw_drift_sigma_deg_per_m
-        ));
-    }
-    if p.visual_mount_tilt_sigma_deg > MAX_MOUNT_TILT_SIGMA_DEG {
-        return Err(format!(
-            "visual_mount_tilt_sigma_deg must be at most {MAX_MOUNT_TILT_SIGMA_DEG} (the filter takes the tilt as a small angle), got {}",
-            p.visual_mount_tilt_sigma_deg
+            "{key} must be at most {most} (the filter takes {what} as a small angle), got {value}"
         ));
     }
     Ok(())

@@ -96,6 +96,12 @@ pub struct KeyframeScore {
     pub yaw_error_sum_deg: f64,
 }
 
+/// The normalized estimation error squared e^T P^-1 e of error `e` with covariance `p` (None where
+/// `p` is singular).
+fn nees(e: &Vector6<f64>, p: &Matrix6<f64>) -> Option<f64> {
+    p.try_inverse().map(|inv| (e.transpose() * inv * e)[0])
+}
+
 /// Sums over the scored keyframes.
 #[derive(Default)]
 struct KeyframeAcc {
@@ -113,9 +119,7 @@ impl KeyframeAcc {
     fn add(&mut self, delta: &Isometry3<f64>, covariance: &Matrix6<f64>, truth: &Isometry3<f64>) {
         let dt = delta.translation.vector - truth.translation.vector;
         let dr = (truth.rotation.inverse() * delta.rotation).scaled_axis();
-        let e = Vector6::new(dt.x, dt.y, dt.z, dr.x, dr.y, dr.z);
-        let Some(inv) = covariance.try_inverse() else { return };
-        let nees = (e.transpose() * inv * e)[0];
+        let Some(nees) = nees(&Vector6::new(dt.x, dt.y, dt.z, dr.x, dr.y, dr.z), covariance) else { return };
         self.n += 1;
         self.nees_sum += nees;
         self.within += u64::from(nees <= CHI2_6DOF_95);
@@ -247,9 +251,7 @@ impl LocalizationScorer {
                 let dp = q - p;
                 let dth = (truth.rotation * e.value.pose.rotation.inverse()).scaled_axis();
                 let v = Vector6::new(dp.x, dp.y, dp.z, dth.x, dth.y, dth.z);
-                if let Some(inv) = e.value.covariance.try_inverse() {
-                    self.nees.push((v.transpose() * inv * v)[0]);
-                }
+                self.nees.extend(nees(&v, &e.value.covariance));
             }
         }
     }

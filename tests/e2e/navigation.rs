@@ -2,16 +2,8 @@
 //! maps, traversability and planner (both of its modes), a walled-off goal, and the path follower.
 
 #![allow(clippy::disallowed_methods)]
-
-use std::path::Path;
-use std::process::Output;
-
 mod common;
 use common::*;
-
-fn run(scenario: &Path, out: &Path, extra: &[&str]) -> Output {
-    rover_twin().arg("run").arg(scenario).arg("--out").arg(out).arg("--quiet").args(extra).output().unwrap()
-}
 
 /// navigate_rocks (25 m over the rock-dense Mars yard, a barrier of rocks across the straight line,
 /// full dynamics, the pose fused from wheels, IMU and visual odometry) in one of the navigator's

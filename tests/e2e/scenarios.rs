@@ -5,15 +5,11 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 mod common;
 use common::*;
-
-fn run(scenario: &Path, out: &Path, extra: &[&str]) -> Output {
-    rover_twin().arg("run").arg(scenario).arg("--out").arg(out).arg("--quiet").args(extra).output().unwrap()
-}
 
 /// Entity paths of a Rerun recording's data store.
 fn rrd_entities(path: &Path) -> BTreeSet<String> {

@@ -40,11 +40,13 @@
 //! - Gravity: the accelerometer's unit specific force measures R^T e_z (valid when not accelerating
 //!   hard); H = `[0, R^T [e_z]x]`. It corrects the tilt only: the heading, the bias, the wheels'
 //!   slip, the mount tilt and the yaw drift are consider states of this update (Schmidt-Kalman),
-//!   since its errors are no white noise (on a slope the body-z bias is correlated with the tilt, and a turn's vibration or the
-//!   accelerometer's bias learnt through that correlation became a heading rate).
+//!   since its errors are no white noise (on a slope the body-z bias is correlated with the tilt,
+//!   and a turn's vibration or the accelerometer's bias learnt through that correlation became a
+//!   heading rate).
 //! - Relative measurement (t_a, t_b, D): r = (R_a^T (p_b - p_a) - Exp(-ε) t_D,
-//!   Log(Exp(ν |t_D| e_z) R_D^T R_a^T R_b)), by stochastic cloning: the pose at t_a is cloned into an augmented
-//!   state, the increments from t_a to t_b re-propagated with it, and the update made at t_b.
+//!   Log(Exp(ν |t_D| e_z) R_D^T R_a^T R_b)), by stochastic cloning: the pose at t_a is cloned
+//!   into an augmented state, the increments from t_a to t_b re-propagated with it, and the update
+//!   made at t_b.
 //! - The relative measurements' mount tilt ε (roll and pitch of their source's mounting that its
 //!   calibration missed; constant, its prior the calibration's stated accuracy, 0: taken as
 //!   calibrated) tilts every translation they measure the same way: a stereo pair pitched 0.3
@@ -58,8 +60,8 @@
 //!   relative rotation, their focal lengths) bends every motion it measures the same way, about
 //!   its z axis by ν per metre of the translation it measures (in a traverse sweep one draw's
 //!   visual odometry turned -2.2 mrad per metre, 6 degrees over the 46 m it measured, where its
-//!   keyframes' yaw noise is 1 mrad each). Taken as white noise, that drift is followed into the heading and the
-//!   covariance never shows it. As a state (a random walk per metre travelled) it is learnt
+//!   keyframes' yaw noise is 1 mrad each). Taken as white noise, that drift is followed into the
+//!   heading and the covariance never shows it. As a state (a random walk per metre travelled) it is learnt
 //!   against the gyro wherever the gyro's bias is known apart from it: at standstills (the zero
 //!   angular rate updates), and in turns in place, where vision translates little.
 //! - Landmark fix (a surveyed object seen from the body: [`super::landmark`]): carried by the
@@ -514,9 +516,9 @@ impl Augmented {
 
     /// The accelerometer's vertical corrects the state, the tilt only: the heading (the rotation
     /// about the `map` vertical, here and in a clone), the gyro bias, the wheels' slip, the mount
-    /// tilt and the relative measurements' yaw drift are consider states of this update (Schmidt-Kalman: their gain rows are zero,
-    /// their covariance unchanged, their correlations with the corrected states kept right).
-    /// Gravity cannot see the heading; it reached it, and
+    /// tilt and the relative measurements' yaw drift are consider states of this update
+    /// (Schmidt-Kalman: their gain rows are zero, their covariance unchanged, their correlations
+    /// with the corrected states kept right). Gravity cannot see the heading; it reached it, and
     /// the body-z bias, only through correlations built by the bias on sloped ground, so that the
     /// vertical's errors that are no white noise (vibration in skid turns, what is left of the
     /// centripetal and linear accelerations, the accelerometer's bias) were learnt as a heading

@@ -22,6 +22,11 @@ pub fn data(name: &str) -> PathBuf {
     root().join("tests/e2e/data").join(name)
 }
 
+/// `rover-twin run SCENARIO --out OUT --quiet EXTRA...`.
+pub fn run(scenario: &Path, out: &Path, extra: &[&str]) -> Output {
+    rover_twin().arg("run").arg(scenario).arg("--out").arg(out).arg("--quiet").args(extra).output().unwrap()
+}
+
 /// A command's output, for assertion messages.
 pub fn show(o: &Output) -> String {
     format!(

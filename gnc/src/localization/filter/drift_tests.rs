@@ -70,9 +70,9 @@ fn drive_with_a_drifting_vision(drift: f64, drift_sigma: f64, arw: f64, stops: b
 }
 
 /// Visual odometry that turns 2.2 mrad per metre (a draw of the traverse sweep: 6 degrees over the
-/// 46 m it measured; 5 degrees over this test's 40 m), on a gyro whose bias nothing taught (no zero angular rate updates): taken as white
-/// noise, vision's drift is learnt as gyro bias, and the heading follows vision 5.8 degrees off,
-/// over 3 of its sigmas. As a state, the drift is told apart from the bias by vision's own
+/// 46 m it measured; 5 degrees over this test's 40 m), on a gyro whose bias nothing taught (no
+/// zero angular rate updates): taken as white noise, vision's drift is learnt as gyro bias, and
+/// the heading follows vision 5.8 degrees off, over 3 of its sigmas. As a state, the drift is told apart from the bias by vision's own
 /// keyframes at the standstills (they measure no translation, so no drift: the gyro's bias
 /// alone) and the heading stays within its sigma, which counts the drift's uncertainty. Vision
 /// that does not drift gives a heading within its sigma too. With the zero angular rate updates

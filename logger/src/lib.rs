@@ -119,6 +119,8 @@ struct Writer {
     last_stats: BTreeMap<String, (u64, i64)>,
     /// A moving target's velocity arrow is drawn (cleared once it is static again).
     target_arrow: bool,
+    /// The stretch of the line of sight where an unlocated target of known size is, drawn.
+    sight_shown: bool,
     /// The places ruled out for the target, as last drawn.
     excluded_shown: Vec<framework::data::ExcludedPlace>,
     /// Autonomy's faults logged so far.
@@ -213,6 +215,7 @@ impl RunLogger {
             next_track: Time::ZERO,
             last_stats: BTreeMap::new(),
             target_arrow: false,
+            sight_shown: false,
             excluded_shown: Vec::new(),
             autonomy_faults_seen: 0,
             infractions_logged: 0,

@@ -3,7 +3,9 @@
 //! resolution in grey), the object poses they give (Rerun
 //! transforms with axes under `world/estimate/objects`, MCAP `foxglove.PosesInFrame` in `map`), and
 //! the target track (its box over the image, its position in `map`, the places ruled out for it:
-//! red discs, Rerun `world/estimate/excluded`, MCAP `/scene/excluded`).
+//! red discs, Rerun `world/estimate/excluded`, MCAP `/scene/excluded`; before it is located, the
+//! stretch of its line of sight its known size puts it on: a yellow line, Rerun
+//! `world/estimate/target_sight`, MCAP `/scene/target_sight`).
 
 use super::Writer;
 use super::mcap_writer::{pose_json, stamp_json};
@@ -46,6 +48,9 @@ fn annotation(stamp: framework::Time, corners: &[[f32; 2]], colour: [u8; 3], tex
 /// The places ruled out for a target: red.
 const EXCLUDED: [u8; 3] = [230, 40, 40];
 
+/// The stretch of the line of sight an unlocated target is on: yellow, as the target.
+const SIGHT: [u8; 3] = [255, 200, 0];
+
 /// The places ruled out for the target as one scene entity (`map`): a flat cylinder of the
 /// exclusion's radius and a label each; None when there are none.
 fn excluded_entity(t: &TargetTrack) -> Option<Entity> {
@@ -61,6 +66,18 @@ fn excluded_entity(t: &TargetTrack) -> Option<Entity> {
             .text([p.x, p.y, p.z + 0.3], &label, EXCLUDED);
     }
     Some(e)
+}
+
+/// Where an unlocated target of known size is: the stretch of its line of sight (`map`) between
+/// the nearest and the farthest its selected box's size allows; None once the track has a
+/// position (located, or the prior a rejection restarts it from), or without a line of sight or
+/// a known size.
+fn sight_stretch(t: &TargetTrack) -> Option<[[f64; 3]; 2]> {
+    let (sight, [near, far]) = t.line_of_sight.zip(t.sized_range_m).filter(|_| t.position.is_none())?;
+    Some([near, far].map(|r| {
+        let p = sight.at(r);
+        [p.x, p.y, p.z]
+    }))
 }
 
 impl Writer {
@@ -239,6 +256,10 @@ impl Writer {
         if t.excluded != self.excluded_shown {
             self.excluded(t)?;
         }
+        let stretch = sight_stretch(t);
+        if stretch.is_some() || self.sight_shown {
+            self.sight(t, stretch)?;
+        }
         if let Some(mc) = &mut self.mcap {
             let corners = [[u0, v0], [u1, v0], [u1, v1], [u0, v1]].map(|[x, y]| [x as f32, y as f32]);
             let (outline, text) = annotation(t.stamp, &corners, colour, &label);
@@ -252,6 +273,36 @@ impl Writer {
                 mc.foxglove("/tracking/target", "foxglove.PoseInFrame", t.stamp, &msg)?;
             }
         }
+        Ok(())
+    }
+
+    /// The stretch of the line of sight an unlocated target is on ([`sight_stretch`]), or its
+    /// clearing once the track has a position.
+    fn sight(&mut self, t: &TargetTrack, stretch: Option<[[f64; 3]; 2]>) -> Result<()> {
+        const ENTITY: &str = "world/estimate/target_sight";
+        if let Some(rec) = &self.rrd {
+            match stretch {
+                Some(s) => rec.log(
+                    ENTITY,
+                    &rerun::LineStrips3D::new([s.map(|p| p.map(|v| v as f32))])
+                        .with_colors([SIGHT])
+                        .with_labels([format!("{} (not located)", t.target)]),
+                )?,
+                None => rec.log(ENTITY, &rerun::Clear::flat())?,
+            }
+        }
+        if let Some(m) = &mut self.mcap {
+            match stretch {
+                Some(s) => {
+                    let e = Entity::new("target_sight", "map", t.stamp)
+                        .meta("target", &t.target)
+                        .line_strip(&s, 3.0, SIGHT);
+                    scene::update(m, "/scene/target_sight", t.stamp, vec![e], &[])?
+                }
+                None => scene::update(m, "/scene/target_sight", t.stamp, vec![], &["target_sight"])?,
+            }
+        }
+        self.sight_shown = stretch.is_some();
         Ok(())
     }
 
@@ -292,28 +343,11 @@ impl Writer {
 mod tests {
     use super::*;
     use framework::data::ExcludedPlace;
-    use nalgebra::{Matrix3, Point3, Vector3};
+    use nalgebra::{Point3, Vector3};
 
     #[test]
     fn each_place_ruled_out_for_the_target_is_a_disc_of_its_radius_in_the_scene() {
-        let mut t = TargetTrack {
-            target: "canister".into(),
-            camera: "head_stereo".into(),
-            stamp: framework::Time::from_secs_f64(3.0),
-            status: TargetStatus::Tracking,
-            confidence: 0.9,
-            bbox: [0.0; 4],
-            position: None,
-            position_stamp: None,
-            velocity: Vector3::zeros(),
-            velocity_horizon_s: 0.0,
-            covariance: Matrix3::zeros(),
-            range_m: None,
-            measured: None,
-            located: 0,
-            line_of_sight: None,
-            excluded: Vec::new(),
-        };
+        let mut t = TargetTrack::unlocated("canister", "head_stereo", framework::Time::from_secs_f64(3.0));
         assert!(excluded_entity(&t).is_none());
         t.excluded = vec![
             ExcludedPlace { position: Point3::new(1.0, 2.0, 0.1), radius_m: 1.0 },
@@ -327,5 +361,26 @@ mod tests {
         assert_eq!(cylinders[1]["size"]["x"], 1.0);
         assert_eq!(cylinders[1]["pose"]["position"]["x"], 4.0);
         assert_eq!(v["texts"][0]["text"], "not the canister");
+    }
+
+    #[test]
+    fn an_unlocated_target_of_known_size_is_the_stretch_of_its_line_of_sight_its_size_allows() {
+        let mut t = TargetTrack::unlocated("canister", "head_stereo", framework::Time::from_secs_f64(3.0));
+        t.sized_range_m = Some([18.0, 40.0]);
+        assert_eq!(sight_stretch(&t), None);
+        t.line_of_sight = Some(framework::data::LineOfSight {
+            origin: Point3::new(-11.0, -11.0, 0.5),
+            direction: Vector3::new(0.6, 0.8, 0.0),
+        });
+        let [near, far] = sight_stretch(&t).unwrap();
+        for (p, r) in [(near, 18.0), (far, 40.0)] {
+            assert!(
+                (p[0] - (-11.0 + 0.6 * r)).abs() < 1e-9 && (p[1] - (-11.0 + 0.8 * r)).abs() < 1e-9,
+                "{p:?}"
+            );
+        }
+        // Located: its position is drawn instead.
+        t.position = Some(Point3::new(2.0, 6.0, 0.3));
+        assert_eq!(sight_stretch(&t), None);
     }
 }

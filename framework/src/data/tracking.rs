@@ -161,6 +161,11 @@ pub struct TargetTrack {
     pub covariance: Matrix3<f64>,
     /// Distance from the camera at the last location, m.
     pub range_m: Option<f64>,
+    /// For a target of known size, the ranges along `line_of_sight` (from its origin) between
+    /// which the selected box's size puts it, m: where it is before stereo ranges it (a box of a
+    /// few pixels 25 m away). None for a target of unknown size or one that may move.
+    #[serde(default)]
+    pub sized_range_m: Option<[f64; 2]>,
     /// This image's stereo location (in `map`), when it gave one.
     pub measured: Option<Point3<f64>>,
     /// Images located so far.
@@ -186,6 +191,30 @@ pub fn carried(
 }
 
 impl TargetTrack {
+    /// A track of `target` in `camera`'s image of `stamp`, tracked but not located yet: no box,
+    /// no position, no range, nothing ruled out.
+    pub fn unlocated(target: &str, camera: &str, stamp: Time) -> Self {
+        TargetTrack {
+            target: target.to_string(),
+            camera: camera.to_string(),
+            stamp,
+            status: TargetStatus::Tracking,
+            confidence: 1.0,
+            bbox: [0.0; 4],
+            position: None,
+            position_stamp: None,
+            velocity: Vector3::zeros(),
+            velocity_horizon_s: 0.0,
+            covariance: Matrix3::zeros(),
+            range_m: None,
+            sized_range_m: None,
+            measured: None,
+            located: 0,
+            line_of_sight: None,
+            excluded: Vec::new(),
+        }
+    }
+
     /// Where the target is at `t`: its position carried by its velocity from `position_stamp`
     /// (see [`carried`]).
     pub fn position_at(&self, t: Time) -> Option<Point3<f64>> {

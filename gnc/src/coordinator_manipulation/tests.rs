@@ -132,6 +132,7 @@ impl Module for Peer {
                     velocity_horizon_s: 0.0,
                     covariance: Matrix3::identity() * 0.01,
                     range_m: Some(m.setup.estimate_m),
+                    sized_range_m: None,
                     measured: None,
                     located: 10,
                     line_of_sight: None,

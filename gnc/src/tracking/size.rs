@@ -71,6 +71,13 @@ pub fn along_sight(sight: &LineOfSight, from: &Point3<f64>, range: f64) -> f64 {
     (-b + disc.max(0.0).sqrt()).max(0.0)
 }
 
+/// Where along the line of sight `sight` (from its origin) a target selected from `from` is, when
+/// its selected box's size puts it between `bounds` (ranges from `from`, [`range_bounds`]): the
+/// nearest and the farthest, m.
+pub fn sized_ranges(sight: &LineOfSight, from: &Point3<f64>, (lo, hi): (f64, f64)) -> [f64; 2] {
+    [along_sight(sight, from, lo), along_sight(sight, from, hi)]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -105,6 +112,10 @@ mod tests {
         let sight = LineOfSight { origin, direction };
         let t = along_sight(&sight, &from, 25.0);
         assert!(((sight.at(t) - from).norm() - 25.0).abs() < 1e-9);
+        // The stretch a box's size allows, 8 m on along the line: both ends 8 m nearer.
+        let sight = LineOfSight { origin: Point3::new(8.0, 0.0, 1.5), direction: Vector3::x() };
+        let [near, far] = sized_ranges(&sight, &from, (17.7, 41.5));
+        assert!((near - 9.7).abs() < 1e-9 && (far - 33.5).abs() < 1e-9, "{near} {far}");
     }
 
     #[test]

@@ -49,7 +49,7 @@ use crate::tracking::estimate::{TargetEstimate, fitted_velocity};
 use crate::tracking::locate::{Located, locate};
 use crate::tracking::locate_sigma;
 use crate::tracking::search::LostSearch;
-use crate::tracking::size::SelectedView;
+use crate::tracking::size::{SelectedView, sized_ranges};
 use crate::tracking::template::{BBox, TemplateTracker, TrackStatus, Verdict};
 use framework::camera::{GreyImage, StereoCalibration};
 use framework::data::{LineOfSight, PoseEstimate, StereoImages, TargetSelection, TargetStatus, TargetTrack};
@@ -610,6 +610,12 @@ impl TrackingTarget {
         };
         let bbox =
             map_box(&result.bbox, |p| rect_to_raw(&self.rect, &self.calibration, p)).unwrap_or(result.bbox);
+        // Where along the line of sight the selected box's size puts a target of known size.
+        let sized_range_m = self
+            .sight
+            .zip(self.selected_view)
+            .zip(self.size_bounds())
+            .map(|((sight, view), bounds)| sized_ranges(&sight, &view.camera, bounds));
         let out = TargetTrack {
             target: self.target.clone(),
             camera: self.device.clone(),
@@ -623,6 +629,7 @@ impl TrackingTarget {
             velocity_horizon_s: self.estimate.velocity_horizon_s(),
             covariance: self.estimate.covariance().unwrap_or_else(Matrix3::zeros),
             range_m: self.last_range,
+            sized_range_m,
             measured,
             located: self.located,
             line_of_sight: self.sight,

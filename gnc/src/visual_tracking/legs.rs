@@ -2,6 +2,7 @@
 //! what follows a turn to face the target.
 
 use super::params::VisualTrackingParams;
+use framework::data::TargetTrack;
 use nalgebra::Vector2;
 use nalgebra::Vector3;
 
@@ -129,6 +130,21 @@ pub fn bearing_goal(
     Some([rover[0] + leg * heading.x, rover[1] + leg * heading.y])
 }
 
+/// The target's range from the camera for a leg along its line of sight when it is not located:
+/// stereo's last, however coarse, else the nearest its known size allows along its line of sight
+/// (a box of a few pixels that stereo cannot range, or ranges only wrongly: the leg never passes
+/// where it may be); None without either.
+pub fn ranged(track: &TargetTrack) -> Option<f64> {
+    track.range_m.or(track.sized_range_m.map(|[near, _]| near))
+}
+
+/// The middle of the stretch of its line of sight a target of known size is on (None for
+/// another): the range at which a locate's accuracy is asked before stereo ranges it (the near
+/// end, after legs along the line, would ask for the final accuracy metres short of the target).
+pub fn sized_middle(track: &TargetTrack) -> Option<f64> {
+    track.sized_range_m.map(|[near, far]| 0.5 * (near + far))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -159,6 +175,18 @@ mod tests {
         let goal = bearing_goal([0.0, 0.0], &Vector3::new(1.0, 0.0, 0.0), 2.0, &p).unwrap();
         assert!((goal[0] - (2.0 - p.clearance_m - p.leg_tolerance_m)).abs() < 1e-9, "{goal:?}");
         assert_eq!(bearing_goal([0.0, 0.0], &Vector3::new(1.0, 0.0, 0.0), 1.3, &p), None);
+    }
+
+    #[test]
+    fn an_unlocated_target_is_ranged_by_stereo_else_by_the_stretch_its_size_allows() {
+        let mut t = TargetTrack::unlocated("canister", "head_stereo", framework::time::Time::ZERO);
+        assert_eq!(ranged(&t), None);
+        assert_eq!(sized_middle(&t), None);
+        t.sized_range_m = Some([17.7, 41.5]);
+        assert_eq!(ranged(&t), Some(17.7));
+        assert!((sized_middle(&t).unwrap() - 29.6).abs() < 1e-9);
+        t.range_m = Some(23.0);
+        assert_eq!(ranged(&t), Some(23.0));
     }
 
     #[test]

@@ -20,7 +20,13 @@
 //!
 //! A far target that is tracked but cannot be located to a leg's accuracy (a few pixels wide,
 //! stereo ranges it poorly or not at all) is approached along its line of sight: a leg over part
-//! of its assumed range, after which it is nearer, larger, and located again.
+//! of its range (stereo's, however coarse, or for a target of known size the nearest its selected
+//! box's size allows), after which it is nearer, larger, and located again.
+//! An approach whose target, with its estimate within `reject_unseen_within_m` of the rover (where
+//! it would be plainly in view), is lost or not located to the asked accuracy in time followed a
+//! look-alike from afar (a rock along the line of sight): TrackingTarget rejects that estimate
+//! and looks again along the line of sight the target was selected on; once the head camera finds
+//! it again there, the approach goes on (once per command).
 //! An approach leg that fails (a wheel stalls short of the goal) with the rover already within the
 //! boundary by the target's estimate ends in facing the target as an arrival would.
 //! A turn to face the target that stalls a wheel (turning in place on loose ground) is tried once
@@ -46,8 +52,11 @@ use framework::prelude::*;
 use nalgebra::Point3;
 mod legs;
 mod params;
+mod pursuit;
+#[cfg(test)]
+mod tests;
 
-pub use legs::{Faced, Leg, bearing_goal, faced, final_leg, final_sigma, next_leg};
+pub use legs::{Faced, Leg, bearing_goal, faced, final_leg, final_sigma, next_leg, ranged, sized_middle};
 pub use params::{ApproachArgs, ApproachTrackArgs, PointLocateArgs, VisualTrackingParams};
 
 /// A pan-tilt command unchanged is sent again after this many command periods off target.
@@ -98,6 +107,10 @@ enum Step {
     /// Clearing locomotion's fault (a wheel stalled in the turn, or in a failed leg that ended
     /// within the boundary) before turning to face the target.
     Recover(MessageId),
+    /// TrackingTarget told to reject the target's estimate (message, since, the failure that
+    /// led to it): waiting for the rejection and for the target to be found again where
+    /// TrackingTarget then looks for it (the head turning there), before locating it.
+    Reacquire(MessageId, Time, String),
 }
 
 /// Turns that stalled a wheel and are tried again (after locomotion's fault is cleared) before the
@@ -112,6 +125,7 @@ impl Step {
             Step::Approach(..) => "approach",
             Step::Face(_) => "face",
             Step::Recover(_) => "recover",
+            Step::Reacquire(..) => "reacquire",
         }
     }
 }
@@ -129,6 +143,8 @@ struct Job {
     refaced: u32,
     /// Times the estimate was too uncertain to come nearer and was located again sharper.
     sharpened: u32,
+    /// The estimate was rejected, the target unseen near the rover (`reject_unseen_within_m`).
+    rejected: bool,
 }
 
 /// Names of the modules the coordinator commands.
@@ -202,73 +218,6 @@ impl CoordinatorVisualTracking {
         self.pose.as_ref().and_then(|r| ctx.read(r)).map(|p| p.value.clone())
     }
 
-    /// Where to look at `now`: the fused position (carried by the target's velocity), else the
-    /// line of sight at the last or assumed range.
-    fn aim_point(&self, track: &TargetTrack, now: Time) -> Option<Point3<f64>> {
-        track
-            .position_at(now)
-            .or_else(|| track.line_of_sight.map(|s| s.at(track.range_m.unwrap_or(self.params.sight_range_m))))
-    }
-
-    /// One pursuit step: re-aims the pan-tilt unit at the target when it moved off the axis.
-    fn pursue(&mut self, ctx: &mut Ctx<'_>) {
-        let scanning =
-            self.navigation.as_ref().and_then(|r| ctx.read(r)).is_some_and(|s| s.value.phase == "scan");
-        if scanning {
-            if !self.yielding {
-                ctx.note("pursuit paused: the navigator scans with the pan-tilt unit");
-            }
-            self.yielding = true;
-            // Re-command when the scan ends, wherever the unit was left.
-            self.commanded = None;
-            return;
-        }
-        self.yielding = false;
-        let (Some(track), Some(pose)) = (self.track(ctx), self.pose(ctx)) else { return };
-        let now = ctx.now();
-        let Some(aim) = self.aim_point(&track, now) else { return };
-        self.aim = Some(aim);
-        if let Some((_, at)) = self.commanded
-            && (now - at).as_secs_f64() < self.params.command_period_s
-        {
-            return;
-        }
-        let current = self
-            .joints
-            .as_ref()
-            .and_then(|r| ctx.read(r))
-            .and_then(|j| {
-                let at = |name: &str| j.value.joints.iter().find(|s| s.name == name).map(|s| s.position);
-                let [pan, tilt] = self.camera.joint_names();
-                Some([at(pan)?, at(tilt)?])
-            })
-            .unwrap_or([0.0, 0.0]);
-        let in_base = pose.pose.inverse() * aim;
-        let from = self.commanded.map_or(current, |(q, _)| q);
-        let want = match self.camera.aim(from, &in_base) {
-            Ok(q) => q,
-            Err(e) => {
-                ctx.note(format!("cannot point at the target: {e}"));
-                return;
-            }
-        };
-        let off = (want[0] - current[0]).abs().max((want[1] - current[1]).abs());
-        // The same command again only once the last had time to complete (a move can be refused
-        // or superseded: the unit must not stay where it stopped).
-        let repeat = self.commanded.is_some_and(|(q, at)| {
-            (want[0] - q[0]).abs().max((want[1] - q[1]).abs()) <= 1e-4
-                && (now - at).as_secs_f64() < RESEND_PERIODS * self.params.command_period_s
-        });
-        if off <= self.params.deadband_rad || repeat {
-            return;
-        }
-        let args = serde_json::json!({ "positions": want, "speed": self.params.ptu_speed });
-        match ctx.send(Command::new(&self.peers.ptu, "move").json(args)) {
-            Ok(_) => self.commanded = Some((want, now)),
-            Err(e) => ctx.note(format!("cannot command '{}': {e}", self.peers.ptu)),
-        }
-    }
-
     /// Asks TrackingTarget to locate to the accuracy the job's next step needs.
     fn locate(&self, ctx: &mut Ctx<'_>, job: &Job) -> Result<Step, String> {
         let sigma = match job.kind {
@@ -277,7 +226,7 @@ impl CoordinatorVisualTracking {
                 // and to the one that lets it end clear of the target.
                 let range = self
                     .distance(ctx)
-                    .or_else(|| self.track(ctx).and_then(|t| t.range_m))
+                    .or_else(|| self.track(ctx).and_then(|t| t.range_m.or(sized_middle(&t))))
                     .unwrap_or(self.params.sight_range_m);
                 if range > max_distance / self.params.leg_fraction {
                     job.max_sigma.max(self.params.leg_sigma_fraction * range)
@@ -298,7 +247,8 @@ impl CoordinatorVisualTracking {
     }
 
     /// A leg along the target's line of sight, for a far target still tracked (seen within the
-    /// last second) and ranged at least roughly that stereo cannot locate to a leg's accuracy:
+    /// last second) and ranged at least roughly (by stereo, or by its known size) that stereo
+    /// cannot locate to a leg's accuracy:
     /// None when it is not tracked, has no range, or the job has no legs left (the locate then
     /// goes on until its timeout).
     fn bearing_leg(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Option<Step> {
@@ -308,9 +258,10 @@ impl CoordinatorVisualTracking {
         let sight = track.line_of_sight.filter(|_| seen)?;
         let pose = self.pose(ctx)?;
         let r = pose.pose.translation.vector;
-        // A range from stereo, however coarse (never the assumed one: legs on no evidence could
-        // drive past a target that is near but too small to range).
-        let range = self.distance(ctx).or(track.range_m)?;
+        // A range from stereo, however coarse, or the nearest a target of known size may be
+        // (never the assumed one: legs on no evidence could drive past a target that is near but
+        // too small to range).
+        let range = self.distance(ctx).or_else(|| ranged(&track))?;
         let goal = bearing_goal([r.x, r.y], &sight.direction, range, &self.params)?;
         let nav = self.peers.navigator.clone()?;
         if job.legs >= self.params.max_legs {
@@ -337,6 +288,45 @@ impl CoordinatorVisualTracking {
             goal[1]
         ));
         Some(Step::Approach(id, goal))
+    }
+
+    /// After a locate (sent at `since`) that failed or timed out, with `reason`: where an
+    /// approach's static target has its estimate within `reject_unseen_within_m` of the rover
+    /// (in plain view there, and located sharply by stereo) and is lost, or has had no location
+    /// fused since the locate began, the estimate followed something that is not the target:
+    /// TrackingTarget is told to reject it (looking again along the line of sight the target was
+    /// selected on) and the job waits for the target to be found there, once per command. None
+    /// otherwise (the job fails with the locate).
+    fn reject_unseen(&self, ctx: &mut Ctx<'_>, job: &mut Job, since: Time, reason: String) -> Option<Step> {
+        let within = self.params.reject_unseen_within_m;
+        if job.rejected || within <= 0.0 || job.kind.boundary().is_none() {
+            return None;
+        }
+        let (target, rover, track) = self.positions(ctx).ok()?;
+        let d = dist(rover, &target);
+        // A moving target may simply have left: its line of sight of old says nothing of it
+        // (a static one's velocity is zero, whatever horizon it is published with).
+        let moving = track.velocity.norm() > 0.0;
+        let lost = track.status == TargetStatus::Lost;
+        let unseen = lost || track.position_stamp.is_none_or(|s| s <= since);
+        if d > within || moving || !unseen {
+            return None;
+        }
+        let args = serde_json::json!({ "position": [target.x, target.y, target.z] });
+        let id = match send(ctx, &self.peers.tracker, "reject", args) {
+            Ok(id) => id,
+            Err(e) => {
+                ctx.note(format!("cannot reject the unseen target's estimate: {e}"));
+                return None;
+            }
+        };
+        job.rejected = true;
+        let what = if lost { "lost" } else { "not located" };
+        ctx.note(format!(
+            "{}: the target is {what} with its estimate {d:.2} m away, where it would be in plain view: the estimate followed something else; rejecting it, looking again along the line of sight it was selected on",
+            job.kind.name()
+        ));
+        Some(Step::Reacquire(id, ctx.now(), reason))
     }
 
     /// The target's located position (carried by its velocity to now) and the rover's, in `map`.
@@ -458,7 +448,8 @@ impl CoordinatorVisualTracking {
             Step::Locate(id, since, sigma, bearing) => match ctx.ack_status(id) {
                 Some(AckStatus::Completed(_)) => return self.after_locate(ctx, job),
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
-                    return Err(format!("locate failed: {r}"));
+                    let reason = format!("locate failed: {r}");
+                    job.step = self.reject_unseen(ctx, job, since, reason.clone()).ok_or(reason)?;
                 }
                 // A far leg's accuracy (above the job's own) not reached in a while: along the
                 // line of sight, if the target is tracked.
@@ -473,10 +464,11 @@ impl CoordinatorVisualTracking {
                 }
                 _ if (now - since).as_secs_f64() > self.params.locate_timeout_s => {
                     let _ = ctx.send(Command::new(&self.peers.tracker, "stop"));
-                    return Err(format!(
+                    let reason = format!(
                         "the target was not located to {sigma:.2} m within {} s",
                         self.params.locate_timeout_s
-                    ));
+                    );
+                    job.step = self.reject_unseen(ctx, job, since, reason.clone()).ok_or(reason)?;
                 }
                 _ => {}
             },
@@ -535,6 +527,24 @@ impl CoordinatorVisualTracking {
                 }
                 _ => {}
             },
+            Step::Reacquire(id, since, reason) => match ctx.ack_status(id) {
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                    return Err(format!("{reason}; its estimate could not be rejected: {r}"));
+                }
+                // Rejected, and found again (tracked or re-detected in an image since): located.
+                Some(AckStatus::Completed(_))
+                    if self.track(ctx).is_some_and(|t| t.status != TargetStatus::Lost && t.stamp > since) =>
+                {
+                    job.step = self.locate(ctx, job)?;
+                }
+                _ if (now - since).as_secs_f64() > self.params.locate_timeout_s => {
+                    return Err(format!(
+                        "{reason}; not found again within {} s of its estimate's rejection",
+                        self.params.locate_timeout_s
+                    ));
+                }
+                _ => {}
+            },
             Step::Recover(id) => match ctx.ack_status(id) {
                 // Rejected: not in fault any more; either way, turn again.
                 Some(AckStatus::Completed(_) | AckStatus::Rejected(_)) => job.step = self.face(ctx)?,
@@ -584,6 +594,7 @@ impl CoordinatorVisualTracking {
             face_retries: 0,
             refaced: 0,
             sharpened: 0,
+            rejected: false,
         });
         Outcome::Accepted
     }
@@ -603,7 +614,7 @@ impl CoordinatorVisualTracking {
             Step::Face(_) | Step::Recover(_) => {
                 let _ = ctx.send(Command::new(&self.peers.locomotion, "stop"));
             }
-            Step::AwaitTarget(_) => {}
+            Step::AwaitTarget(_) | Step::Reacquire(..) => {}
         }
         self.last = Some(format!("{}: {reason}", job.kind.name()));
         ctx.reply(&job.request, Outcome::fail(reason));
@@ -726,6 +737,12 @@ impl Module for CoordinatorVisualTracking {
             ("bearing_after_s", p.bearing_after_s),
             ("target_wait_s", p.target_wait_s),
         ])?;
+        if !(p.reject_unseen_within_m.is_finite() && p.reject_unseen_within_m >= 0.0) {
+            return Err(format!(
+                "reject_unseen_within_m must be 0 or more, got {}",
+                p.reject_unseen_within_m
+            ));
+        }
         if p.ptu_speed > 1.0 {
             return Err(format!("ptu_speed must be in (0, 1], got {}", p.ptu_speed));
         }

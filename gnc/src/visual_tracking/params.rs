@@ -44,6 +44,12 @@ pub struct VisualTrackingParams {
     pub bearing_after_s: f64,
     /// Longest wait for a target to be tracked at all when a command starts, s.
     pub target_wait_s: f64,
+    /// An approach whose target, with its estimate this near the rover (m, where it would be in
+    /// plain view and stereo locates it sharply; 0: never), is lost or not located to the asked
+    /// accuracy within `locate_timeout_s`: the estimate followed a look-alike from afar that is not
+    /// the target. TrackingTarget rejects it and looks again along the line of sight the target
+    /// was selected on; found there, the approach goes on, once per command.
+    pub reject_unseen_within_m: f64,
 }
 
 impl Default for VisualTrackingParams {
@@ -65,6 +71,7 @@ impl Default for VisualTrackingParams {
             locate_timeout_s: 90.0,
             bearing_after_s: 20.0,
             target_wait_s: 10.0,
+            reject_unseen_within_m: 0.0,
         }
     }
 }

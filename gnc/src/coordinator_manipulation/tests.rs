@@ -1,9 +1,8 @@
 //! CoordinatorManipulation against stub peers, and its geometry.
 
 use super::*;
-use framework::data::TargetStatus;
 use framework::{ConfigSource, Executor, LockstepExecutor, NoParams, SystemBuilder};
-use nalgebra::{Matrix3, Matrix6, Vector3};
+use nalgebra::{Matrix3, Matrix6};
 use std::sync::{Arc, Mutex};
 
 /// The commands every stub peer received, "peer.command" in order.
@@ -120,23 +119,12 @@ impl Module for Peer {
             }
             if let Some(w) = &m.track {
                 let track = TargetTrack {
-                    target: "canister".into(),
-                    camera: "head".into(),
-                    stamp: now,
-                    status: TargetStatus::Tracking,
-                    confidence: 1.0,
-                    bbox: [0.0; 4],
                     position: Some(Point3::new(m.setup.estimate_m, 0.0, 0.1)),
                     position_stamp: Some(now),
-                    velocity: Vector3::zeros(),
-                    velocity_horizon_s: 0.0,
                     covariance: Matrix3::identity() * 0.01,
                     range_m: Some(m.setup.estimate_m),
-                    sized_range_m: None,
-                    measured: None,
                     located: 10,
-                    line_of_sight: None,
-                    excluded: Vec::new(),
+                    ..TargetTrack::unlocated("canister", "head", now)
                 };
                 ctx.write(w, track);
             }

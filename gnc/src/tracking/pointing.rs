@@ -173,26 +173,32 @@ impl PanTiltCamera {
     }
 }
 
+/// For tests: a camera on the rover's tilt link (its URDF), looking along x (optical z) with a
+/// small mounting error.
+#[cfg(test)]
+pub(crate) fn test_camera() -> PanTiltCamera {
+    use nalgebra::{Translation3, UnitQuaternion};
+    let urdf = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/rover/rover.urdf");
+    let mechanism = MechanismModel::from_urdf_file(urdf).expect("rover urdf");
+    let mount_from_optical = Isometry3::from_parts(
+        Translation3::new(0.05, 0.06, 0.02),
+        UnitQuaternion::from_euler_angles(0.01, -0.02, 0.015)
+            * UnitQuaternion::from_euler_angles(
+                -std::f64::consts::FRAC_PI_2,
+                0.0,
+                -std::f64::consts::FRAC_PI_2,
+            ),
+    );
+    PanTiltCamera::new(mechanism, "ptu_tilt_link", mount_from_optical, "ptu_pan_joint", "ptu_tilt_joint")
+        .expect("pan-tilt camera")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Translation3, UnitQuaternion};
 
     fn camera() -> PanTiltCamera {
-        let urdf = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/rover/rover.urdf");
-        let mechanism = MechanismModel::from_urdf_file(urdf).expect("rover urdf");
-        // A camera on the tilt link, looking along x (optical z) with a small mounting error.
-        let mount_from_optical = Isometry3::from_parts(
-            Translation3::new(0.05, 0.06, 0.02),
-            UnitQuaternion::from_euler_angles(0.01, -0.02, 0.015)
-                * UnitQuaternion::from_euler_angles(
-                    -std::f64::consts::FRAC_PI_2,
-                    0.0,
-                    -std::f64::consts::FRAC_PI_2,
-                ),
-        );
-        PanTiltCamera::new(mechanism, "ptu_tilt_link", mount_from_optical, "ptu_pan_joint", "ptu_tilt_joint")
-            .expect("pan-tilt camera")
+        test_camera()
     }
 
     #[test]

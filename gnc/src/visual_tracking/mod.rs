@@ -737,12 +737,7 @@ impl Module for CoordinatorVisualTracking {
             ("bearing_after_s", p.bearing_after_s),
             ("target_wait_s", p.target_wait_s),
         ])?;
-        if !(p.reject_unseen_within_m.is_finite() && p.reject_unseen_within_m >= 0.0) {
-            return Err(format!(
-                "reject_unseen_within_m must be 0 or more, got {}",
-                p.reject_unseen_within_m
-            ));
-        }
+        crate::params::require_non_negative(&[("reject_unseen_within_m", p.reject_unseen_within_m)])?;
         if p.ptu_speed > 1.0 {
             return Err(format!("ptu_speed must be in (0, 1], got {}", p.ptu_speed));
         }

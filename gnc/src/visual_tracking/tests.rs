@@ -4,7 +4,7 @@
 use super::*;
 use framework::data::{LineOfSight, TargetTrack};
 use framework::{ConfigSource, Executor, LockstepExecutor, NoParams, SystemBuilder};
-use nalgebra::{Isometry3, Matrix3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Vector3};
 use std::sync::{Arc, Mutex};
 
 /// The commands every stub peer received, "peer.command" in order.
@@ -122,18 +122,6 @@ impl Module for Peer {
     }
 }
 
-/// The head camera on the rover's pan-tilt unit.
-fn camera() -> PanTiltCamera {
-    let urdf = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/rover/rover.urdf");
-    let mechanism = framework::mechanism::MechanismModel::from_urdf_file(urdf).expect("rover urdf");
-    let mount_from_optical = Isometry3::from_parts(
-        Translation3::new(0.05, 0.06, 0.02),
-        UnitQuaternion::from_euler_angles(-std::f64::consts::FRAC_PI_2, 0.0, -std::f64::consts::FRAC_PI_2),
-    );
-    PanTiltCamera::new(mechanism, "ptu_tilt_link", mount_from_optical, "ptu_pan_joint", "ptu_tilt_joint")
-        .expect("pan-tilt camera")
-}
-
 /// Runs `point_locate_approach_track {max_distance_m: 1.5}` with the coordinator's `params`
 /// (TOML) against stub peers whose target is `unseen` so, until it ends; its outcome and the
 /// commands the peers received.
@@ -168,7 +156,7 @@ fn approach_unseen(unseen: Unseen, params: &str) -> (AckStatus, Vec<String>) {
     let own = format!("[framework]\nperiod_s = 0.1\n[params]\n{params}\n");
     b.add(
         "visual_tracking",
-        CoordinatorVisualTracking::new(peers, camera(), "pose"),
+        CoordinatorVisualTracking::new(peers, crate::tracking::pointing::test_camera(), "pose"),
         ConfigSource::inline("vt", own),
     );
     b.endpoint("ground");
@@ -235,7 +223,7 @@ fn a_negative_rejection_distance_is_refused() {
             locomotion: "l".into(),
             navigator: Some("n".into()),
         },
-        camera(),
+        crate::tracking::pointing::test_camera(),
         "pose",
     );
     let e = m.configure(&p).unwrap_err();

@@ -26,10 +26,18 @@
 //! stalls again (the main job's return once did, five times over); the other way round it rolls
 //! downhill. (The long way round if need be: the paths sent from within `SAME_STALL_SPOT_M` of
 //! the spot have their first turn in place, if over Locomotion's `turn_in_place_deg`, made that
-//! way; a later one of the same path goes the shorter way.) Progress is published on `navigation/state`.
+//! way; a later one of the same path goes the shorter way.) A stall where the rover has stalled
+//! before on this navigation (within `SAME_STALL_SPOT_M`, whatever it was doing), a back-off's
+//! own included, is escaped from instead: a straight drive of `escape_m` along the heading, back or
+//! forward but not the way that just stalled, clear on the navigation map, to the cheaper ground
+//! of the two (`navigator::escape`); the short back-off had left the rover where the same wheel
+//! stalled again, turning either way round on a slope or against a rock the map does not show,
+//! until the navigation gave up (four runs of the canister sweep). Progress is published on
+//! `navigation/state`.
 
 use crate::locomotion::{Motion, Sense};
 use crate::peer::send;
+use escape::Way;
 use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
@@ -59,6 +67,9 @@ pub struct NavigatorParams {
     pub stall_ahead_m: f64,
     /// Longest wait for a fresh navigation map after a scan, s.
     pub map_wait_s: f64,
+    /// A stall where the rover stalled before on this navigation is escaped from by a straight
+    /// drive this long, back or forward, m (0: backs off `back_off_m` as after a first stall).
+    pub escape_m: f64,
 }
 
 impl Default for NavigatorParams {
@@ -72,6 +83,7 @@ impl Default for NavigatorParams {
             stall_keep_out_m: 0.5,
             stall_ahead_m: 0.5,
             map_wait_s: 3.0,
+            escape_m: 1.0,
         }
     }
 }
@@ -114,9 +126,20 @@ enum Phase {
         path_seq: u64,
         from: f64,
     },
-    /// After a stall: clear locomotion's fault, then back off before scanning again.
-    Recover(Option<MessageId>),
-    BackOff(MessageId),
+    /// After a stall: clear locomotion's fault, then move away as the retreat says, then scan.
+    Recover(Option<MessageId>, Retreat),
+    Retreat(MessageId, Retreat),
+}
+
+/// How the rover moves away from where a wheel stalled, before it scans again.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Retreat {
+    /// Backs off `back_off_m`.
+    BackOff,
+    /// Drives `escape_m` straight, this way (where it stalled before).
+    Escape(Way),
+    /// Stays (backing off just stalled, or no way out is clear on the map and not stalled).
+    Stay,
 }
 
 impl Phase {
@@ -126,7 +149,7 @@ impl Phase {
             Phase::AwaitMap { .. } => "await_map",
             Phase::Plan(_) => "plan",
             Phase::Drive { .. } => "drive",
-            Phase::Recover(_) | Phase::BackOff(_) => "recover",
+            Phase::Recover(..) | Phase::Retreat(..) => "recover",
         }
     }
 }
@@ -143,6 +166,9 @@ struct Goal {
     last_stall: Option<[f64; 2]>,
     /// After a stall turning in place: the way round turns in place go near where it stalled.
     pivot: Option<(Sense, [f64; 2])>,
+    /// Where the rover stood (`map`) at each stall of this navigation, and which way it was driving
+    /// (None: turning in place).
+    stall_spots: Vec<([f64; 2], Option<Way>)>,
 }
 
 /// Names of the modules the navigator commands.
@@ -216,6 +242,44 @@ impl CoordinatorNavigator {
         let args = serde_json::json!({ "x": x, "y": y, "radius_m": p.stall_keep_out_m });
         if let Err(e) = send(ctx, &self.peers.planner, "avoid", args) {
             ctx.note(format!("the stall's spot is not kept out: {e}"));
+        }
+    }
+
+    /// How to move away from where a wheel just stalled (`stalled`: the way the rover was driving,
+    /// None turning in place), noting the spot: back off, or, where it stalled before on this
+    /// navigation, escape along a way clear on the map but those that stalled there (forward, the
+    /// stall's keep-out lies ahead too).
+    fn retreat_after_stall(&mut self, ctx: &mut Ctx<'_>, stalled: Option<Way>) -> Retreat {
+        let fallback = if stalled == Some(Way::Back) { Retreat::Stay } else { Retreat::BackOff };
+        let Some(pose) = self.pose.as_ref().and_then(|r| ctx.read(r)) else { return fallback };
+        let c = pose.value.position();
+        let here = [c.x, c.y];
+        let (_, _, yaw) = pose.value.pose.rotation.euler_angles();
+        let Some(g) = self.goal.as_mut() else { return fallback };
+        g.stall_spots.push((here, stalled));
+        let near: Vec<_> = g
+            .stall_spots
+            .iter()
+            .filter(|(s, _)| (here[0] - s[0]).hypot(here[1] - s[1]) <= SAME_STALL_SPOT_M)
+            .collect();
+        let again = near.len() > 1;
+        let stalled_here: Vec<Way> = near.iter().filter_map(|(_, w)| *w).collect();
+        let length = self.params.escape_m;
+        if !again || length <= 0.0 {
+            return fallback;
+        }
+        let Some(map) = self.map.as_ref().and_then(|r| ctx.read(r)) else { return fallback };
+        match escape::ways_out(&map.value, here, yaw, length, &stalled_here).first() {
+            Some(&way) => {
+                ctx.note(format!("stalled here before: escaping {} {length:.1} m", way.describe()));
+                Retreat::Escape(way)
+            }
+            None => {
+                ctx.note(format!(
+                    "stalled here before, and no way {length:.1} m back or forward is clear, or not stalled: planning from here"
+                ));
+                Retreat::Stay
+            }
         }
     }
 
@@ -340,30 +404,54 @@ impl CoordinatorNavigator {
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => Next::Fail(format!("no path: {r}")),
                 _ => Next::Stay,
             },
-            Phase::Recover(None) => match send(ctx, &peers.locomotion, "recover", serde_json::Value::Null) {
-                Ok(id) => Next::To(Phase::Recover(Some(id))),
-                Err(e) => Next::Fail(e),
-            },
-            Phase::Recover(Some(id)) => match ctx.ack_status(id) {
-                // Rejected: not in fault any more; either way, back off.
+            Phase::Recover(None, retreat) => {
+                match send(ctx, &peers.locomotion, "recover", serde_json::Value::Null) {
+                    Ok(id) => Next::To(Phase::Recover(Some(id), retreat)),
+                    Err(e) => Next::Fail(e),
+                }
+            }
+            Phase::Recover(Some(id), retreat) => match ctx.ack_status(id) {
+                // Rejected: not in fault any more; either way, move away.
                 Some(AckStatus::Completed(_) | AckStatus::Rejected(_)) => {
-                    let speed = 0.1;
-                    let args = serde_json::json!({ "v": -speed, "omega": 0.0, "duration_s": self.params.back_off_m / speed });
+                    const SPEED: f64 = 0.1;
+                    let (v, length) = match retreat {
+                        Retreat::BackOff => (-SPEED, self.params.back_off_m),
+                        Retreat::Escape(way) => (way.sign() * SPEED, self.params.escape_m),
+                        Retreat::Stay => return Next::To(Phase::Scan(None)),
+                    };
+                    let args = serde_json::json!({ "v": v, "omega": 0.0, "duration_s": length / SPEED });
                     match send(ctx, &peers.locomotion, "drive", args) {
-                        Ok(id) => Next::To(Phase::BackOff(id)),
+                        Ok(id) => Next::To(Phase::Retreat(id, retreat)),
                         Err(e) => Next::Fail(e),
                     }
                 }
                 Some(AckStatus::Failed(r)) => Next::Fail(format!("cannot clear locomotion's fault: {r}")),
                 _ => Next::Stay,
             },
-            Phase::BackOff(id) => match ctx.ack_status(id) {
-                Some(AckStatus::Completed(_)) => Next::To(Phase::Scan(None)),
-                Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
-                    Next::Fail(format!("backing off failed: {r}"))
+            Phase::Retreat(id, retreat) => {
+                let status = ctx.ack_status(id);
+                let stalled = matches!(&status, Some(AckStatus::Failed(r)) if r.contains("stalled"));
+                let doing = match retreat {
+                    Retreat::Escape(way) => format!("escaping {}", way.describe()),
+                    _ => "backing off".to_string(),
+                };
+                match status {
+                    Some(AckStatus::Completed(_)) => Next::To(Phase::Scan(None)),
+                    // A wheel stalled on the way out: clear the fault, and out another way.
+                    Some(AckStatus::Failed(r)) if stalled => {
+                        let way = match retreat {
+                            Retreat::Escape(way) => way,
+                            _ => Way::Back,
+                        };
+                        let next = self.retreat_after_stall(ctx, Some(way));
+                        Next::FailThen(format!("{doing} failed: {r}"), Phase::Recover(None, next))
+                    }
+                    Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
+                        Next::Fail(format!("{doing} failed: {r}"))
+                    }
+                    _ => Next::Stay,
                 }
-                _ => Next::Stay,
-            },
+            }
             Phase::Drive { id, path_seq, from } => {
                 let status = ctx.ack_status(id);
                 // Failed (not rejected): the drive ran and ended on a stall of its own.
@@ -429,7 +517,21 @@ impl CoordinatorNavigator {
                                     other.describe()
                                 ));
                             }
-                            Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None))
+                            // Out of the spot: back off, or escape where it stalled before.
+                            let retreat = if failed {
+                                let way = if r.contains(Motion::Forward.describe()) {
+                                    Some(Way::Forward)
+                                } else if r.contains(Motion::Reversing.describe()) {
+                                    Some(Way::Back)
+                                } else {
+                                    None
+                                };
+                                self.retreat_after_stall(ctx, way)
+                            } else {
+                                // A fault left from before (not this drive's own stall).
+                                Retreat::BackOff
+                            };
+                            Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None, retreat))
                         } else {
                             Next::Fail(format!("drive failed: {r}"))
                         }
@@ -585,6 +687,7 @@ impl Module for CoordinatorNavigator {
                 failures: 0,
                 last_stall: None,
                 pivot: None,
+                stall_spots: Vec::new(),
             });
             match ctx.goto("navigating") {
                 Ok(()) => Outcome::Accepted,
@@ -613,6 +716,7 @@ impl Module for CoordinatorNavigator {
             ("map_wait_s", p.map_wait_s),
             ("back_off_m", p.back_off_m),
         ])?;
+        crate::params::require_non_negative(&[("escape_m", p.escape_m)])?;
         for (k, v) in [("stall_keep_out_m", p.stall_keep_out_m), ("stall_ahead_m", p.stall_ahead_m)] {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(format!("{k} must be >= 0, got {v}"));
@@ -640,5 +744,6 @@ impl Module for CoordinatorNavigator {
     }
 }
 
+mod escape;
 #[cfg(test)]
 mod tests;

@@ -9,16 +9,21 @@ use std::sync::{Arc, Mutex};
 /// The `pivot` argument of every `follow_path` locomotion received, in order.
 type Pivots = Arc<Mutex<Vec<Option<String>>>>;
 
+/// Every command locomotion received, in order: `follow_path`, `recover`, `drive <v> <duration_s>`.
+type Log = Arc<Mutex<Vec<String>>>;
+
 /// The goal of every navigation here, 2 m to the right of the rover at the origin facing +x.
 const GOAL: [f64; 2] = [0.0, -2.0];
 
 /// The navigator's peers in one module: PerceptionDataFusion (`scan`, the navigation map),
 /// PathPlanning (`plan`: a straight path to the goal) and Locomotion (the pose: the rover stays
 /// where it is until a `follow_path` completes, then stands at the path's end). Its first
-/// `follow_path` fails with `stall`.
+/// `follow_path`s fail with `stalls`, in order, and its `drive`s with `drive_stalls`.
 struct Peers {
-    stall: String,
+    stalls: Vec<String>,
+    drive_stalls: Vec<String>,
     pivots: Pivots,
+    log: Log,
     at: [f64; 2],
     pose: Option<Writer<PoseEstimate>>,
     map: Option<Writer<NavigationMap>>,
@@ -56,14 +61,23 @@ impl Module for Peers {
             ctx.write(m.path.as_ref().unwrap(), path);
             Ok(())
         });
-        for command in ["scan", "plan", "avoid", "clear", "recover", "drive", "stop"] {
+        for command in ["scan", "plan", "avoid", "clear", "stop"] {
             d.command(command, |_, _, _: serde_json::Value| Outcome::done());
         }
+        d.command("recover", |m, _, _: serde_json::Value| {
+            m.log.lock().unwrap().push("recover".into());
+            Outcome::done()
+        });
+        d.command("drive", |m, _, a: serde_json::Value| {
+            let (v, t) = (a["v"].as_f64().unwrap(), a["duration_s"].as_f64().unwrap());
+            m.log.lock().unwrap().push(format!("drive {v} {t:.0}"));
+            if m.drive_stalls.is_empty() { Outcome::done() } else { Outcome::fail(m.drive_stalls.remove(0)) }
+        });
         d.command("follow_path", |m, _, a: serde_json::Value| {
-            let mut pivots = m.pivots.lock().unwrap();
-            pivots.push(a.get("pivot").and_then(|p| p.as_str()).map(str::to_string));
-            if pivots.len() == 1 {
-                return Outcome::fail(m.stall.clone());
+            m.log.lock().unwrap().push("follow_path".into());
+            m.pivots.lock().unwrap().push(a.get("pivot").and_then(|p| p.as_str()).map(str::to_string));
+            if !m.stalls.is_empty() {
+                return Outcome::fail(m.stalls.remove(0));
             }
             m.at = GOAL;
             Outcome::done()
@@ -74,21 +88,38 @@ impl Module for Peers {
 /// Navigates to [`GOAL`] with a first drive that fails with `stall`; the outcome and the `pivot`
 /// of each `follow_path`.
 fn navigate_after(stall: &str) -> (AckStatus, Vec<Option<String>>) {
+    let (status, pivots, _) = navigate(&[stall], &[], "");
+    (status, pivots)
+}
+
+/// Navigates to [`GOAL`] with the navigator's `params` (TOML lines), the first `follow_path`s
+/// failing with `stalls` and the first `drive`s with `drive_stalls`; the outcome, the `pivot` of
+/// each `follow_path`, and every command locomotion received.
+fn navigate(
+    stalls: &[&str],
+    drive_stalls: &[&str],
+    params: &str,
+) -> (AckStatus, Vec<Option<String>>, Vec<String>) {
     let pivots = Pivots::default();
+    let log = Log::default();
     let mut b = SystemBuilder::new();
-    let cfg = |name: &str| ConfigSource::inline(name, "[framework]\nperiod_s = 0.1\n".to_string());
     let peers = Peers {
-        stall: stall.into(),
+        stalls: stalls.iter().map(|s| s.to_string()).collect(),
+        drive_stalls: drive_stalls.iter().map(|s| s.to_string()).collect(),
         pivots: pivots.clone(),
+        log: log.clone(),
         at: [0.0; 2],
         pose: None,
         map: None,
         path: None,
     };
-    b.add("peers", peers, cfg("peers"));
+    let cfg = |name: &str, params: &str| {
+        ConfigSource::inline(name, format!("[framework]\nperiod_s = 0.1\n[params]\n{params}\n"))
+    };
+    b.add("peers", peers, cfg("peers", ""));
     let names =
         NavigatorPeers { fusion: "peers".into(), planner: "peers".into(), locomotion: "peers".into() };
-    b.add("navigator", CoordinatorNavigator::new(names, "pose"), cfg("navigator"));
+    b.add("navigator", CoordinatorNavigator::new(names, "pose"), cfg("navigator", params));
     b.endpoint("ground");
     let mut ex = LockstepExecutor::new(b, Duration::from_millis(100)).unwrap();
     ex.walk_to(Lifecycle::Run).unwrap();
@@ -105,7 +136,8 @@ fn navigate_after(stall: &str) -> (AckStatus, Vec<Option<String>>) {
     }
     let status = ground.status(id).unwrap();
     let pivots = pivots.lock().unwrap().clone();
-    (status, pivots)
+    let log = log.lock().unwrap().clone();
+    (status, pivots, log)
 }
 
 /// A stall's reason as Locomotion words it.
@@ -128,4 +160,54 @@ fn after_a_turn_in_place_that_stalled_the_next_turns_go_the_other_way_round() {
     let (status, pivots) = navigate_after(&stalled(Motion::Forward.describe()));
     assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
     assert_eq!(pivots, [None, None]);
+}
+
+/// A turn in place's stall reason, to the left.
+fn turn_stall() -> String {
+    stalled(&format!("{}{}", Motion::TurningInPlace.describe(), Sense::Left.describe()))
+}
+
+#[test]
+fn a_second_stall_at_one_spot_is_escaped_from_by_a_longer_drive_not_the_short_back_off() {
+    let turn = turn_stall();
+    // Stalled turning twice at the origin: backs off 0.3 m, then escapes 1 m (the map is level and
+    // clear both ways: back, the ground it came over).
+    let (status, _, log) = navigate(&[&turn, &turn], &[], "");
+    assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
+    assert_eq!(
+        log,
+        ["follow_path", "recover", "drive -0.1 3", "follow_path", "recover", "drive -0.1 10", "follow_path"]
+    );
+    // Stalled driving forward, then turning: not forward (where the first stall's keep-out lies).
+    let forward = stalled(Motion::Forward.describe());
+    let (_, _, log) = navigate(&[&forward, &turn], &[], "");
+    assert_eq!(log[5], "drive -0.1 10");
+    // ... nor back after a stall reversing there.
+    let (_, _, log) = navigate(&[&turn], &[&stalled(Motion::Reversing.describe())], "");
+    assert_eq!(log[4], "drive 0.1 10");
+    // Off: backs off each time.
+    let (_, _, log) = navigate(&[&turn, &turn], &[], "escape_m = 0.0");
+    assert_eq!(log[5], "drive -0.1 3");
+}
+
+#[test]
+fn a_back_off_that_stalls_clears_the_fault_and_escapes_forward() {
+    let turn = turn_stall();
+    let back = stalled(Motion::Reversing.describe());
+    let (status, _, log) = navigate(&[&turn], &[&back], "");
+    assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
+    assert_eq!(log, ["follow_path", "recover", "drive -0.1 3", "recover", "drive 0.1 10", "follow_path"]);
+    // ... and should that stall too, with both ways stalled here, the fault is cleared and the
+    // planner asked again from where the rover stands.
+    let forward = stalled(Motion::Forward.describe());
+    let (status, _, log) = navigate(&[&turn], &[&back, &forward], "");
+    assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
+    assert_eq!(
+        log,
+        ["follow_path", "recover", "drive -0.1 3", "recover", "drive 0.1 10", "recover", "follow_path"]
+    );
+    // Off: a back-off that stalls only clears the fault (the next drive would be refused).
+    let (status, _, log) = navigate(&[&turn], &[&back], "escape_m = 0.0");
+    assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
+    assert_eq!(log, ["follow_path", "recover", "drive -0.1 3", "recover", "follow_path"]);
 }

@@ -26,6 +26,15 @@ pub struct FusionParams {
     /// shifted vertically by the median height difference over them: the pose estimate's height
     /// drifts, and a map re-observed after a drift would otherwise meet itself at a false step.
     pub align_min_cells: usize,
+    /// ... and tilted onto it too, by the plane fitted to those differences, when the plane tilts
+    /// at most this much, degrees, and the overlap spreads `align_min_spread_m` both ways (0: only
+    /// shifted). The pose estimate's roll and pitch, the pan-tilt's and the ToF cameras' believed
+    /// mounting are each a few tenths of a degree off: local maps lie 1-2 degrees off the truth
+    /// (sweep run 31), 0.05-0.1 m at their edges, and where a tilted one replaces cells of the
+    /// global map the seam is a false step across the rover's way (there: across its home goal).
+    pub align_max_tilt_deg: f64,
+    /// The least standard deviation of the overlap's cells along any direction for a tilt, m.
+    pub align_min_spread_m: f64,
 }
 
 impl Default for FusionParams {
@@ -37,6 +46,8 @@ impl Default for FusionParams {
             fill_sigma_per_m: 0.05,
             fill_iterations: 150,
             align_min_cells: 50,
+            align_max_tilt_deg: 3.0,
+            align_min_spread_m: 0.5,
         }
     }
 }
@@ -55,8 +66,30 @@ pub struct PlacementVariance {
 pub struct FusionReport {
     /// Cells updated.
     pub updated: usize,
-    /// Vertical shift applied to the local map before fusing it, m.
+    /// Vertical shift applied to the local map before fusing it (at the overlap's centre), m.
     pub shift_m: f64,
+    /// Tilt applied with it, degrees.
+    pub tilt_deg: f64,
+}
+
+/// How a local map is moved onto the global map before fusion: the height difference (local minus
+/// global) at `centre` and its gradient, a plane subtracted from the local heights.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Alignment {
+    centre: [f64; 2],
+    shift: f64,
+    gradient: [f64; 2],
+}
+
+impl Alignment {
+    /// The height to subtract at (x, y).
+    fn at(&self, x: f64, y: f64) -> f64 {
+        self.shift + self.gradient[0] * (x - self.centre[0]) + self.gradient[1] * (y - self.centre[1])
+    }
+
+    fn tilt_deg(&self) -> f64 {
+        self.gradient[0].hypot(self.gradient[1]).atan().to_degrees()
+    }
 }
 
 /// The global cell of local cell (i, j) under offset `(di, dj)`, if inside.
@@ -66,14 +99,17 @@ fn to_global(g: &GridGeometry, (di, dj): (i64, i64), i: usize, j: usize) -> Opti
         .then(|| g.index(gi as usize, gj as usize))
 }
 
-/// The median height difference (local minus global) over the cells measured in both, if there
-/// are at least `min_cells` of them.
-fn vertical_offset(
+/// How to move `local` onto `global` where they overlap, if on at least `min_cells` measured cells:
+/// the median height difference (local minus global) over them, or, where the overlap spreads
+/// `align_min_spread_m` both ways, the plane fitted by least squares to the differences within
+/// three robust sigmas of that median (a rock the two views see differently does not tilt it), if
+/// it tilts at most `align_max_tilt_deg`.
+fn vertical_alignment(
     global: &ElevationMap,
     local: &ElevationMap,
     offset: (i64, i64),
-    min_cells: usize,
-) -> Option<f64> {
+    p: &FusionParams,
+) -> Option<Alignment> {
     let lg = &local.geometry;
     let mut d = Vec::new();
     for j in 0..lg.height {
@@ -86,15 +122,44 @@ fn vertical_offset(
                 && global.count[g] > 0
                 && global.height[g].is_finite()
             {
-                d.push(f64::from(local.height[k]) - f64::from(global.height[g]));
+                d.push((lg.centre(i, j), f64::from(local.height[k]) - f64::from(global.height[g])));
             }
         }
     }
-    if d.len() < min_cells.max(1) {
+    if d.len() < p.align_min_cells.max(1) {
         return None;
     }
-    d.sort_by(f64::total_cmp);
-    Some(d[d.len() / 2])
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let shift = median(&mut d.iter().map(|(_, h)| *h).collect());
+    let n = d.len() as f64;
+    let centre = d.iter().fold([0.0; 2], |c, (x, _)| [c[0] + x[0] / n, c[1] + x[1] / n]);
+    let shifted = Alignment { centre, shift, gradient: [0.0; 2] };
+    if p.align_max_tilt_deg <= 0.0 {
+        return Some(shifted);
+    }
+    let mad = median(&mut d.iter().map(|(_, h)| (h - shift).abs()).collect());
+    let cut = 3.0 * 1.4826 * mad.max(1e-3);
+    let inliers: Vec<_> = d.iter().filter(|(_, h)| (h - shift).abs() <= cut).collect();
+    // Least squares of h = a + b (x - cx) + c (y - cy) over the inliers.
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atb = nalgebra::Vector3::<f64>::zeros();
+    for (x, h) in &inliers {
+        let row = nalgebra::Vector3::new(1.0, x[0] - centre[0], x[1] - centre[1]);
+        ata += row * row.transpose();
+        atb += row * *h;
+    }
+    let m = inliers.len() as f64;
+    let spread = nalgebra::Matrix2::new(ata[(1, 1)], ata[(1, 2)], ata[(2, 1)], ata[(2, 2)]) / m.max(1.0);
+    let narrowest = spread.symmetric_eigenvalues().min().max(0.0).sqrt();
+    if inliers.len() < p.align_min_cells.max(3) || narrowest < p.align_min_spread_m {
+        return Some(shifted);
+    }
+    let Some(sol) = ata.lu().solve(&atb) else { return Some(shifted) };
+    let tilted = Alignment { centre, shift: sol[0], gradient: [sol[1], sol[2]] };
+    Some(if tilted.tilt_deg() <= p.align_max_tilt_deg { tilted } else { shifted })
 }
 
 /// Fuses `local` into `global` (same frame and resolution, aligned cells), after shifting it
@@ -107,8 +172,9 @@ pub fn fuse(
     p: &FusionParams,
 ) -> FusionReport {
     let Some((di, dj)) = local.geometry.offset_to(&global.geometry) else { return FusionReport::default() };
-    let offset = vertical_offset(global, local, (di, dj), p.align_min_cells);
-    let (aligned, shift) = (offset.is_some(), offset.unwrap_or(0.0));
+    let alignment = vertical_alignment(global, local, (di, dj), p);
+    let aligned = alignment.is_some();
+    let alignment = alignment.unwrap_or_default();
     let (lw, lh) = (local.geometry.width, local.geometry.height);
     let r = local.geometry.resolution_m;
     let mut updated = 0;
@@ -124,6 +190,8 @@ pub fn fuse(
             // A local map shifted onto the global one has no vertical placement error left.
             let z_var = if aligned { 0.0 } else { placement.z };
             let v_new = f64::from(local.variance[k]) + z_var + placement.xy * slope2;
+            let [x, y] = local.geometry.centre(i, j);
+            let shift = alignment.at(x, y);
             let h_new = f64::from(local.height[k]) - shift;
             let (h_old, v_old) = (f64::from(global.height[g]), f64::from(global.variance[g]));
             let replace = global.count[g] == 0
@@ -151,7 +219,7 @@ pub fn fuse(
             updated += 1;
         }
     }
-    FusionReport { updated, shift_m: shift }
+    FusionReport { updated, shift_m: alignment.shift, tilt_deg: alignment.tilt_deg() }
 }
 
 /// The squared gradient of the local map at (i, j) from its known neighbours (0 when none).
@@ -356,5 +424,45 @@ mod tests {
         let s = plane(&local, |x, _| 0.5 * x);
         fuse(&mut g2, &s, PlacementVariance { xy: 0.01, z: 0.0 }, &p);
         assert!((g2.variance[k] - (1e-4 + 0.01 * 0.25)).abs() < 1e-6, "{}", g2.variance[k]);
+    }
+
+    #[test]
+    fn a_tilted_view_of_mapped_ground_is_tilted_back_onto_the_map_without_a_false_step() {
+        // The map holds level ground at 1 m from x = -2 to 2; a new view spans x = 0 to 4, half of
+        // it over the mapped ground, 0.1 m high and tilted 1.5 degrees about y (its pose's pitch
+        // off): 2.6 cm higher per metre of x.
+        let g = GridGeometry::centred("map", [1.0, 0.0], 0.1, 60, 30);
+        let mut global = ElevationMap::unknown(g.clone());
+        let mapped = GridGeometry::centred("map", [0.0, 0.0], 0.1, 40, 30);
+        let p = FusionParams { min_variance_m2: 1e-6, ..Default::default() };
+        fuse(&mut global, &plane(&mapped, |_, _| 1.0), PlacementVariance::default(), &p);
+        let tan = 1.5f64.to_radians().tan();
+        let view = GridGeometry::centred("map", [2.0, 0.0], 0.1, 40, 30);
+        let tilted = plane(&view, |x, _| 1.1 + tan * x);
+        let height_at = |m: &ElevationMap, x: f64| {
+            let (i, j) = g.cell(x, 0.05).unwrap();
+            f64::from(m.height[g.index(i, j)])
+        };
+        // Shifted only (tilt off): the new half ends 8 cm high, 4 m out.
+        let mut shifted = global.clone();
+        let off = FusionParams { align_max_tilt_deg: 0.0, ..p.clone() };
+        let r = fuse(&mut shifted, &tilted, PlacementVariance::default(), &off);
+        assert_eq!(r.tilt_deg, 0.0);
+        assert!(height_at(&shifted, 3.95) - 1.0 > 0.06, "{}", height_at(&shifted, 3.95));
+        // Tilted back: level everywhere, the new half included.
+        let r = fuse(&mut global, &tilted, PlacementVariance::default(), &p);
+        assert!((r.tilt_deg - 1.5).abs() < 0.01, "{r:?}");
+        for x in [-1.95, 0.05, 1.95, 2.95, 3.95] {
+            assert!((height_at(&global, x) - 1.0).abs() < 1e-3, "{x}: {}", height_at(&global, x));
+        }
+        // Beyond the largest tilt believed, or over too narrow an overlap, only shifted.
+        let mut steep = global.clone();
+        let tan4 = 4f64.to_radians().tan();
+        let r = fuse(&mut steep, &plane(&view, |x, _| 1.0 + tan4 * x), PlacementVariance::default(), &p);
+        assert_eq!(r.tilt_deg, 0.0);
+        let strip = GridGeometry::centred("map", [0.5, 0.0], 0.1, 40, 2);
+        let r =
+            fuse(&mut global.clone(), &plane(&strip, |x, _| 1.0 + tan * x), PlacementVariance::default(), &p);
+        assert_eq!(r.tilt_deg, 0.0, "{r:?}");
     }
 }

@@ -13,8 +13,8 @@
 //!   planner publishes (it replans on each new navigation map) replaces the one being followed;
 //!   when a replan finds no path the rover stops, scans and plans again.
 //!
-//! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` before
-//! scanning again; after a front wheel's stall while driving forward (not in a skid turn in place,
+//! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` (not
+//! after a stall while reversing) before scanning again; after a front wheel's stall while driving forward (not in a skid turn in place,
 //! which stalls on slopes with nothing in the way) the planner is asked to keep the rover out of the
 //! spot ahead (`stall_keep_out_m` around the point `stall_ahead_m` ahead: something there the map
 //! does not show; the rover's centre where it stalled on the disc's edge, outside once backed off),
@@ -29,8 +29,9 @@
 //! way; a later one of the same path goes the shorter way.) A stall where the rover has stalled
 //! before on this navigation (within `SAME_STALL_SPOT_M`, whatever it was doing), a back-off's
 //! own included, is escaped from instead: a straight drive of `escape_m` along the heading, back or
-//! forward but not the way that just stalled, clear on the navigation map, to the cheaper ground
-//! of the two (`navigator::escape`); the short back-off had left the rover where the same wheel
+//! forward but not in a direction (on the map, within 60 degrees) that stalled there, clear on the
+//! navigation map, to the cheaper ground of the two (`navigator::escape`); with no such way the
+//! fault is cleared and the planner asked from where the rover stands. The short back-off had left the rover where the same wheel
 //! stalled again, turning either way round on a slope or against a rock the map does not show,
 //! until the navigation gave up (four runs of the canister sweep). Progress is published on
 //! `navigation/state`.
@@ -104,7 +105,7 @@ pub struct NavigateArgs {
 /// The tightest tolerance locomotion is asked to stop within at a path's end, m.
 const MIN_FOLLOW_TOLERANCE_M: f64 = 0.1;
 
-/// A stall within this of the last one on the same navigation is the same spot again, m.
+/// A stall within this of an earlier one on the same navigation is at the same spot again, m.
 const SAME_STALL_SPOT_M: f64 = 1.0;
 
 /// A drive that ends less than this nearer the goal than it started made no progress, m.
@@ -166,9 +167,9 @@ struct Goal {
     last_stall: Option<[f64; 2]>,
     /// After a stall turning in place: the way round turns in place go near where it stalled.
     pivot: Option<(Sense, [f64; 2])>,
-    /// Where the rover stood (`map`) at each stall of this navigation, and which way it was driving
-    /// (None: turning in place).
-    stall_spots: Vec<([f64; 2], Option<Way>)>,
+    /// Where the rover stood (`map`) at each stall of this navigation, and the direction it was
+    /// driving in (`map`, rad; None: turning in place).
+    stall_spots: Vec<([f64; 2], Option<f64>)>,
 }
 
 /// Names of the modules the navigator commands.
@@ -256,14 +257,14 @@ impl CoordinatorNavigator {
         let here = [c.x, c.y];
         let (_, _, yaw) = pose.value.pose.rotation.euler_angles();
         let Some(g) = self.goal.as_mut() else { return fallback };
-        g.stall_spots.push((here, stalled));
+        g.stall_spots.push((here, stalled.map(|w| w.direction(yaw))));
         let near: Vec<_> = g
             .stall_spots
             .iter()
             .filter(|(s, _)| (here[0] - s[0]).hypot(here[1] - s[1]) <= SAME_STALL_SPOT_M)
             .collect();
         let again = near.len() > 1;
-        let stalled_here: Vec<Way> = near.iter().filter_map(|(_, w)| *w).collect();
+        let stalled_here: Vec<f64> = near.iter().filter_map(|(_, d)| *d).collect();
         let length = self.params.escape_m;
         if !again || length <= 0.0 {
             return fallback;

@@ -91,6 +91,8 @@ pub struct PerceptionDataFusion {
     dirty: bool,
     /// The vertical shift that put the last local map onto the global one, m.
     last_shift_m: f64,
+    /// The tilt the last fusion applied, degrees.
+    last_tilt_deg: f64,
     scan: Option<Scan>,
     params: PerceptionFusionParams,
 }
@@ -111,6 +113,7 @@ impl PerceptionDataFusion {
             last_publish: None,
             dirty: false,
             last_shift_m: 0.0,
+            last_tilt_deg: 0.0,
             scan: None,
             params: PerceptionFusionParams::default(),
         }
@@ -144,6 +147,7 @@ impl PerceptionDataFusion {
         });
         let report = fuse(map, &local.value, placement, &p.fusion);
         self.last_shift_m = report.shift_m;
+        self.last_tilt_deg = report.tilt_deg;
         fill_blind_area(map, centre, &p.fusion);
         self.dirty = true;
     }
@@ -167,7 +171,7 @@ impl PerceptionDataFusion {
         let timeout = self.params.scan_pose_timeout_s;
         let ptu = self.pan_tilt.clone();
         let last_local_stamp = self.last_local_stamp;
-        let last_shift = self.last_shift_m;
+        let (last_shift, last_tilt) = (self.last_shift_m, self.last_tilt_deg);
         let scan = self.scan.as_mut()?;
         if let Some((after, since)) = scan.waiting {
             if last_local_stamp.is_some_and(|s| s >= after) {
@@ -208,7 +212,7 @@ impl PerceptionDataFusion {
         if scan.next >= scan.poses.len() {
             let known = self.map.as_ref().map(|m| m.known()).unwrap_or(0);
             return Some(Outcome::Completed(serde_json::json!({
-                "poses": scan.poses.len(), "known_cells": known, "last_shift_m": last_shift,
+                "poses": scan.poses.len(), "known_cells": known, "last_shift_m": last_shift, "last_tilt_deg": last_tilt,
                 "last_map_stamp_ns": last_local_stamp.map(|t| t.as_nanos()),
             })));
         }
@@ -285,6 +289,16 @@ impl Module for PerceptionDataFusion {
             return Err(
                 "scan_settle_s, fusion.blind_radius_m and fusion.fill_sigma_per_m must be >= 0".into()
             );
+        }
+        crate::params::require_non_negative(&[
+            ("fusion.align_max_tilt_deg", p.fusion.align_max_tilt_deg),
+            ("fusion.align_min_spread_m", p.fusion.align_min_spread_m),
+        ])?;
+        if p.fusion.align_max_tilt_deg >= 90.0 {
+            return Err(format!(
+                "fusion.align_max_tilt_deg must be under 90 degrees, got {}",
+                p.fusion.align_max_tilt_deg
+            ));
         }
         self.params = p.clone();
         Ok(())

@@ -66,7 +66,8 @@ pub struct PlacementVariance {
 pub struct FusionReport {
     /// Cells updated.
     pub updated: usize,
-    /// Vertical shift applied to the local map before fusing it (at the overlap's centre), m.
+    /// Vertical shift applied to the local map before fusing it (the median difference, or the
+    /// fitted plane's at the centre of the cells it was fitted to), m.
     pub shift_m: f64,
     /// Tilt applied with it, degrees.
     pub tilt_deg: f64,
@@ -143,7 +144,10 @@ fn vertical_alignment(
     let mad = median(&mut d.iter().map(|(_, h)| (h - shift).abs()).collect());
     let cut = 3.0 * 1.4826 * mad.max(1e-3);
     let inliers: Vec<_> = d.iter().filter(|(_, h)| (h - shift).abs() <= cut).collect();
-    // Least squares of h = a + b (x - cx) + c (y - cy) over the inliers.
+    // Least squares of h = a + b (x - cx) + c (y - cy) over the inliers, centred on them (so that
+    // the spread below is their covariance).
+    let m = inliers.len() as f64;
+    let centre = inliers.iter().fold([0.0; 2], |c, (x, _)| [c[0] + x[0] / m, c[1] + x[1] / m]);
     let mut ata = nalgebra::Matrix3::<f64>::zeros();
     let mut atb = nalgebra::Vector3::<f64>::zeros();
     for (x, h) in &inliers {
@@ -151,7 +155,6 @@ fn vertical_alignment(
         ata += row * row.transpose();
         atb += row * *h;
     }
-    let m = inliers.len() as f64;
     let spread = nalgebra::Matrix2::new(ata[(1, 1)], ata[(1, 2)], ata[(2, 1)], ata[(2, 2)]) / m.max(1.0);
     let narrowest = spread.symmetric_eigenvalues().min().max(0.0).sqrt();
     if inliers.len() < p.align_min_cells.max(3) || narrowest < p.align_min_spread_m {
@@ -162,8 +165,9 @@ fn vertical_alignment(
     Some(if tilted.tilt_deg() <= p.align_max_tilt_deg { tilted } else { shifted })
 }
 
-/// Fuses `local` into `global` (same frame and resolution, aligned cells), after shifting it
-/// vertically onto the global map where they overlap enough. Cells of `global` without
+/// Fuses `local` into `global` (same frame and resolution, aligned cells), after moving it
+/// vertically onto the global map where they overlap enough (shifted, and tilted where the
+/// overlap allows: `vertical_alignment`). Cells of `global` without
 /// measurements (unknown or filled) take the local value.
 pub fn fuse(
     global: &mut ElevationMap,

@@ -32,30 +32,52 @@ impl Way {
             Way::Back => "back",
         }
     }
+
+    /// The direction (`map`, rad) the rover moves in driving this way while heading `yaw`.
+    pub(super) fn direction(self, yaw: f64) -> f64 {
+        match self {
+            Way::Forward => yaw,
+            Way::Back => yaw + std::f64::consts::PI,
+        }
+    }
 }
 
-/// What a straight drive of `length` from `at` along `yaw` (`sign` +1 forward, -1 back) crosses
-/// on `map`: its endpoint's cost (the mean of the known cells within a cell of it), or None when
-/// it leaves the map or crosses a cell the rover's centre may not enter. A rover standing in an
-/// obstacle's inflation (it stalled near one) may cross inflated cells, never an obstacle's own,
-/// but must end outside.
-fn crossing(map: &NavigationMap, at: [f64; 2], yaw: f64, length: f64, sign: f64) -> Option<f64> {
+/// A way whose direction lies within this of one that stalled at the spot is that way again, rad
+/// (the rover may have turned between the stalls).
+const SAME_DIRECTION_RAD: f64 = std::f64::consts::FRAC_PI_3;
+
+/// What a straight drive of `length` from `at` in direction `heading` crosses on `map`: its
+/// endpoint's cost (the mean over the cells within a cell of it: an unknown one at what the
+/// planner charges for it, one the rover's centre may not enter at the most a traversable cell
+/// costs), or None when it leaves the map or crosses a cell the rover's centre may not enter. A
+/// rover standing where it may not (in an obstacle's inflation, beside what it stalled on, or on a
+/// cell the map takes for an obstacle) may cross such cells while it leaves them, never going
+/// deeper (from an inflation into an obstacle), nor enter others once out, nor end in one.
+fn crossing(map: &NavigationMap, at: [f64; 2], heading: f64, length: f64) -> Option<f64> {
     let g = &map.geometry;
     let passable = |c: u8| match c {
         cost::UNKNOWN => map.unknown_cost <= cost::MAX_TRAVERSABLE,
         c => c <= cost::MAX_TRAVERSABLE,
     };
-    let started_inflated = map.cost_at(at[0], at[1]) == Some(cost::INFLATED);
+    // 0: a cell the rover may enter; 1: an inflation; 2: an obstacle (or unknown ground not to be
+    // entered). While it leaves where it stands, the depth may only fall.
+    let depth = |c: u8| match c {
+        c if passable(c) => 0,
+        cost::INFLATED => 1,
+        _ => 2,
+    };
+    let mut leaving = map.cost_at(at[0], at[1]).map_or(0, depth);
     let step = 0.5 * g.resolution_m;
     let n = (length / step).ceil().max(1.0) as usize;
-    let (dx, dy) = (sign * yaw.cos(), sign * yaw.sin());
+    let (dx, dy) = (heading.cos(), heading.sin());
     for k in 1..=n {
         let s = length * k as f64 / n as f64;
         let c = map.cost_at(at[0] + s * dx, at[1] + s * dy)?;
-        let inflated_on_the_way = started_inflated && c == cost::INFLATED && k < n;
-        if !(passable(c) || inflated_on_the_way) {
+        let d = depth(c);
+        if d > 0 && (d > leaving || k == n) {
             return None;
         }
+        leaving = d;
     }
     let end = [at[0] + length * dx, at[1] + length * dy];
     let (mut sum, mut count) = (0.0, 0usize);
@@ -84,13 +106,21 @@ fn crossing(map: &NavigationMap, at: [f64; 2], yaw: f64, length: f64, sign: f64)
 }
 
 /// The ways out, best first: those clear for `length` on `map` from `at` (`map` frame) with the
-/// rover heading `yaw`, but `not` (the ways that stalled here), cheapest endpoint first (back, the
-/// ground it came over, on a tie).
-pub(super) fn ways_out(map: &NavigationMap, at: [f64; 2], yaw: f64, length: f64, not: &[Way]) -> Vec<Way> {
+/// rover heading `yaw`, but those within `SAME_DIRECTION_RAD` of a direction that stalled here
+/// (`stalled`, `map`, rad), cheapest endpoint first (back, the ground it came over, on a tie).
+pub(super) fn ways_out(
+    map: &NavigationMap,
+    at: [f64; 2],
+    yaw: f64,
+    length: f64,
+    stalled: &[f64],
+) -> Vec<Way> {
+    use std::f64::consts::{PI, TAU};
+    let apart = |a: f64, b: f64| ((a - b + PI).rem_euclid(TAU) - PI).abs();
     let mut ways: Vec<(Way, f64)> = [Way::Back, Way::Forward]
         .into_iter()
-        .filter(|w| !not.contains(w))
-        .filter_map(|w| crossing(map, at, yaw, length, w.sign()).map(|c| (w, c)))
+        .filter(|w| stalled.iter().all(|d| apart(w.direction(yaw), *d) > SAME_DIRECTION_RAD))
+        .filter_map(|w| crossing(map, at, w.direction(yaw), length).map(|c| (w, c)))
         .collect();
     ways.sort_by(|a, b| a.1.total_cmp(&b.1));
     ways.into_iter().map(|(w, _)| w).collect()
@@ -136,13 +166,25 @@ mod tests {
         let mut m = map(0);
         set(&mut m, AT[0] + 0.5, AT[1], cost::OBSTACLE);
         assert_eq!(ways_out(&m, AT, 0.0, 1.0, &[]), [Way::Back]);
-        assert_eq!(ways_out(&m, AT, 0.0, 1.0, &[Way::Back]), []);
+        assert_eq!(ways_out(&m, AT, 0.0, 1.0, &[std::f64::consts::PI]), []);
         assert_eq!(ways_out(&m, [4.45, 0.05], 0.0, 1.0, &[]), [Way::Back]);
         // Unknown ground the planner may not enter blocks; unknown it may enter does not.
         let mut u = map(cost::UNKNOWN);
         assert_eq!(ways_out(&u, AT, 0.0, 1.0, &[]).len(), 2);
         u.unknown_cost = cost::OBSTACLE;
         assert_eq!(ways_out(&u, AT, 0.0, 1.0, &[]), []);
+    }
+
+    #[test]
+    fn a_way_is_known_by_its_direction_on_the_map_not_by_the_rover_s_heading() {
+        let m = map(0);
+        // Stalled driving east; the rover now faces north-west: back (south-east) is that way again.
+        let heading = 150f64.to_radians();
+        assert_eq!(ways_out(&m, AT, heading, 1.0, &[0.0]), [Way::Forward]);
+        // Facing north, neither way is within 60 degrees of east.
+        assert_eq!(ways_out(&m, AT, 90f64.to_radians(), 1.0, &[0.0]).len(), 2);
+        // Both ways stalled.
+        assert_eq!(ways_out(&m, AT, 0.0, 1.0, &[0.1, 3.0]), []);
     }
 
     #[test]
@@ -156,9 +198,17 @@ mod tests {
         assert_eq!(ways_out(&m, AT, 0.0, 1.0, &[]), [Way::Forward]);
         // Not when the drive would end in the inflation, either way.
         assert_eq!(ways_out(&m, AT, 0.0, 0.3, &[]), []);
-        // A rover out of any inflation may not enter one.
+        // A rover out of any inflation may not enter one, nor one that left one enter another.
         let mut n = map(0);
         set(&mut n, AT[0] + 0.5, AT[1], cost::INFLATED);
         assert_eq!(ways_out(&n, AT, 0.0, 1.0, &[]), [Way::Back]);
+        set(&mut n, AT[0], AT[1], cost::INFLATED);
+        set(&mut n, AT[0] - 0.5, AT[1], cost::INFLATED);
+        assert_eq!(ways_out(&n, AT, 0.0, 1.0, &[]), []);
+        // A rover the map puts on an obstacle's cell may leave it.
+        let mut o = map(0);
+        set(&mut o, AT[0], AT[1], cost::OBSTACLE);
+        set(&mut o, AT[0] + 0.1, AT[1], cost::INFLATED);
+        assert_eq!(ways_out(&o, AT, 0.0, 1.0, &[]), [Way::Back, Way::Forward]);
     }
 }

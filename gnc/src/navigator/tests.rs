@@ -3,7 +3,7 @@
 use super::*;
 use framework::data::{GridGeometry, NavigationMap};
 use framework::{ConfigSource, Executor, LockstepExecutor, NoParams, SystemBuilder};
-use nalgebra::{Isometry3, Matrix6};
+use nalgebra::{Isometry3, Matrix6, Vector3};
 use std::sync::{Arc, Mutex};
 
 /// The `pivot` argument of every `follow_path` locomotion received, in order.
@@ -18,13 +18,18 @@ const GOAL: [f64; 2] = [0.0, -2.0];
 /// The navigator's peers in one module: PerceptionDataFusion (`scan`, the navigation map),
 /// PathPlanning (`plan`: a straight path to the goal) and Locomotion (the pose: the rover stays
 /// where it is until a `follow_path` completes, then stands at the path's end). Its first
-/// `follow_path`s fail with `stalls`, in order, and its `drive`s with `drive_stalls`.
+/// `follow_path`s fail with `stalls`, in order (the rover then facing the next of `turns`, rad,
+/// if any: it turned before the stall), and its `drive`s with `drive_stalls`. The navigation map
+/// costs `cost(x, y)`.
 struct Peers {
     stalls: Vec<String>,
     drive_stalls: Vec<String>,
+    turns: Vec<f64>,
+    cost: fn(f64, f64) -> u8,
     pivots: Pivots,
     log: Log,
     at: [f64; 2],
+    yaw: f64,
     pose: Option<Writer<PoseEstimate>>,
     map: Option<Writer<NavigationMap>>,
     path: Option<Writer<Path>>,
@@ -42,7 +47,7 @@ impl Module for Peers {
             let pose = PoseEstimate {
                 frame: "map".into(),
                 child: "base_link".into(),
-                pose: Isometry3::translation(m.at[0], m.at[1], 0.0),
+                pose: Isometry3::new(Vector3::new(m.at[0], m.at[1], 0.0), Vector3::z() * m.yaw),
                 covariance: Matrix6::identity() * 1e-4,
                 velocity: Default::default(),
             };
@@ -53,7 +58,9 @@ impl Module for Peers {
                 width: 20,
                 height: 20,
             };
-            let map = NavigationMap { geometry, cost: vec![0; 400], unknown_cost: 0 };
+            let cost = (0..400)
+                .map(|k| (m.cost)(geometry.centre(k % 20, k / 20)[0], geometry.centre(k % 20, k / 20)[1]));
+            let map = NavigationMap { cost: cost.collect(), geometry, unknown_cost: 0 };
             let path =
                 Path { frame: "map".into(), points: vec![m.at, GOAL], clearance_m: vec![2.0; 2], cost: 2.0 };
             ctx.write(m.pose.as_ref().unwrap(), pose);
@@ -77,6 +84,9 @@ impl Module for Peers {
             m.log.lock().unwrap().push("follow_path".into());
             m.pivots.lock().unwrap().push(a.get("pivot").and_then(|p| p.as_str()).map(str::to_string));
             if !m.stalls.is_empty() {
+                if !m.turns.is_empty() {
+                    m.yaw = m.turns.remove(0);
+                }
                 return Outcome::fail(m.stalls.remove(0));
             }
             m.at = GOAL;
@@ -100,15 +110,30 @@ fn navigate(
     drive_stalls: &[&str],
     params: &str,
 ) -> (AckStatus, Vec<Option<String>>, Vec<String>) {
+    navigate_on(stalls, drive_stalls, params, &[], |_, _| 0)
+}
+
+/// [`navigate`], the rover turning to face `turns` (rad) as its `follow_path`s stall, on a
+/// navigation map that costs `cost(x, y)`.
+fn navigate_on(
+    stalls: &[&str],
+    drive_stalls: &[&str],
+    params: &str,
+    turns: &[f64],
+    cost: fn(f64, f64) -> u8,
+) -> (AckStatus, Vec<Option<String>>, Vec<String>) {
     let pivots = Pivots::default();
     let log = Log::default();
     let mut b = SystemBuilder::new();
     let peers = Peers {
         stalls: stalls.iter().map(|s| s.to_string()).collect(),
         drive_stalls: drive_stalls.iter().map(|s| s.to_string()).collect(),
+        turns: turns.to_vec(),
+        cost,
         pivots: pivots.clone(),
         log: log.clone(),
         at: [0.0; 2],
+        yaw: 0.0,
         pose: None,
         map: None,
         path: None,
@@ -178,10 +203,17 @@ fn a_second_stall_at_one_spot_is_escaped_from_by_a_longer_drive_not_the_short_ba
         log,
         ["follow_path", "recover", "drive -0.1 3", "follow_path", "recover", "drive -0.1 10", "follow_path"]
     );
-    // Stalled driving forward, then turning: not forward (where the first stall's keep-out lies).
+    // Stalled driving forward, then turning: not forward (where the first stall's keep-out lies),
+    // though the ground behind costs more.
     let forward = stalled(Motion::Forward.describe());
-    let (_, _, log) = navigate(&[&forward, &turn], &[], "");
+    let costly_behind = |x: f64, _: f64| if x < -0.5 { 200 } else { 0 };
+    let (_, _, log) = navigate_on(&[&forward, &turn], &[], "", &[], costly_behind);
     assert_eq!(log[5], "drive -0.1 10");
+    let (_, _, log) = navigate_on(&[&turn, &turn], &[], "", &[], costly_behind);
+    assert_eq!(log[5], "drive 0.1 10");
+    // Stalled driving east, then turning in place to face west: back is east again, forward not.
+    let (_, _, log) = navigate_on(&[&forward, &turn], &[], "", &[0.0, std::f64::consts::PI], |_, _| 0);
+    assert_eq!(log[5], "drive 0.1 10");
     // ... nor back after a stall reversing there.
     let (_, _, log) = navigate(&[&turn], &[&stalled(Motion::Reversing.describe())], "");
     assert_eq!(log[4], "drive 0.1 10");

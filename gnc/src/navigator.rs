@@ -14,11 +14,12 @@
 //!   when a replan finds no path the rover stops, scans and plans again.
 //!
 //! A drive that fails on a stalled wheel clears locomotion's fault and backs off `back_off_m` (not
-//! after a stall while reversing) before scanning again; after a front wheel's stall while driving forward (not in a skid turn in place,
-//! which stalls on slopes with nothing in the way) the planner is asked to keep the rover out of the
-//! spot ahead (`stall_keep_out_m` around the point `stall_ahead_m` ahead: something there the map
-//! does not show; the rover's centre where it stalled on the disc's edge, outside once backed off),
-//! so the next plan goes round it instead of into it again. So too after any wheel's second stall
+//! after a stall while reversing) before scanning again; after a front wheel's stall while driving
+//! forward (not in a skid turn in place, which stalls on slopes with nothing in the way) the
+//! planner is asked to keep the rover out of the spot ahead (`stall_keep_out_m` around the point
+//! `stall_ahead_m` ahead: something there the map does not show; the rover's centre where it
+//! stalled on the disc's edge, outside once backed off), so the next plan goes round it instead of
+//! into it again. So too after any wheel's second stall
 //! driving forward at the same spot (within `SAME_STALL_SPOT_M`): a rear wheel that swings into a
 //! rock on a turn stalls there each time the same path is driven. After a stall while turning in
 //! place, the turns in place near that spot go the other way round (Locomotion's `pivot`): on a
@@ -31,10 +32,10 @@
 //! own included, is escaped from instead: a straight drive of `escape_m` along the heading, back or
 //! forward but not in a direction (on the map, within 60 degrees) that stalled there, clear on the
 //! navigation map, to the cheaper ground of the two (`navigator::escape`); with no such way the
-//! fault is cleared and the planner asked from where the rover stands. The short back-off had left the rover where the same wheel
-//! stalled again, turning either way round on a slope or against a rock the map does not show,
-//! until the navigation gave up (four runs of the canister sweep). Progress is published on
-//! `navigation/state`.
+//! fault is cleared and the planner asked from where the rover stands. The short back-off had
+//! left the rover where the same wheel stalled again, turning either way round on a slope or
+//! against a rock the map does not show, until the navigation gave up (four runs of the canister
+//! sweep). Progress is published on `navigation/state`.
 
 use crate::locomotion::{Motion, Sense};
 use crate::peer::send;
@@ -717,12 +718,11 @@ impl Module for CoordinatorNavigator {
             ("map_wait_s", p.map_wait_s),
             ("back_off_m", p.back_off_m),
         ])?;
-        crate::params::require_non_negative(&[("escape_m", p.escape_m)])?;
-        for (k, v) in [("stall_keep_out_m", p.stall_keep_out_m), ("stall_ahead_m", p.stall_ahead_m)] {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(format!("{k} must be >= 0, got {v}"));
-            }
-        }
+        crate::params::require_non_negative(&[
+            ("stall_keep_out_m", p.stall_keep_out_m),
+            ("stall_ahead_m", p.stall_ahead_m),
+            ("escape_m", p.escape_m),
+        ])?;
         if p.stall_keep_out_m > p.stall_ahead_m {
             return Err(format!(
                 "stall_keep_out_m ({}) must be at most stall_ahead_m ({}): the rover would stand in its own keep-out",

@@ -225,16 +225,7 @@ fn acquire_with(setup: Setup) -> (AckStatus, Vec<String>, f64) {
     ex.walk_to(Lifecycle::Run).unwrap();
     let ground = ex.endpoint("ground").unwrap();
     let id = ground.send(Command::new("manipulation", "acquire_canister")).unwrap();
-    let mut ticks = 0;
-    for _ in 0..5000 {
-        ex.tick();
-        ticks += 1;
-        if let Some(AckStatus::Completed(_) | AckStatus::Failed(_) | AckStatus::Rejected(_)) =
-            ground.status(id)
-        {
-            break;
-        }
-    }
+    let ticks = crate::peer::tick_until_final(&mut ex, &ground, id, 5000);
     // What the coordinator sent with its answer is served in the next cycles.
     for _ in 0..5 {
         ex.tick();

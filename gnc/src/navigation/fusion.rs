@@ -138,9 +138,8 @@ fn vertical_alignment(
         v[v.len() / 2]
     };
     let shift = median(&mut d.iter().map(|(_, h)| *h).collect());
-    let n = d.len() as f64;
-    let centre = d.iter().fold([0.0; 2], |c, (x, _)| [c[0] + x[0] / n, c[1] + x[1] / n]);
-    let shifted = Alignment { centre, shift, gradient: [0.0; 2] };
+    // Level: the centre does not matter.
+    let shifted = Alignment { shift, ..Alignment::default() };
     if p.align_max_tilt_deg <= 0.0 {
         return Some(shifted);
     }

@@ -151,14 +151,7 @@ fn navigate_on(
     let ground = ex.endpoint("ground").unwrap();
     let args = serde_json::json!({ "x": GOAL[0], "y": GOAL[1] });
     let id = ground.send(Command::new("navigator", "navigate_to").args(args)).unwrap();
-    for _ in 0..1000 {
-        ex.tick();
-        if let Some(AckStatus::Completed(_) | AckStatus::Failed(_) | AckStatus::Rejected(_)) =
-            ground.status(id)
-        {
-            break;
-        }
-    }
+    crate::peer::tick_until_final(&mut ex, &ground, id, 1000);
     let status = ground.status(id).unwrap();
     let pivots = pivots.lock().unwrap().clone();
     let log = log.lock().unwrap().clone();

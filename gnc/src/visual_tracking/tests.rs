@@ -165,14 +165,7 @@ fn approach_unseen(unseen: Unseen, params: &str) -> (AckStatus, Vec<String>) {
     let ground = ex.endpoint("ground").unwrap();
     let args = serde_json::json!({ "max_distance_m": 1.5 });
     let id = ground.send(Command::new("visual_tracking", "point_locate_approach_track").json(args)).unwrap();
-    for _ in 0..3000 {
-        ex.tick();
-        if let Some(AckStatus::Completed(_) | AckStatus::Failed(_) | AckStatus::Rejected(_)) =
-            ground.status(id)
-        {
-            break;
-        }
-    }
+    crate::peer::tick_until_final(&mut ex, &ground, id, 3000);
     let status = ground.status(id).unwrap();
     let log = log.lock().unwrap().clone();
     (status, log)

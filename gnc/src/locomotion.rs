@@ -7,9 +7,10 @@
 //!   when the goal is far off the heading) and completes on arrival within tolerance;
 //! - `turn_to {yaw_deg}` or `turn_to {facing: [x, y]}`: turns in place to a heading of the
 //!   estimate's frame, or to face a point of it from where the estimate puts the rover;
-//! - `follow_path {points, clearance_m?, speed?, tolerance_m?, pivot?}`: follows a path of the
-//!   estimate's frame by pure pursuit (a lookahead point on the path, the arc through it), turning
-//!   in place when the path is far off the heading or the arc tighter than `max_curvature` (if set)
+//! - `follow_path {points, clearance_m?, speed?, tolerance_m?, pivot?, max_curvature?}`: follows a
+//!   path of the estimate's frame by pure pursuit (a lookahead point on the path, the arc through
+//!   it), turning in place when the path is far off the heading or the arc tighter than
+//!   `max_curvature` (the command's, else the configured one; 0: no limit)
 //!   (the shorter way round, or for its first such turn only the way `pivot` says: [`Sense`]),
 //!   slowing where the path's
 //!   clearance to obstacles is small, for heading error and near the end; completes at the last
@@ -162,6 +163,10 @@ pub struct FollowPathArgs {
     /// stalled a wheel one way there, the way round that loads the wheels differently.
     #[serde(default)]
     pub pivot: Option<Sense>,
+    /// Tightest arc driven along this path, 1/m (0: no limit; default: the configured
+    /// `max_curvature`): the navigator asks for one after a wheel stalled in an arc on a slope.
+    #[serde(default)]
+    pub max_curvature: Option<f64>,
 }
 
 #[derive(Clone, Debug)]
@@ -365,8 +370,8 @@ impl Locomotion {
                 let lookahead = dx.hypot(dy).max(1e-3);
                 let curvature = 2.0 * alpha.sin() / lookahead;
                 let judged = 2.0 * alpha.sin() / lookahead.max(p.lookahead_m);
-                let limited = p.max_curvature > 0.0;
-                let limit = if f.pivoting { 0.5 } else { 1.0 } * p.max_curvature;
+                let limited = f.max_curvature > 0.0;
+                let limit = if f.pivoting { 0.5 } else { 1.0 } * f.max_curvature;
                 let too_tight = limited && judged.abs() > limit;
                 let was_pivoting = f.pivoting;
                 f.pivoting = alpha.abs() > p.turn_in_place_deg.to_radians() || too_tight;
@@ -402,7 +407,7 @@ impl Locomotion {
                     // cycle (speeding up from a turn in place, less than `v`): within the limit.
                     let omega = if limited {
                         let v_now = v.min(self.command.v.max(0.0) + p.accel * dt);
-                        let most = (v_now * p.max_curvature).max(0.0);
+                        let most = (v_now * f.max_curvature).max(0.0);
                         omega.clamp(-most, most)
                     } else {
                         omega
@@ -552,6 +557,12 @@ impl Module for Locomotion {
                     "follow_path needs one clearance per point, a positive speed and a positive tolerance",
                 );
             }
+            let max_curvature = a.max_curvature.unwrap_or(m.params.max_curvature);
+            if !(max_curvature >= 0.0 && max_curvature.is_finite()) {
+                return Outcome::reject(format!(
+                    "follow_path's max_curvature must be 0 (no limit) or positive, got {max_curvature}"
+                ));
+            }
             let mut points = a.points;
             let mut clearance = clearance;
             if points.len() == 1 {
@@ -573,6 +584,7 @@ impl Module for Locomotion {
                     samples: 0,
                     pivoting: false,
                     pivot: a.pivot,
+                    max_curvature,
                 })),
             )
         });

@@ -35,7 +35,11 @@
 //! fault is cleared and the planner asked from where the rover stands. The short back-off had
 //! left the rover where the same wheel stalled again, turning either way round on a slope or
 //! against a rock the map does not show, until the navigation gave up (four runs of the canister
-//! sweep). Progress is published on `navigation/state`.
+//! sweep). After a stall driving forward, the rest of the navigation's paths are followed with
+//! arcs no tighter than `stall_max_curvature` (Locomotion's `max_curvature`), sharper bends turned
+//! in place: on a slope at high friction the skid-steer rover cannot skid round an arc uphill (the
+//! loaded outer rear wheel stalls), and the same arc driven again stalls again (a sweep's mission
+//! stalled five times over at one bend of its route). Progress is published on `navigation/state`.
 
 use crate::locomotion::{Motion, Sense};
 use crate::peer::send;
@@ -72,6 +76,12 @@ pub struct NavigatorParams {
     /// A stall where the rover stalled before on this navigation is escaped from by a straight
     /// drive this long, back or forward, m (0: backs off `back_off_m` as after a first stall).
     pub escape_m: f64,
+    /// After a wheel stalled driving forward on a navigation, the rest of it is driven with arcs
+    /// no tighter than this (Locomotion's `max_curvature` for its paths), 1/m: sharper bends are
+    /// turned in place (0: arcs as configured in Locomotion). On a slope at high friction, the
+    /// skid-steer rover cannot skid round an arc uphill: the loaded outer rear wheel stalls at its
+    /// torque limit (a 4 m radius already does not turn it there), while a turn in place does.
+    pub stall_max_curvature: f64,
 }
 
 impl Default for NavigatorParams {
@@ -86,6 +96,7 @@ impl Default for NavigatorParams {
             stall_ahead_m: 0.5,
             map_wait_s: 3.0,
             escape_m: 1.0,
+            stall_max_curvature: 0.5,
         }
     }
 }
@@ -171,6 +182,9 @@ struct Goal {
     /// Where the rover stood (`map`) at each stall of this navigation, and the direction it was
     /// driving in (`map`, rad; None: turning in place).
     stall_spots: Vec<([f64; 2], Option<f64>)>,
+    /// A wheel stalled driving forward on this navigation: its paths are followed with arcs no
+    /// tighter than `stall_max_curvature`.
+    arcs_limited: bool,
 }
 
 /// Names of the modules the navigator commands.
@@ -285,6 +299,21 @@ impl CoordinatorNavigator {
         }
     }
 
+    /// After a wheel stalled driving forward: the rest of this navigation turns in place where
+    /// its paths bend more sharply than `stall_max_curvature` (if set).
+    fn limit_arcs(&mut self, ctx: &mut Ctx<'_>) {
+        let k = self.params.stall_max_curvature;
+        let Some(g) = self.goal.as_mut() else { return };
+        if k <= 0.0 || g.arcs_limited {
+            return;
+        }
+        g.arcs_limited = true;
+        ctx.note(format!(
+            "a wheel stalled driving forward: the rest of this navigation turns in place rather than drive arcs under {:.1} m radius",
+            1.0 / k
+        ));
+    }
+
     fn distance_to_goal(&self, ctx: &Ctx<'_>) -> Option<f64> {
         let g = self.goal.as_ref()?;
         self.position(ctx).map(|p| (g.at[0] - p[0]).hypot(g.at[1] - p[1]))
@@ -337,6 +366,9 @@ impl CoordinatorNavigator {
         });
         if let Some(sense) = pivot {
             args["pivot"] = serde_json::json!(sense);
+        }
+        if self.goal.as_ref().is_some_and(|g| g.arcs_limited) {
+            args["max_curvature"] = serde_json::json!(self.params.stall_max_curvature);
         }
         args
     }
@@ -499,6 +531,7 @@ impl CoordinatorNavigator {
                                 if r.contains("wheel_front") || again {
                                     self.keep_out_ahead(ctx);
                                 }
+                                self.limit_arcs(ctx);
                             }
                             // A turn in place that stalled: the next ones near here go the other
                             // way round (and, should that stall too, back the first way).
@@ -690,6 +723,7 @@ impl Module for CoordinatorNavigator {
                 last_stall: None,
                 pivot: None,
                 stall_spots: Vec::new(),
+                arcs_limited: false,
             });
             match ctx.goto("navigating") {
                 Ok(()) => Outcome::Accepted,
@@ -722,6 +756,7 @@ impl Module for CoordinatorNavigator {
             ("stall_keep_out_m", p.stall_keep_out_m),
             ("stall_ahead_m", p.stall_ahead_m),
             ("escape_m", p.escape_m),
+            ("stall_max_curvature", p.stall_max_curvature),
         ])?;
         if p.stall_keep_out_m > p.stall_ahead_m {
             return Err(format!(

@@ -24,6 +24,8 @@ pub(super) struct Following {
     pub(super) pivoting: bool,
     /// Its first turn in place only this way round (cleared once that turn ends).
     pub(super) pivot: Option<Sense>,
+    /// Tightest arc driven, 1/m (0: no limit).
+    pub(super) max_curvature: f64,
 }
 
 impl Following {

@@ -9,7 +9,8 @@ use std::sync::{Arc, Mutex};
 /// The `pivot` argument of every `follow_path` locomotion received, in order.
 type Pivots = Arc<Mutex<Vec<Option<String>>>>;
 
-/// Every command locomotion received, in order: `follow_path`, `recover`, `drive <v> <duration_s>`.
+/// Every command locomotion received, in order: `follow_path` (`follow_path k<max_curvature>` when
+/// it limits the arcs), `recover`, `drive <v> <duration_s>`.
 type Log = Arc<Mutex<Vec<String>>>;
 
 /// The goal of every navigation here, 2 m to the right of the rover at the origin facing +x.
@@ -81,7 +82,8 @@ impl Module for Peers {
             if m.drive_stalls.is_empty() { Outcome::done() } else { Outcome::fail(m.drive_stalls.remove(0)) }
         });
         d.command("follow_path", |m, _, a: serde_json::Value| {
-            m.log.lock().unwrap().push("follow_path".into());
+            let limit = a.get("max_curvature").map(|k| format!(" k{k}")).unwrap_or_default();
+            m.log.lock().unwrap().push(format!("follow_path{limit}"));
             m.pivots.lock().unwrap().push(a.get("pivot").and_then(|p| p.as_str()).map(str::to_string));
             if !m.stalls.is_empty() {
                 if !m.turns.is_empty() {
@@ -235,4 +237,20 @@ fn a_back_off_that_stalls_clears_the_fault_and_escapes_forward() {
     let (status, _, log) = navigate(&[&turn], &[&back], "escape_m = 0.0");
     assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
     assert_eq!(log, ["follow_path", "recover", "drive -0.1 3", "recover", "follow_path"]);
+}
+
+#[test]
+fn after_a_stall_driving_forward_the_paths_turn_in_place_rather_than_arc_tightly() {
+    let forward = stalled(Motion::Forward.describe());
+    let (status, _, log) = navigate(&[&forward], &[], "");
+    assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
+    assert_eq!(log, ["follow_path", "recover", "drive -0.1 3", "follow_path k0.5"]);
+    // A turn in place that stalled says nothing of arcs.
+    let (_, _, log) = navigate(&[&turn_stall()], &[], "");
+    assert_eq!(log, ["follow_path", "recover", "drive -0.1 3", "follow_path"]);
+    // Set, and off.
+    let (_, _, log) = navigate(&[&forward, &turn_stall()], &[], "stall_max_curvature = 0.25");
+    assert_eq!(log.iter().filter(|c| *c == "follow_path k0.25").count(), 2, "{log:?}");
+    let (_, _, log) = navigate(&[&forward], &[], "stall_max_curvature = 0.0");
+    assert_eq!(log[3], "follow_path");
 }

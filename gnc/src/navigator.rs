@@ -563,8 +563,14 @@ impl CoordinatorNavigator {
                                 };
                                 self.retreat_after_stall(ctx, way)
                             } else {
-                                // A fault left from before (not this drive's own stall).
-                                Retreat::BackOff
+                                // A fault left from before (a navigation that gave up on a
+                                // stall leaves it for its caller): not this navigation's failed
+                                // attempt. Cleared, and backed off from where it stalled. (No
+                                // loop: once cleared, only a new stall of its own fails a drive.)
+                                ctx.note(format!(
+                                    "locomotion is in a fault left from before ({r}): clearing it"
+                                ));
+                                return Next::To(Phase::Recover(None, Retreat::BackOff));
                             };
                             Next::FailThen(format!("drive failed: {r}"), Phase::Recover(None, retreat))
                         } else {

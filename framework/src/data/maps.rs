@@ -152,6 +152,37 @@ impl NavigationMap {
         let (i, j) = self.geometry.cell(x, y)?;
         Some(self.cost[self.geometry.index(i, j)])
     }
+
+    /// Whether the rover's centre may stand on a cell of cost `c`: a traversable one, or unknown
+    /// ground where unknown ground may be entered.
+    pub fn passable(&self, c: u8) -> bool {
+        match c {
+            cost::UNKNOWN => self.unknown_cost <= cost::MAX_TRAVERSABLE,
+            c => c <= cost::MAX_TRAVERSABLE,
+        }
+    }
+
+    /// Whether the rover's centre may stand somewhere within `radius` of (x, y) (some cell centre
+    /// that near is [`passable`](Self::passable)), as a planner asked for a goal with that
+    /// tolerance requires; None when (x, y) is off the map.
+    pub fn room_within(&self, x: f64, y: f64, radius: f64) -> Option<bool> {
+        let g = &self.geometry;
+        let (ci, cj) = g.cell(x, y)?;
+        // At least half a cell's diagonal: some cell centre is always that near.
+        let r = radius.max(g.resolution_m * std::f64::consts::FRAC_1_SQRT_2);
+        let reach = (r / g.resolution_m).ceil() as i64;
+        Some((-reach..=reach).any(|dj| {
+            (-reach..=reach).any(|di| {
+                let (i, j) = (ci as i64 + di, cj as i64 + dj);
+                if i < 0 || j < 0 || i as usize >= g.width || j as usize >= g.height {
+                    return false;
+                }
+                let (i, j) = (i as usize, j as usize);
+                let c = g.centre(i, j);
+                (c[0] - x).hypot(c[1] - y) <= r && self.passable(self.cost[g.index(i, j)])
+            })
+        }))
+    }
 }
 
 /// A path for the rover's centre over the ground of `frame`.

@@ -89,7 +89,13 @@ impl Module for Peers {
                 if !m.turns.is_empty() {
                     m.yaw = m.turns.remove(0);
                 }
-                return Outcome::fail(m.stalls.remove(0));
+                let reason = m.stalls.remove(0);
+                // A fault left from before: refused, as Locomotion does.
+                return if reason.contains("recover' first") {
+                    Outcome::reject(reason)
+                } else {
+                    Outcome::fail(reason)
+                };
             }
             m.at = GOAL;
             Outcome::done()
@@ -253,4 +259,18 @@ fn after_a_stall_driving_forward_the_paths_turn_in_place_rather_than_arc_tightly
     assert_eq!(log.iter().filter(|c| *c == "follow_path k0.25").count(), 2, "{log:?}");
     let (_, _, log) = navigate(&[&forward], &[], "stall_max_curvature = 0.0");
     assert_eq!(log[3], "follow_path");
+}
+
+#[test]
+fn a_fault_left_from_before_is_cleared_without_counting_as_a_failed_attempt() {
+    let left =
+        format!("locomotion is in fault ({}); send 'recover' first", stalled(Motion::Forward.describe()));
+    // Not one failure allowed, yet it arrives: the refusal was not this navigation's failure.
+    let (status, _, log) = navigate(&[&left], &[], "max_failures = 0");
+    assert!(matches!(status, AckStatus::Completed(_)), "{status:?}");
+    // Cleared and backed off, with the arcs as they were (no stall of its own).
+    assert_eq!(log, ["follow_path", "recover", "drive -0.1 3", "follow_path"]);
+    // A stall of its own with no failure allowed ends it.
+    let (status, _, _) = navigate(&[&stalled(Motion::Forward.describe())], &[], "max_failures = 0");
+    assert!(matches!(status, AckStatus::Failed(_)), "{status:?}");
 }

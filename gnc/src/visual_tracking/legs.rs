@@ -2,7 +2,7 @@
 //! what follows a turn to face the target.
 
 use super::params::VisualTrackingParams;
-use framework::data::TargetTrack;
+use framework::data::{NavigationMap, TargetTrack};
 use nalgebra::Vector2;
 use nalgebra::Vector3;
 
@@ -145,9 +145,84 @@ pub fn sized_middle(track: &TargetTrack) -> Option<f64> {
     track.sized_range_m.map(|[near, far]| 0.5 * (near + far))
 }
 
+/// A leg's goal moved round the target is moved by this much at a time, degrees...
+const RING_STEP_DEG: f64 = 15.0;
+/// ... alternately each way, at most this far.
+const RING_MAX_DEG: f64 = 90.0;
+
+/// Where a leg of an approach to `target` ends instead of `goal` (both in `map`, m) when the
+/// navigation map leaves the rover's centre no room within `tolerance` of it (the goal lies in an
+/// obstacle or its inflation: a rock on the line to the target, or the target itself where its
+/// estimate lies beyond it, on a look-alike; the planner would refuse it each time): the first
+/// point at the goal's distance from the target, turned round it [`RING_STEP_DEG`] at a time,
+/// alternately each way, up to [`RING_MAX_DEG`], that has room, and the turn (degrees,
+/// counter-clockwise). None when the goal has room, lies off the map (the planner decides
+/// there), or no such point has any.
+pub fn standing_room(
+    map: &NavigationMap,
+    target: [f64; 2],
+    goal: [f64; 2],
+    tolerance: f64,
+) -> Option<([f64; 2], f64)> {
+    if map.room_within(goal[0], goal[1], tolerance)? {
+        return None;
+    }
+    let (dx, dy) = (goal[0] - target[0], goal[1] - target[1]);
+    let steps = (RING_MAX_DEG / RING_STEP_DEG).round() as i32;
+    (1..=steps).flat_map(|k| [k, -k]).find_map(|k| {
+        let turn = f64::from(k) * RING_STEP_DEG;
+        let (s, c) = turn.to_radians().sin_cos();
+        let at = [target[0] + c * dx - s * dy, target[1] + s * dx + c * dy];
+        map.room_within(at[0], at[1], tolerance).unwrap_or(false).then_some((at, turn))
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use framework::data::{GridGeometry, cost};
+
+    #[test]
+    fn a_goal_with_no_room_moves_round_the_target_to_the_nearest_that_has_some() {
+        // 10 m square at 0.1 m, free; the target at the origin, the goal 1.2 m west of it.
+        let geometry = GridGeometry::centred("map", [0.0, 0.0], 0.1, 100, 100);
+        let mut map = NavigationMap { cost: vec![cost::FREE; 10_000], geometry, unknown_cost: 100 };
+        let (target, goal) = ([0.0, 0.0], [-1.2, 0.0]);
+        assert_eq!(standing_room(&map, target, goal, 0.15), None);
+        // An obstacle's inflation 0.7 m round a point 0.3 m from the goal (the canister, with the
+        // estimate on a rock 1.5 m beyond it): the goal is turned round the target, on its
+        // 1.2 m circle, to the first point with room within the tolerance, away from the
+        // obstacle (15 degrees: 0.61 m from it, a free cell 0.09 m on).
+        let obstacle = [-1.2, 0.3];
+        for k in 0..map.cost.len() {
+            let c = map.geometry.centre(k % 100, k / 100);
+            if (c[0] - obstacle[0]).hypot(c[1] - obstacle[1]) <= 0.7 {
+                map.cost[k] = cost::INFLATED;
+            }
+        }
+        let (at, turn) = standing_room(&map, target, goal, 0.15).expect("moved");
+        assert_eq!(turn, 15.0);
+        let (s, c) = 15f64.to_radians().sin_cos();
+        assert!((at[0] + 1.2 * c).abs() < 1e-9 && (at[1] + 1.2 * s).abs() < 1e-9, "{at:?}");
+        // The other way round first only where that has room.
+        let mirrored = NavigationMap {
+            cost: (0..10_000).map(|k| map.cost[(99 - k / 100) * 100 + k % 100]).collect(),
+            ..map.clone()
+        };
+        assert_eq!(standing_room(&mirrored, target, goal, 0.15).map(|(_, t)| t), Some(-15.0));
+        // A wider tolerance finds room by the goal itself.
+        assert_eq!(standing_room(&map, target, goal, 0.5), None);
+        // Off the map: the planner decides.
+        assert_eq!(standing_room(&map, target, [9.0, 0.0], 0.15), None);
+        // Nowhere on the half circle facing the rover: none.
+        let blocked = NavigationMap { cost: vec![cost::INFLATED; 10_000], ..map.clone() };
+        assert_eq!(standing_room(&blocked, target, goal, 0.15), None);
+        // Unknown ground has room where the map lets the rover enter it, not where it does not.
+        let unknown = NavigationMap { cost: vec![cost::UNKNOWN; 10_000], ..map.clone() };
+        assert_eq!(unknown.room_within(goal[0], goal[1], 0.15), Some(true));
+        let forbidden = NavigationMap { unknown_cost: cost::OBSTACLE, ..unknown };
+        assert_eq!(forbidden.room_within(goal[0], goal[1], 0.15), Some(false));
+    }
 
     fn drive(leg: Leg) -> ([f64; 2], f64) {
         match leg {

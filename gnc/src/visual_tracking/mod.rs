@@ -16,7 +16,10 @@
 //! No leg ends nearer the target's estimate than `clearance_m` (where the rover, turning in place
 //! to face it, could touch it) plus `clearance_sigmas` of the estimate's uncertainty along the line
 //! to it: a leg that would stops there, and where the rover is there already the target is located
-//! again to the accuracy at which the final leg ends clear of it (`legs`).
+//! again to the accuracy at which the final leg ends clear of it (`legs`). A leg's goal where the
+//! navigation map leaves the rover no room (the planner would refuse it, attempt after attempt: a
+//! rock on the line, or the target itself where its estimate lies beyond it on a look-alike) is
+//! moved round the target's estimate at the same distance (`legs::standing_room`).
 //!
 //! A far target that is tracked but cannot be located to a leg's accuracy (a few pixels wide,
 //! stereo ranges it poorly or not at all) is approached along its line of sight: a leg over part
@@ -44,7 +47,7 @@ use crate::peer::send;
 use crate::tracking::locate_sigma;
 use crate::tracking::pointing::PanTiltCamera;
 use framework::data::{
-    JointStates, NavigationState, PoseEstimate, TargetStatus, TargetTrack, VisualTrackingState,
+    JointStates, NavigationMap, NavigationState, PoseEstimate, TargetStatus, TargetTrack, VisualTrackingState,
 };
 use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
@@ -169,6 +172,8 @@ pub struct CoordinatorVisualTracking {
     pose: Option<Reader<PoseEstimate>>,
     joints: Option<Reader<JointStates>>,
     navigation: Option<Reader<NavigationState>>,
+    /// The navigation map: where a leg's goal leaves the rover room to stand.
+    map: Option<Reader<NavigationMap>>,
     out: Option<Writer<VisualTrackingState>>,
     params: VisualTrackingParams,
     job: Option<Job>,
@@ -194,6 +199,7 @@ impl CoordinatorVisualTracking {
             pose: None,
             joints: None,
             navigation: None,
+            map: None,
             out: None,
             params: VisualTrackingParams::default(),
             job: None,
@@ -384,6 +390,25 @@ impl CoordinatorVisualTracking {
                 }
                 let nav =
                     self.peers.navigator.clone().ok_or("no navigator in this system: cannot approach")?;
+                // A goal the map leaves the rover no room at (in an obstacle's inflation: a rock
+                // on the line, or the target itself where the estimate lies beyond it on a
+                // look-alike) is moved round the target, at the same distance from it.
+                let map = self.map.as_ref().and_then(|r| ctx.read(r));
+                let moved =
+                    map.and_then(|m| legs::standing_room(&m.value, [target.x, target.y], goal, tolerance));
+                let goal = if let Some((at, turn)) = moved {
+                    ctx.note(format!(
+                        "{}: the leg's goal ({:.2}, {:.2}) leaves the rover no room on the navigation map: moved {turn:.0} deg round the target's estimate, to ({:.2}, {:.2})",
+                        job.kind.name(),
+                        goal[0],
+                        goal[1],
+                        at[0],
+                        at[1]
+                    ));
+                    at
+                } else {
+                    goal
+                };
                 let args = serde_json::json!({ "x": goal[0], "y": goal[1], "tolerance_m": tolerance });
                 let id = send(ctx, &nav, "navigate_to", args)?;
                 job.legs += 1;
@@ -691,6 +716,7 @@ impl Module for CoordinatorVisualTracking {
         self.joints = Some(d.reads(&format!("{}/joints", self.peers.ptu)));
         if self.peers.navigator.is_some() {
             self.navigation = Some(d.reads("navigation/state"));
+            self.map = Some(d.reads("navigation/map"));
         }
         self.out = Some(d.writes(SLOT));
         d.sends_to(&self.peers.tracker).sends_to(&self.peers.ptu).sends_to(&self.peers.locomotion);

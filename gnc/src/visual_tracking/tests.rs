@@ -36,8 +36,8 @@ struct Peer {
     slot: Option<&'static str>,
     pose: Option<Writer<PoseEstimate>>,
     track: Option<Writer<TargetTrack>>,
-    /// Slots declared for the coordinator to read, never written (no joints, no scan).
-    silent: Option<(Writer<JointStates>, Writer<NavigationState>)>,
+    /// Slots declared for the coordinator to read, never written (no joints, no scan, no map).
+    silent: Option<(Writer<JointStates>, Writer<NavigationState>, Writer<NavigationMap>)>,
     unseen: Unseen,
     /// When the tracker was told to reject its estimate.
     rejected: Option<Time>,
@@ -74,7 +74,10 @@ impl Module for Peer {
         match self.slot {
             Some("pose") => self.pose = Some(d.writes("pose")),
             Some("track") => self.track = Some(d.writes(crate::tracking_target::SLOT)),
-            Some("silent") => self.silent = Some((d.writes("ptu/joints"), d.writes("navigation/state"))),
+            Some("silent") => {
+                self.silent =
+                    Some((d.writes("ptu/joints"), d.writes("navigation/state"), d.writes("navigation/map")))
+            }
             _ => {}
         }
         d.state("serving", |m, ctx| {

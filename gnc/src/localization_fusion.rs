@@ -603,6 +603,7 @@ impl LocalizationDataFusion {
             pose: s.pose,
             covariance: s.covariance,
             velocity: self.velocity,
+            relocalizations: u32::try_from(self.counts.relocalized).unwrap_or(u32::MAX),
         };
         ctx.write_stamped(w, est, s.stamp);
     }

@@ -173,6 +173,7 @@ impl LocalizationMechanical {
             ),
             covariance: cov,
             velocity: s.velocity,
+            relocalizations: 0,
         };
         ctx.write_stamped(w, est, s.last.stamp);
     }

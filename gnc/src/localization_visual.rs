@@ -392,6 +392,7 @@ impl LocalizationVisual {
                 pose: now_pose,
                 covariance: Matrix6::zeros(),
                 velocity: Default::default(),
+                relocalizations: 0,
             };
             ctx.write_stamped(w, est, f.stamp);
         }

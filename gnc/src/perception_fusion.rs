@@ -5,7 +5,10 @@
 //! slopes a horizontal error is a height error); then the blind area around and under the rover is
 //! filled by interpolation from the edges of what was seen. A local map that overlaps the global one
 //! is first shifted vertically onto it (the pose estimate's height drifts; the shift is reported
-//! by `scan`). The map is published on
+//! by `scan`). When the pose estimate is relocalized (moved at once onto a surveyed landmark
+//! it had drifted from: [`PoseEstimate::relocalizations`]), the map built before is displaced from
+//! the rover's new place by the move (a false step along the seam where new and old maps meet,
+//! which once walled off the mission's home goal) and is forgotten. The map is published on
 //! `perception/global_dem` at most at `publish_hz`.
 //!
 //! Commands:
@@ -93,6 +96,8 @@ pub struct PerceptionDataFusion {
     last_shift_m: f64,
     /// The tilt the last fusion applied, degrees.
     last_tilt_deg: f64,
+    /// The pose estimate's relocalizations when the map was started (see the module's doc).
+    relocalizations: u32,
     scan: Option<Scan>,
     params: PerceptionFusionParams,
 }
@@ -114,6 +119,7 @@ impl PerceptionDataFusion {
             dirty: false,
             last_shift_m: 0.0,
             last_tilt_deg: 0.0,
+            relocalizations: 0,
             scan: None,
             params: PerceptionFusionParams::default(),
         }
@@ -127,6 +133,16 @@ impl PerceptionDataFusion {
         self.last_local = local.seq;
         self.last_local_stamp = Some(local.stamp);
         let pose = self.pose.as_ref().and_then(|r| ctx.read(r));
+        if let Some(p) = &pose
+            && p.value.relocalizations != self.relocalizations
+        {
+            self.relocalizations = p.value.relocalizations;
+            if self.map.take().is_some() {
+                ctx.note(
+                    "the pose estimate was relocalized: the elevation map built before, displaced from the rover's new place by the move, is forgotten",
+                );
+            }
+        }
         let (placement, centre) = match &pose {
             Some(p) => {
                 let c = &p.value.covariance;
@@ -313,3 +329,6 @@ impl Module for PerceptionDataFusion {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests;

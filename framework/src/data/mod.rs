@@ -21,6 +21,11 @@ pub struct PoseEstimate {
     pub covariance: Matrix6<f64>,
     /// Body-frame forward speed and yaw rate at the estimate's time, m/s and rad/s.
     pub velocity: crate::hal::BodyTwist,
+    /// How often the estimate has been moved at once onto an absolute reference (a surveyed
+    /// landmark, after drifting from it): what was placed in `frame` with the estimate before such
+    /// a move is displaced by the move from what is placed after it.
+    #[serde(default)]
+    pub relocalizations: u32,
 }
 
 impl PoseEstimate {
@@ -35,6 +40,7 @@ impl PoseEstimate {
             ),
             covariance: Matrix6::zeros(),
             velocity: Default::default(),
+            relocalizations: 0,
         }
     }
     /// Position, m.

@@ -114,6 +114,7 @@ impl Module for Peer {
                     pose: Isometry3::identity(),
                     covariance: Matrix6::identity() * 1e-4,
                     velocity: Default::default(),
+                    relocalizations: 0,
                 };
                 ctx.write(w, pose);
             }

@@ -51,6 +51,7 @@ impl Module for Peers {
                 pose: Isometry3::new(Vector3::new(m.at[0], m.at[1], 0.0), Vector3::z() * m.yaw),
                 covariance: Matrix6::identity() * 1e-4,
                 velocity: Default::default(),
+                relocalizations: 0,
             };
             let geometry = GridGeometry {
                 frame: "map".into(),

@@ -10,7 +10,7 @@
 //! - `follow_path {points, clearance_m?, speed?, tolerance_m?, pivot?, max_curvature?}`: follows a
 //!   path of the estimate's frame by pure pursuit (a lookahead point on the path, the arc through
 //!   it), turning in place when the path is far off the heading or the arc tighter than
-//!   `max_curvature` (the command's, else the configured one; 0: no limit)
+//!   `max_curvature` (the command's, else the configured one, the tighter if both; 0: no limit)
 //!   (the shorter way round, or for its first such turn only the way `pivot` says: [`Sense`]),
 //!   slowing where the path's
 //!   clearance to obstacles is small, for heading error and near the end; completes at the last
@@ -164,7 +164,8 @@ pub struct FollowPathArgs {
     #[serde(default)]
     pub pivot: Option<Sense>,
     /// Tightest arc driven along this path, 1/m (0: no limit; default: the configured
-    /// `max_curvature`): the navigator asks for one after a wheel stalled in an arc on a slope.
+    /// `max_curvature`; with both set, the tighter): the navigator asks for one after a wheel
+    /// stalled driving forward.
     #[serde(default)]
     pub max_curvature: Option<f64>,
 }
@@ -557,12 +558,18 @@ impl Module for Locomotion {
                     "follow_path needs one clearance per point, a positive speed and a positive tolerance",
                 );
             }
-            let max_curvature = a.max_curvature.unwrap_or(m.params.max_curvature);
-            if !(max_curvature >= 0.0 && max_curvature.is_finite()) {
-                return Outcome::reject(format!(
-                    "follow_path's max_curvature must be 0 (no limit) or positive, got {max_curvature}"
-                ));
-            }
+            let configured = m.params.max_curvature;
+            let max_curvature = match a.max_curvature {
+                None => configured,
+                Some(k) if !(k >= 0.0 && k.is_finite()) => {
+                    return Outcome::reject(format!(
+                        "follow_path's max_curvature must be 0 (no limit) or positive, got {k}"
+                    ));
+                }
+                // The tighter of the command's and a configured limit; 0 asks for none.
+                Some(k) if k > 0.0 && configured > 0.0 => k.min(configured),
+                Some(k) => k,
+            };
             let mut points = a.points;
             let mut clearance = clearance;
             if points.len() == 1 {

@@ -2,7 +2,8 @@
 //!
 //! - `navigate_to {x, y, tolerance_m?}` (`map` frame): completes on arrival within the tolerance,
 //!   with the distance left and the plans made; fails with the reason once more consecutive
-//!   attempts failed (no path, a failed scan, a failed drive) than `max_failures`;
+//!   attempts failed (no path, a failed scan, a failed drive) than `max_failures` (a drive refused
+//!   for a fault an earlier navigation left is not one: the fault is cleared, the rover backs off);
 //! - `cancel` (or `stop`): stops the rover and fails the navigation in progress.
 //!
 //! Its `navigating` state is a meta-state, switched at runtime with `set_meta`:

@@ -8,7 +8,8 @@
 //! by `scan`). When the pose estimate is relocalized (moved at once onto a surveyed landmark
 //! it had drifted from: [`PoseEstimate::relocalizations`]), the map built before is displaced from
 //! the rover's new place by the move (a false step along the seam where new and old maps meet,
-//! which once walled off the mission's home goal) and is forgotten. The map is published on
+//! which once walled off the mission's home goal) and is forgotten; local maps of images captured
+//! before the relocalization are not fused into the new one. The map is published on
 //! `perception/global_dem` at most at `publish_hz`.
 //!
 //! Commands:
@@ -98,6 +99,8 @@ pub struct PerceptionDataFusion {
     last_tilt_deg: f64,
     /// The pose estimate's relocalizations when the map was started (see the module's doc).
     relocalizations: u32,
+    /// The time of the newest relocalization: local maps captured before it are not fused.
+    relocalized_at: Option<Time>,
     scan: Option<Scan>,
     params: PerceptionFusionParams,
 }
@@ -120,6 +123,7 @@ impl PerceptionDataFusion {
             last_shift_m: 0.0,
             last_tilt_deg: 0.0,
             relocalizations: 0,
+            relocalized_at: None,
             scan: None,
             params: PerceptionFusionParams::default(),
         }
@@ -137,11 +141,17 @@ impl PerceptionDataFusion {
             && p.value.relocalizations != self.relocalizations
         {
             self.relocalizations = p.value.relocalizations;
+            self.relocalized_at = Some(p.stamp);
             if self.map.take().is_some() {
                 ctx.note(
                     "the pose estimate was relocalized: the elevation map built before, displaced from the rover's new place by the move, is forgotten",
                 );
             }
+        }
+        // A local map of images captured before the relocalization was placed with the estimate
+        // before the move: it would start the new map displaced.
+        if self.relocalized_at.is_some_and(|at| local.stamp < at) {
+            return;
         }
         let (placement, centre) = match &pose {
             Some(p) => {

@@ -70,8 +70,8 @@ fn the_path_follower_turns_a_corner_on_a_slope_where_arcs_stall() {
     // A right-angle corner on an 8 degree rise, friction 0.8, in full dynamics (where a sweep's
     // mission stalled). Pure pursuit's arc into the corner is tighter than the rover can skid
     // round: with the arcs unlimited (max_curvature 0, the follower as it was) a wheel stalls;
-    // with max_curvature 1/m (the command's own, as the navigator sends it after a stall) the
-    // rover turns in place instead and reaches the end.
+    // with max_curvature 1/m (the command's own, as the navigator sends its stall_max_curvature
+    // after a stall) the rover turns in place instead and reaches the end.
     let dir = tempfile::tempdir().unwrap();
     let o = run(&data("follow_corner_slope.toml"), dir.path(), &["--set", "logging.rrd=false"]);
     assert!(o.status.success(), "{}", show(&o));

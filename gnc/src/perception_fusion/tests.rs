@@ -5,12 +5,14 @@ use framework::data::{ElevationMap, GridGeometry};
 use framework::{ConfigSource, Executor, LockstepExecutor, NoParams, SystemBuilder};
 use std::sync::{Arc, Mutex};
 
-/// One local map: a 1 m square of level ground centred on `centre` (`map`), fused with the pose
-/// estimate at the origin having been relocalized `relocalizations` times.
+/// One local map: a 1 m square of level ground centred on `centre` (`map`), of images captured
+/// `age_s` ago, fused with the pose estimate at the origin having been relocalized
+/// `relocalizations` times.
 #[derive(Clone, Copy)]
 struct Step {
     centre: [f64; 2],
     relocalizations: u32,
+    age_s: f64,
 }
 
 /// Writes the pose estimate and one local map of `steps` every third cycle, and keeps the newest
@@ -53,7 +55,8 @@ impl Module for Feed {
             local.min.fill(0.0);
             local.max.fill(0.0);
             ctx.write(m.pose.as_ref().unwrap(), pose);
-            ctx.write(m.local.as_ref().unwrap(), local);
+            let captured = ctx.now() - Duration::from_secs_f64(step.age_s);
+            ctx.write_stamped(m.local.as_ref().unwrap(), local, captured);
             Ok(())
         });
     }
@@ -86,12 +89,18 @@ fn count_at(map: &ElevationMap, x: f64, y: f64) -> u32 {
 
 #[test]
 fn a_relocalized_pose_estimate_starts_the_map_again() {
-    let here = Step { centre: [0.0, 0.0], relocalizations: 0 };
-    let ahead = Step { centre: [3.0, 0.0], relocalizations: 0 };
+    let here = Step { centre: [0.0, 0.0], relocalizations: 0, age_s: 0.0 };
+    let ahead = Step { centre: [3.0, 0.0], relocalizations: 0, age_s: 0.0 };
     let both = fused(&[here, ahead]);
     assert!(count_at(&both, 0.0, 0.0) > 0 && count_at(&both, 3.0, 0.0) > 0);
     // Relocalized between the two: what was mapped before is displaced, and forgotten.
     let moved = fused(&[here, Step { relocalizations: 1, ..ahead }]);
     assert_eq!(count_at(&moved, 0.0, 0.0), 0);
     assert!(count_at(&moved, 3.0, 0.0) > 0);
+    // A local map of images captured before the relocalization (placed with the estimate before
+    // the move) does not start the new map; the next one does.
+    let stale = Step { centre: [0.0, 2.0], relocalizations: 1, age_s: 0.2 };
+    let late = fused(&[here, stale, Step { relocalizations: 1, ..ahead }]);
+    assert_eq!(count_at(&late, 0.0, 2.0), 0);
+    assert!(count_at(&late, 3.0, 0.0) > 0);
 }

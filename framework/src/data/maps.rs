@@ -47,6 +47,20 @@ impl GridGeometry {
         (i >= 0.0 && j >= 0.0 && i < self.width as f64 && j < self.height as f64)
             .then_some((i as usize, j as usize))
     }
+    /// The cells whose centres lie within `radius` of (x, y), m (none when (x, y) is off the grid).
+    pub fn cells_within(&self, x: f64, y: f64, radius: f64) -> impl Iterator<Item = (usize, usize)> + '_ {
+        let reach = (radius / self.resolution_m).ceil() as i64;
+        let around = self.cell(x, y).map(|(ci, cj)| (ci as i64, cj as i64));
+        around.into_iter().flat_map(move |(ci, cj)| {
+            (-reach..=reach)
+                .flat_map(move |dj| (-reach..=reach).map(move |di| (ci + di, cj + dj)))
+                .filter_map(move |(i, j)| {
+                    let inside = i >= 0 && j >= 0 && (i as usize) < self.width && (j as usize) < self.height;
+                    let c = inside.then(|| self.centre(i as usize, j as usize))?;
+                    ((c[0] - x).hypot(c[1] - y) <= radius).then_some((i as usize, j as usize))
+                })
+        })
+    }
     /// The index of cell (i, j).
     pub fn index(&self, i: usize, j: usize) -> usize {
         j * self.width + i
@@ -167,21 +181,10 @@ impl NavigationMap {
     /// tolerance requires; None when (x, y) is off the map.
     pub fn room_within(&self, x: f64, y: f64, radius: f64) -> Option<bool> {
         let g = &self.geometry;
-        let (ci, cj) = g.cell(x, y)?;
+        g.cell(x, y)?;
         // At least half a cell's diagonal: some cell centre is always that near.
         let r = radius.max(g.resolution_m * std::f64::consts::FRAC_1_SQRT_2);
-        let reach = (r / g.resolution_m).ceil() as i64;
-        Some((-reach..=reach).any(|dj| {
-            (-reach..=reach).any(|di| {
-                let (i, j) = (ci as i64 + di, cj as i64 + dj);
-                if i < 0 || j < 0 || i as usize >= g.width || j as usize >= g.height {
-                    return false;
-                }
-                let (i, j) = (i as usize, j as usize);
-                let c = g.centre(i, j);
-                (c[0] - x).hypot(c[1] - y) <= r && self.passable(self.cost[g.index(i, j)])
-            })
-        }))
+        Some(g.cells_within(x, y, r).any(|(i, j)| self.passable(self.cost[g.index(i, j)])))
     }
 }
 

@@ -143,18 +143,7 @@ pub fn plan(
         (c[0] - goal[0]).hypot(c[1] - goal[1]) <= tol
     };
     // The goal must have a traversable cell within the tolerance.
-    let reach = (tol / r).ceil() as i64;
-    let reachable = (-reach..=reach).any(|dj| {
-        (-reach..=reach).any(|di| {
-            let (i, j) = (goal_cell.0 as i64 + di, goal_cell.1 as i64 + dj);
-            i >= 0
-                && j >= 0
-                && (i as usize) < g.width
-                && (j as usize) < g.height
-                && near_goal(i as usize, j as usize)
-                && search.factor(i as usize, j as usize).is_some()
-        })
-    });
+    let reachable = g.cells_within(goal[0], goal[1], tol).any(|(i, j)| search.factor(i, j).is_some());
     if !reachable {
         return Err(PlanError::GoalBlocked { x: goal[0], y: goal[1], tolerance: tol });
     }

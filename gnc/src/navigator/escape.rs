@@ -55,11 +55,10 @@ const SAME_DIRECTION_RAD: f64 = std::f64::consts::FRAC_PI_3;
 /// deeper (from an inflation into an obstacle), nor enter others once out, nor end in one.
 fn crossing(map: &NavigationMap, at: [f64; 2], heading: f64, length: f64) -> Option<f64> {
     let g = &map.geometry;
-    let passable = |c: u8| map.passable(c);
     // 0: a cell the rover may enter; 1: an inflation; 2: an obstacle (or unknown ground not to be
     // entered). While it leaves where it stands, the depth may only fall.
     let depth = |c: u8| match c {
-        c if passable(c) => 0,
+        c if map.passable(c) => 0,
         cost::INFLATED => 1,
         _ => 2,
     };

@@ -18,6 +18,11 @@
 //! - `stop`: stops at once (also fails the manoeuvre in progress);
 //! - `recover`: leaves the `fault` state after a stall.
 //!
+//! With a navigation map to read ([`Locomotion::guarded_by`]) and a footprint configured
+//! (`guard_half_extents_m`), `drive`, `goto` and `turn_to`, which no planner checked, are guarded
+//! ([`guard`]): refused when the way they would sweep covers an obstacle cell, stopped (failed,
+//! not a fault) when the rover's footprint at its estimated pose comes to cover one on the way.
+//!
 //! Each motion command completes (deferred acknowledgement) when the manoeuvre ends; a new one
 //! supersedes the one in progress, which then fails with that reason. A wheel that turns at less
 //! than a fraction of its commanded rate for longer than the stall time puts the module in `fault`:
@@ -25,156 +30,51 @@
 //! then (driving forward, reversing, turning in place to the left or right: [`Motion`], [`Sense`]).
 
 use framework::angle::wrap;
-use framework::data::{LocomotionState, PoseEstimate};
+use framework::data::{LocomotionState, NavigationMap, PoseEstimate};
 use framework::hal::{BodyTwist, Locomotor, WheelEncoders};
 use framework::module::Request;
 use framework::prelude::*;
 use framework::resources::ReservationToken;
-use serde::{Deserialize, Serialize};
 
 mod follow;
+pub mod guard;
 mod motion;
+mod params;
+#[cfg(test)]
+mod tests;
 
 use follow::Following;
+use guard::{CellKey, Footprint, Pose2};
 pub use motion::{Motion, Sense, pivot_rate};
+pub use params::{DriveArgs, FollowPathArgs, GotoArgs, LocomotionParams, TurnToArgs};
+use std::collections::HashSet;
 
-/// Locomotion parameters.
-#[derive(Clone, Debug, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct LocomotionParams {
-    /// Cruise speed of `goto`, m/s (clamped to the locomotor's limit).
-    pub speed: f64,
-    /// Largest yaw rate used, rad/s (clamped to the locomotor's limit).
-    pub max_yaw_rate: f64,
-    /// Speed change limit, m/s^2.
-    pub accel: f64,
-    /// Heading gain of `goto` and `turn_to`, 1/s.
-    pub heading_gain: f64,
-    /// `goto` (and `follow_path`) turns in place while the goal (the lookahead point) is more
-    /// than this off the heading, degrees.
-    pub turn_in_place_deg: f64,
-    /// Arrival tolerance of `goto`, m.
-    pub goal_tolerance_m: f64,
-    /// Heading tolerance of `turn_to`, degrees.
-    pub heading_tolerance_deg: f64,
-    /// Lookahead distance of `follow_path`, m.
-    pub lookahead_m: f64,
-    /// Integral gain of `follow_path` on the cross-track error, rad/s per m s.
-    pub cross_track_gain_i: f64,
-    /// `follow_path` slows down in proportion where the path's clearance is below this, m.
-    pub slow_clearance_m: f64,
-    /// Slowest cruise speed of `follow_path` (near obstacles), m/s.
-    pub min_speed: f64,
-    /// A wheel turning at less than this fraction of its commanded rate is stalling.
-    pub stall_rate_fraction: f64,
-    /// Commanded wheel rates below this are not checked for stalls, rad/s.
-    pub stall_min_rate: f64,
-    /// How long a wheel may stall before the module stops the rover, s.
-    pub stall_time_s: f64,
-    /// Tightest arc `follow_path` drives, 1/m (0: no limit): a skid-steer rover cannot skid round
-    /// arcs much tighter than its track on slopes (the inner wheels pivot, the outer ones stall).
-    /// Where pure pursuit's arc (judged at a lookahead of at least `lookahead_m`) is tighter, it
-    /// turns in place until the arc is within half of this; its yaw rate never exceeds this times
-    /// its speed otherwise.
-    pub max_curvature: f64,
-}
-
-impl Default for LocomotionParams {
-    fn default() -> Self {
-        LocomotionParams {
-            speed: 0.3,
-            max_yaw_rate: 0.4,
-            accel: 0.5,
-            heading_gain: 1.5,
-            turn_in_place_deg: 35.0,
-            goal_tolerance_m: 0.15,
-            heading_tolerance_deg: 2.0,
-            lookahead_m: 0.6,
-            cross_track_gain_i: 0.3,
-            slow_clearance_m: 1.0,
-            min_speed: 0.08,
-            stall_rate_fraction: 0.2,
-            stall_min_rate: 0.5,
-            stall_time_s: 1.0,
-            max_curvature: 0.0,
-        }
-    }
-}
-
-/// Arguments of `drive`.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DriveArgs {
-    /// Forward speed, m/s.
-    pub v: f64,
-    /// Yaw rate, rad/s.
-    #[serde(default)]
-    pub omega: f64,
-    /// How long, s.
-    pub duration_s: f64,
-}
-
-/// Arguments of `goto`.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GotoArgs {
-    /// Goal x in the pose estimate's frame, m.
-    pub x: f64,
-    /// Goal y, m.
-    pub y: f64,
-    /// Cruise speed, m/s (default: the configured one).
-    #[serde(default)]
-    pub speed: Option<f64>,
-    /// Arrival tolerance, m (default: the configured one).
-    #[serde(default)]
-    pub tolerance_m: Option<f64>,
-}
-
-/// Arguments of `turn_to`: one of the two.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TurnToArgs {
-    /// Goal heading in the pose estimate's frame, degrees.
-    #[serde(default)]
-    pub yaw_deg: Option<f64>,
-    /// A point of the pose estimate's frame (x, y, m) to face, from where the estimate puts the
-    /// rover when the command arrives (a surveyed landmark to look at).
-    #[serde(default)]
-    pub facing: Option<[f64; 2]>,
-}
-
-/// Arguments of `follow_path`.
-#[derive(Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FollowPathArgs {
-    /// Waypoints (x, y) in the pose estimate's frame, m, from (about) the rover to the goal.
-    pub points: Vec<[f64; 2]>,
-    /// Per waypoint, the clearance to the nearest obstacle, m (default: no slowing).
-    #[serde(default)]
-    pub clearance_m: Option<Vec<f64>>,
-    /// Cruise speed, m/s (default: the configured one).
-    #[serde(default)]
-    pub speed: Option<f64>,
-    /// Arrival tolerance at the last point, m (default: the configured one).
-    #[serde(default)]
-    pub tolerance_m: Option<f64>,
-    /// Its first turn in place goes only this way round (default: the shorter way), the long way
-    /// if need be (a turn far off the heading, over `turn_in_place_deg`): after a turn that
-    /// stalled a wheel one way there, the way round that loads the wheels differently.
-    #[serde(default)]
-    pub pivot: Option<Sense>,
-    /// Tightest arc driven along this path, 1/m (0: no limit; default: the configured
-    /// `max_curvature`; with both set, the tighter): the navigator asks for one after a wheel
-    /// stalled driving forward.
-    #[serde(default)]
-    pub max_curvature: Option<f64>,
+/// A straight move that makes room for a turn in place: to `to` (x, y of the estimate's frame)
+/// along `heading` (rad), backwards when `distance` (m) is negative.
+#[derive(Clone, Copy, Debug)]
+struct Room {
+    to: [f64; 2],
+    heading: f64,
+    distance: f64,
 }
 
 #[derive(Clone, Debug)]
 enum Manoeuvre {
-    Drive { twist: BodyTwist, until: Time },
-    Goto { x: f64, y: f64, speed: f64, tolerance: f64 },
-    TurnTo { yaw: f64 },
+    Drive {
+        twist: BodyTwist,
+        until: Time,
+    },
+    Goto {
+        x: f64,
+        y: f64,
+        speed: f64,
+        tolerance: f64,
+    },
+    /// A turn in place, after a straight move to `room` (x, y) when one makes room for it.
+    TurnTo {
+        yaw: f64,
+        room: Option<Room>,
+    },
     Follow(Box<Following>),
 }
 
@@ -184,6 +84,9 @@ pub struct Locomotion {
     encoders: Box<dyn WheelEncoders>,
     token: Option<ReservationToken>,
     pose: Option<Reader<PoseEstimate>>,
+    /// The navigation map's slot the obstacle guard reads (none: no guard).
+    map_slot: Option<String>,
+    map: Option<Reader<NavigationMap>>,
     out: Option<Writer<LocomotionState>>,
     params: LocomotionParams,
     manoeuvre: Option<Manoeuvre>,
@@ -195,7 +98,14 @@ pub struct Locomotion {
     /// jerks is still caught while brief sticking in skid turns is not.
     stall_evidence: Vec<f64>,
     fault: Option<String>,
+    /// While a guarded manoeuvre runs: the obstacle cells under the footprint where it began.
+    guard_exempt: Option<HashSet<CellKey>>,
+    /// The straight move that made room for the turn in progress, m.
+    room_made: Option<f64>,
 }
+
+/// The speed of a straight move that makes room for a turn in place, m/s.
+const ROOM_SPEED_M_S: f64 = 0.1;
 
 impl Locomotion {
     /// A locomotion module driving `locomotor` and watching `encoders`.
@@ -206,6 +116,8 @@ impl Locomotion {
             encoders,
             token: None,
             pose: None,
+            map_slot: None,
+            map: None,
             out: None,
             params: LocomotionParams::default(),
             manoeuvre: None,
@@ -214,7 +126,79 @@ impl Locomotion {
             last_cycle: None,
             stall_evidence: vec![0.0; n],
             fault: None,
+            guard_exempt: None,
+            room_made: None,
         }
+    }
+
+    /// Guards `drive`, `goto` and `turn_to` with the navigation map of `slot` (when a footprint
+    /// is configured).
+    pub fn guarded_by(mut self, slot: &str) -> Self {
+        self.map_slot = Some(slot.to_string());
+        self
+    }
+
+    /// The guard's footprint, when it is on.
+    fn footprint(&self) -> Option<Footprint> {
+        let [l, w] = self.params.guard_half_extents_m;
+        (self.map.is_some() && l > 0.0 && w > 0.0).then_some(Footprint {
+            half_length_m: l,
+            half_width_m: w,
+            margin_m: self.params.guard_margin_m,
+        })
+    }
+
+    /// The estimated pose on the ground, and the navigation map, for the guard.
+    fn guard_view(
+        &self,
+        ctx: &Ctx<'_>,
+    ) -> Option<(Footprint, Pose2, std::sync::Arc<Stamped<NavigationMap>>)> {
+        let fp = self.footprint()?;
+        let est = self.pose.as_ref().and_then(|r| ctx.read(r))?;
+        let map = self.map.as_ref().and_then(|r| ctx.read(r))?;
+        let p = est.value.position();
+        Some((fp, [p.x, p.y, est.value.yaw()], map))
+    }
+
+    /// The guard's check of a manoeuvre about to start (`what`, for the refusal), sweeping the
+    /// poses `sweep` gives from the rover's: the obstacle cells exempt for it (those under the
+    /// footprint now), None when unguarded (no footprint, map or pose estimate), or the refusal.
+    fn guard_plan(
+        &self,
+        ctx: &Ctx<'_>,
+        what: &str,
+        sweep: impl FnOnce(Pose2) -> Vec<Pose2>,
+    ) -> Result<Option<HashSet<CellKey>>, Outcome> {
+        let Some((fp, at, map)) = self.guard_view(ctx) else {
+            return Ok(None);
+        };
+        let exempt: HashSet<CellKey> = fp.obstacles(&map.value, at).into_iter().map(|(k, _)| k).collect();
+        match fp.first_hit(&map.value, sweep(at), &exempt) {
+            Some(c) => Err(Outcome::reject(format!(
+                "{what} would bring the rover within {} m of an obstacle of the navigation map at ({:.2}, {:.2})",
+                fp.margin_m, c[0], c[1]
+            ))),
+            None => Ok(Some(exempt)),
+        }
+    }
+
+    /// Room for a turn in place to `yaw` (rad) that the guard refuses where the rover stands: the
+    /// straight move (up to `guard_room_m`) after which it is clear, and the cells exempt for the
+    /// whole manoeuvre.
+    fn room_for_turn(&self, ctx: &Ctx<'_>, yaw: f64) -> Option<(Room, HashSet<CellKey>)> {
+        let (fp, at, map) = self.guard_view(ctx)?;
+        let exempt: HashSet<CellKey> = fp.obstacles(&map.value, at).into_iter().map(|(k, _)| k).collect();
+        let d = guard::room_for_turn(&fp, &map.value, at, yaw, self.params.guard_room_m, &exempt)?;
+        let to = [at[0] + d * at[2].cos(), at[1] + d * at[2].sin()];
+        Some((Room { to, heading: at[2], distance: d }, exempt))
+    }
+
+    /// The guard's check of the manoeuvre in progress: the obstacle cell (not exempt) the
+    /// footprint at the estimated pose covers.
+    fn guard_hit(&self, ctx: &Ctx<'_>) -> Option<[f64; 2]> {
+        let exempt = self.guard_exempt.as_ref()?;
+        let (fp, at, map) = self.guard_view(ctx)?;
+        fp.first_hit(&map.value, [at], exempt)
     }
 
     fn limits(&self) -> (f64, f64) {
@@ -222,8 +206,9 @@ impl Locomotion {
         (self.params.speed.min(m.max_speed), self.params.max_yaw_rate.min(m.max_yaw_rate))
     }
 
-    /// Starts a manoeuvre for the command being handled, superseding the one in progress.
-    fn start(&mut self, ctx: &mut Ctx<'_>, m: Manoeuvre) -> Outcome {
+    /// Starts a manoeuvre for the command being handled, superseding the one in progress;
+    /// `guard`: the obstacle cells exempt from the guard for it (None: unguarded).
+    fn start(&mut self, ctx: &mut Ctx<'_>, m: Manoeuvre, guard: Option<HashSet<CellKey>>) -> Outcome {
         if let Some(reason) = &self.fault {
             return Outcome::reject(format!("locomotion is in fault ({reason}); send 'recover' first"));
         }
@@ -240,6 +225,8 @@ impl Locomotion {
             );
         }
         self.manoeuvre = Some(m);
+        self.guard_exempt = guard;
+        self.room_made = None;
         self.pending = ctx.request();
         match ctx.goto("moving") {
             Ok(()) => Outcome::Accepted,
@@ -250,6 +237,7 @@ impl Locomotion {
     /// Ends the manoeuvre: stops and answers the pending command.
     fn finish(&mut self, ctx: &mut Ctx<'_>, outcome: Outcome, state: &str) -> StateResult {
         self.manoeuvre = None;
+        self.guard_exempt = None;
         self.apply(ctx, BodyTwist::default(), true)?;
         if let Some(req) = self.pending.take() {
             ctx.reply(&req, outcome);
@@ -260,6 +248,7 @@ impl Locomotion {
     /// Ends any manoeuvre and stops the wheels.
     fn stop_rover(&mut self) {
         self.manoeuvre = None;
+        self.guard_exempt = None;
         if let Some(token) = &self.token {
             let _ = self.locomotor.stop(token);
         }
@@ -418,15 +407,30 @@ impl Locomotion {
                 self.manoeuvre = Some(Manoeuvre::Follow(f));
                 Ok(result)
             }
-            Some(Manoeuvre::TurnTo { yaw }) => {
+            Some(Manoeuvre::TurnTo { yaw, room }) => {
                 let Some(est) = pose else {
                     return Err(Outcome::fail("no pose estimate to steer with"));
                 };
+                if let Some(r) = room {
+                    // Making room first: straight along the heading the move started on, until
+                    // what is left of it along that heading is under a centimetre.
+                    let pos = est.value.position();
+                    let (s, c) = r.heading.sin_cos();
+                    let left = ((r.to[0] - pos.x) * c + (r.to[1] - pos.y) * s) * r.distance.signum();
+                    if left > 0.01 {
+                        let v = r.distance.signum() * ROOM_SPEED_M_S.min(vmax).min(0.6 * left + 0.03);
+                        return Ok(BodyTwist { v, omega: 0.0 });
+                    }
+                    self.manoeuvre = Some(Manoeuvre::TurnTo { yaw, room: None });
+                    self.room_made = Some(r.distance);
+                }
                 let herr = wrap(yaw - est.value.yaw());
                 if herr.abs() <= p.heading_tolerance_deg.to_radians() {
-                    return Err(Outcome::Completed(
-                        serde_json::json!({ "yaw_deg": est.value.yaw().to_degrees() }),
-                    ));
+                    let mut done = serde_json::json!({ "yaw_deg": est.value.yaw().to_degrees() });
+                    if let Some(d) = self.room_made.take() {
+                        done["room_m"] = d.into();
+                    }
+                    return Err(Outcome::Completed(done));
                 }
                 let omega = (p.heading_gain * herr).clamp(-wmax, wmax);
                 // Keep turning at a useful rate near the goal (wheels stick at very low rates).
@@ -487,6 +491,13 @@ impl Locomotion {
             self.fault = Some(reason.clone());
             self.stall_evidence.iter_mut().for_each(|s| *s = 0.0);
             self.finish(ctx, Outcome::fail(reason), "fault")?;
+        } else if let Some(c) = self.guard_hit(ctx) {
+            let reason = format!(
+                "stopped: the rover came within {} m of an obstacle of the navigation map at ({:.2}, {:.2})",
+                self.params.guard_margin_m, c[0], c[1]
+            );
+            ctx.note(format!("stopping the rover: {reason}"));
+            self.finish(ctx, Outcome::fail(reason), "idle")?;
         } else {
             match self.control(ctx) {
                 Ok(twist) => self.apply(ctx, twist, false)?,
@@ -505,6 +516,9 @@ impl Module for Locomotion {
 
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         self.pose = Some(d.reads(crate::localization_fusion::SLOT));
+        if let Some(slot) = self.map_slot.clone() {
+            self.map = Some(d.reads(&slot));
+        }
         self.out = Some(d.writes("locomotion/state"));
         // Scenarios switch contexts at runtime (e.g. Mission -> Debug for a fault injection).
         d.context_switchable();
@@ -530,7 +544,11 @@ impl Module for Locomotion {
                 ));
             }
             let until = ctx.now() + Duration::from_secs_f64(a.duration_s);
-            m.start(ctx, Manoeuvre::Drive { twist: BodyTwist { v: a.v, omega: a.omega }, until })
+            let guard = match m.guard_plan(ctx, "the drive", |at| guard::drive_poses(at, a.v, a.omega, a.duration_s)) {
+                Ok(g) => g,
+                Err(refused) => return refused,
+            };
+            m.start(ctx, Manoeuvre::Drive { twist: BodyTwist { v: a.v, omega: a.omega }, until }, guard)
         });
         d.command("goto", |m, ctx, a: GotoArgs| {
             let speed = a.speed.unwrap_or(m.params.speed);
@@ -540,7 +558,12 @@ impl Module for Locomotion {
                     "goto needs a finite goal, a positive speed and a positive tolerance",
                 );
             }
-            m.start(ctx, Manoeuvre::Goto { x: a.x, y: a.y, speed, tolerance })
+            let turn = m.params.turn_in_place_deg.to_radians();
+            let guard = match m.guard_plan(ctx, "the goto", |at| guard::goto_poses(at, a.x, a.y, turn)) {
+                Ok(g) => g,
+                Err(refused) => return refused,
+            };
+            m.start(ctx, Manoeuvre::Goto { x: a.x, y: a.y, speed, tolerance }, guard)
         });
         d.command("follow_path", |m, ctx, a: FollowPathArgs| {
             let speed = a.speed.unwrap_or(m.params.speed);
@@ -593,6 +616,7 @@ impl Module for Locomotion {
                     pivot: a.pivot,
                     max_curvature,
                 })),
+                None,
             )
         });
         d.command("turn_to", |m, ctx, a: TurnToArgs| {
@@ -610,13 +634,29 @@ impl Module for Locomotion {
                 }
                 _ => return Outcome::reject("turn_to needs yaw_deg or facing = [x, y], one of them, finite"),
             };
-            m.start(ctx, Manoeuvre::TurnTo { yaw: wrap(yaw) })
+            let yaw = wrap(yaw);
+            match m.guard_plan(ctx, "the turn", |at| guard::turn_poses(at, yaw)) {
+                Ok(guard) => m.start(ctx, Manoeuvre::TurnTo { yaw, room: None }, guard),
+                Err(refused) => match m.room_for_turn(ctx, yaw) {
+                    Some((room, exempt)) => {
+                        ctx.note(format!(
+                            "turn_to {:.0} deg: no room to turn here; {} {:.2} m first",
+                            yaw.to_degrees(),
+                            if room.distance < 0.0 { "backing" } else { "driving ahead" },
+                            room.distance.abs()
+                        ));
+                        m.start(ctx, Manoeuvre::TurnTo { yaw, room: Some(room) }, Some(exempt))
+                    }
+                    None => refused,
+                },
+            }
         });
         d.command("stop", |m, ctx, _: ()| {
             if let Some(old) = m.pending.take() {
                 ctx.reply(&old, Outcome::fail("stopped by command"));
             }
             m.manoeuvre = None;
+            m.guard_exempt = None;
             if let Err(e) = m.apply(ctx, BodyTwist::default(), true) {
                 return Outcome::fail(e.0);
             }
@@ -657,6 +697,12 @@ impl Module for Locomotion {
         if !(p.max_curvature >= 0.0 && p.max_curvature.is_finite()) {
             return Err(format!("max_curvature must be 0 (no limit) or positive, got {}", p.max_curvature));
         }
+        crate::params::require_non_negative(&[
+            ("guard_half_extents_m[0]", p.guard_half_extents_m[0]),
+            ("guard_half_extents_m[1]", p.guard_half_extents_m[1]),
+            ("guard_margin_m", p.guard_margin_m),
+            ("guard_room_m", p.guard_room_m),
+        ])?;
         self.params = p.clone();
         Ok(())
     }

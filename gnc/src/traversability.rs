@@ -10,6 +10,9 @@ use framework::data::{ElevationMap, GridGeometry, NavigationMap, PoseEstimate};
 use framework::prelude::*;
 use serde::{Deserialize, Serialize};
 
+/// The navigation map's slot.
+pub const SLOT: &str = "navigation/map";
+
 /// Traversability module parameters.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
@@ -132,7 +135,7 @@ impl Module for Traversability {
     fn declare(&mut self, d: &mut Declare<'_, Self>) {
         self.dem = Some(d.reads("perception/global_dem"));
         self.pose = Some(d.reads(&self.pose_slot));
-        self.out = Some(d.writes("navigation/map"));
+        self.out = Some(d.writes(SLOT));
         d.context_switchable();
         d.state("assessing", |m, ctx| m.cycle(ctx));
     }

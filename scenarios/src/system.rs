@@ -404,7 +404,13 @@ fn add_module<R: Registrar>(
             };
             b.register(name, fusion, config)
         }
-        "locomotion" => b.register(name, Locomotion::new(map.locomotor()?, map.encoders()?), config),
+        "locomotion" => {
+            let locomotion = Locomotion::new(map.locomotor()?, map.encoders()?);
+            // With the navigation chain, the manoeuvres no planner checks are guarded by its map.
+            let locomotion =
+                if wiring.navigation { locomotion.guarded_by(gnc::traversability::SLOT) } else { locomotion };
+            b.register(name, locomotion, config)
+        }
         "arm" | "ptu" | "gripper" => b.register(name, JointGroupModule::new(map.joint_group(name)?), config),
         faults::NAME => b.register(name, TwinFaults::new(twin.clone()), config),
         "autonomy" => b.register(name, gnc::autonomy::Autonomy::new(), config),

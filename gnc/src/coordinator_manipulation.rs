@@ -24,6 +24,7 @@
 //! Progress is published on `manipulation/coordinator` as the generic module state (the command and
 //! its step) through the notes; the manipulator's own state is on `manipulation/state`.
 
+use crate::locomotion::guard;
 use crate::peer::send;
 use framework::data::{ObjectPose, ObjectPoses, PoseEstimate, TargetTrack};
 use framework::message::{AckStatus, MessageId};
@@ -452,6 +453,17 @@ impl CoordinatorManipulation {
                         return Ok(None);
                     }
                 }
+                job.look = 0;
+                self.look(ctx, job)?;
+            }
+            // A move locomotion's obstacle guard refused or stopped (the rover's corners would
+            // sweep the object, or a rock beside it): on with the look from where the rover is.
+            (Step::Prepare | Step::Reposition, Err(r)) if guard::is_guard_reason(&r) => {
+                ctx.note(format!(
+                    "{}: the rover's move was not made ({r}): looking from here",
+                    job.kind.name()
+                ));
+                job.reach_move_left = false;
                 job.look = 0;
                 self.look(ctx, job)?;
             }

@@ -70,9 +70,11 @@ enum Manoeuvre {
         speed: f64,
         tolerance: f64,
     },
-    /// A turn in place, after a straight move to `room` (x, y) when one makes room for it.
+    /// A turn in place to `yaw`, after a straight move to `room` (x, y) when one makes room for
+    /// it (then to face `facing` from where that leaves the rover, when the turn faces a point).
     TurnTo {
         yaw: f64,
+        facing: Option<[f64; 2]>,
         room: Option<Room>,
     },
     Follow(Box<Following>),
@@ -106,6 +108,9 @@ pub struct Locomotion {
 
 /// The speed of a straight move that makes room for a turn in place, m/s.
 const ROOM_SPEED_M_S: f64 = 0.1;
+/// A move making room ends where more than this beyond its length is left (the pose estimate
+/// jumped, relocalized on a landmark), m.
+const ROOM_JUMP_M: f64 = 0.1;
 
 impl Locomotion {
     /// A locomotion module driving `locomotor` and watching `encoders`.
@@ -169,6 +174,10 @@ impl Locomotion {
         what: &str,
         sweep: impl FnOnce(Pose2) -> Vec<Pose2>,
     ) -> Result<Option<HashSet<CellKey>>, Outcome> {
+        // A command that `start` refuses (in fault, not in Run) is refused for that.
+        if self.fault.is_some() || self.token.is_none() {
+            return Ok(None);
+        }
         let Some((fp, at, map)) = self.guard_view(ctx) else {
             return Ok(None);
         };
@@ -182,13 +191,20 @@ impl Locomotion {
         }
     }
 
-    /// Room for a turn in place to `yaw` (rad) that the guard refuses where the rover stands: the
+    /// Room for a turn in place to `yaw` (rad), or to face `facing`, that the guard refuses where
+    /// the rover stands: the
     /// straight move (up to `guard_room_m`) after which it is clear, and the cells exempt for the
     /// whole manoeuvre.
-    fn room_for_turn(&self, ctx: &Ctx<'_>, yaw: f64) -> Option<(Room, HashSet<CellKey>)> {
+    fn room_for_turn(
+        &self,
+        ctx: &Ctx<'_>,
+        yaw: f64,
+        facing: Option<[f64; 2]>,
+    ) -> Option<(Room, HashSet<CellKey>)> {
         let (fp, at, map) = self.guard_view(ctx)?;
         let exempt: HashSet<CellKey> = fp.obstacles(&map.value, at).into_iter().map(|(k, _)| k).collect();
-        let d = guard::room_for_turn(&fp, &map.value, at, yaw, self.params.guard_room_m, &exempt)?;
+        let yaw_at = |p: [f64; 2]| facing.map_or(yaw, |[x, y]| (y - p[1]).atan2(x - p[0]));
+        let d = guard::room_for_turn(&fp, &map.value, at, yaw_at, self.params.guard_room_m, &exempt)?;
         let to = [at[0] + d * at[2].cos(), at[1] + d * at[2].sin()];
         Some((Room { to, heading: at[2], distance: d }, exempt))
     }
@@ -407,21 +423,25 @@ impl Locomotion {
                 self.manoeuvre = Some(Manoeuvre::Follow(f));
                 Ok(result)
             }
-            Some(Manoeuvre::TurnTo { yaw, room }) => {
+            Some(Manoeuvre::TurnTo { mut yaw, facing, room }) => {
                 let Some(est) = pose else {
                     return Err(Outcome::fail("no pose estimate to steer with"));
                 };
                 if let Some(r) = room {
                     // Making room first: straight along the heading the move started on, until
-                    // what is left of it along that heading is under a centimetre.
+                    // what is left of it along that heading is under a centimetre (or, the
+                    // estimate having jumped, more than the whole move: it ends there too).
                     let pos = est.value.position();
                     let (s, c) = r.heading.sin_cos();
                     let left = ((r.to[0] - pos.x) * c + (r.to[1] - pos.y) * s) * r.distance.signum();
-                    if left > 0.01 {
+                    if left > 0.01 && left <= r.distance.abs() + ROOM_JUMP_M {
                         let v = r.distance.signum() * ROOM_SPEED_M_S.min(vmax).min(0.6 * left + 0.03);
                         return Ok(BodyTwist { v, omega: 0.0 });
                     }
-                    self.manoeuvre = Some(Manoeuvre::TurnTo { yaw, room: None });
+                    if let Some([x, y]) = facing {
+                        yaw = (y - pos.y).atan2(x - pos.x);
+                    }
+                    self.manoeuvre = Some(Manoeuvre::TurnTo { yaw, facing, room: None });
                     self.room_made = Some(r.distance);
                 }
                 let herr = wrap(yaw - est.value.yaw());
@@ -559,10 +579,11 @@ impl Module for Locomotion {
                 );
             }
             let turn = m.params.turn_in_place_deg.to_radians();
-            let guard = match m.guard_plan(ctx, "the goto", |at| guard::goto_poses(at, a.x, a.y, turn)) {
-                Ok(g) => g,
-                Err(refused) => return refused,
-            };
+            let guard =
+                match m.guard_plan(ctx, "the goto", |at| guard::goto_poses(at, a.x, a.y, turn, tolerance)) {
+                    Ok(g) => g,
+                    Err(refused) => return refused,
+                };
             m.start(ctx, Manoeuvre::Goto { x: a.x, y: a.y, speed, tolerance }, guard)
         });
         d.command("follow_path", |m, ctx, a: FollowPathArgs| {
@@ -620,6 +641,7 @@ impl Module for Locomotion {
             )
         });
         d.command("turn_to", |m, ctx, a: TurnToArgs| {
+            let facing = a.facing;
             let yaw = match (a.yaw_deg, a.facing) {
                 (Some(yaw), None) if yaw.is_finite() => yaw.to_radians(),
                 (None, Some([x, y])) if x.is_finite() && y.is_finite() => {
@@ -636,8 +658,8 @@ impl Module for Locomotion {
             };
             let yaw = wrap(yaw);
             match m.guard_plan(ctx, "the turn", |at| guard::turn_poses(at, yaw)) {
-                Ok(guard) => m.start(ctx, Manoeuvre::TurnTo { yaw, room: None }, guard),
-                Err(refused) => match m.room_for_turn(ctx, yaw) {
+                Ok(guard) => m.start(ctx, Manoeuvre::TurnTo { yaw, facing, room: None }, guard),
+                Err(refused) => match m.room_for_turn(ctx, yaw, facing) {
                     Some((room, exempt)) => {
                         ctx.note(format!(
                             "turn_to {:.0} deg: no room to turn here; {} {:.2} m first",
@@ -645,7 +667,7 @@ impl Module for Locomotion {
                             if room.distance < 0.0 { "backing" } else { "driving ahead" },
                             room.distance.abs()
                         ));
-                        m.start(ctx, Manoeuvre::TurnTo { yaw, room: Some(room) }, Some(exempt))
+                        m.start(ctx, Manoeuvre::TurnTo { yaw, facing, room: Some(room) }, Some(exempt))
                     }
                     None => refused,
                 },

@@ -42,7 +42,7 @@
 //! loaded outer rear wheel stalls), and the same arc driven again stalls again (a sweep's mission
 //! stalled five times over at one bend of its route). Progress is published on `navigation/state`.
 
-use crate::locomotion::{Motion, Sense};
+use crate::locomotion::{Motion, Sense, guard};
 use crate::peer::send;
 use escape::Way;
 use framework::data::{NavigationMap, NavigationState, Path, PoseEstimate};
@@ -480,6 +480,12 @@ impl CoordinatorNavigator {
                         };
                         let next = self.retreat_after_stall(ctx, Some(way));
                         Next::FailThen(format!("{doing} failed: {r}"), Phase::Recover(None, next))
+                    }
+                    // Locomotion's obstacle guard refused the way out (a corner would sweep an
+                    // obstacle cell the centre line keeps clear of) or stopped it: planned from
+                    // where the rover stands.
+                    Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) if guard::is_guard_reason(&r) => {
+                        Next::FailThen(format!("{doing} failed: {r}"), Phase::Scan(None))
                     }
                     Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                         Next::Fail(format!("{doing} failed: {r}"))

@@ -14,11 +14,23 @@
 //! their place on the lattice every grid of one resolution shares (`GridGeometry::centred`), so a
 //! map re-centred during the manoeuvre keeps them.
 //!
+//! The margin is kept to the cells' centres: with 0.1 m cells the body may come up to half a cell
+//! nearer an obstacle cell's edge. Callers tell the guard's refusals and stops from other failures
+//! by [`WORDS`] in the reason.
+//!
 //! Written by hand: a point-in-rectangle test per cell near the rover.
 
 use framework::angle::wrap;
 use framework::data::{NavigationMap, cost};
 use std::collections::HashSet;
+
+/// Words every refusal and stop of the guard has in its reason.
+pub const WORDS: &str = "of an obstacle of the navigation map";
+
+/// Whether a locomotion command's failure (`reason`) was the guard's.
+pub fn is_guard_reason(reason: &str) -> bool {
+    reason.contains(WORDS)
+}
 
 /// A cell by its place on the shared lattice (its centre over the resolution, rounded down).
 pub type CellKey = (i64, i64);
@@ -81,10 +93,15 @@ fn key(centre: [f64; 2], r: f64) -> CellKey {
 const STEP_M: f64 = 0.05;
 const STEP_RAD: f64 = 0.05;
 
+/// Most poses of one sweep: a drive longer than this many steps (a kilometre) is swept coarser.
+const MAX_POSES: f64 = 20_000.0;
+
 /// The poses of a straight drive at `v` (m/s) turning at `omega` (rad/s) for `duration` s from
 /// `from`, no farther apart than the steps.
 pub fn drive_poses(from: Pose2, v: f64, omega: f64, duration: f64) -> Vec<Pose2> {
-    let n = ((v.abs() * duration / STEP_M).max(omega.abs() * duration / STEP_RAD)).ceil().max(1.0) as usize;
+    let n = ((v.abs() * duration / STEP_M).max(omega.abs() * duration / STEP_RAD))
+        .ceil()
+        .clamp(1.0, MAX_POSES) as usize;
     let dt = duration / n as f64;
     let mut p = from;
     let mut out = vec![p];
@@ -104,33 +121,43 @@ pub fn turn_poses(from: Pose2, yaw: f64) -> Vec<Pose2> {
     (0..=n).map(|k| [from[0], from[1], from[2] + turn * k as f64 / n as f64]).collect()
 }
 
-/// The poses of a `goto` to (x, y) from `from`: a turn in place to face the goal when it lies more
-/// than `turn_in_place` (rad) off the heading, then the straight line to it.
-pub fn goto_poses(from: Pose2, x: f64, y: f64, turn_in_place: f64) -> Vec<Pose2> {
+/// The poses of a `goto` to (x, y) from `from`: none but `from` when the goal is within
+/// `tolerance` (it completes at once); a turn in place to face the goal when it lies more than
+/// `turn_in_place` (rad) off the heading; then the straight line to it, facing it and, when the
+/// rover did not turn first, also at the heading it started with (it steers onto the bearing while
+/// driving: the corners' arc between the two headings, up to `turn_in_place` apart, bulges past
+/// them by under 0.8 (1 - cos(turn_in_place / 2)) m, 4 cm at 35 degrees).
+pub fn goto_poses(from: Pose2, x: f64, y: f64, turn_in_place: f64, tolerance: f64) -> Vec<Pose2> {
     let (dx, dy) = (x - from[0], y - from[1]);
     let dist = dx.hypot(dy);
+    if dist <= tolerance {
+        return vec![from];
+    }
     let facing = dy.atan2(dx);
-    let mut out =
-        if wrap(facing - from[2]).abs() > turn_in_place { turn_poses(from, facing) } else { vec![from] };
-    let start = *out.last().expect("at least the start");
-    let n = (dist / STEP_M).ceil().max(1.0) as usize;
-    out.extend((1..=n).map(|k| {
+    let turned = wrap(facing - from[2]).abs() > turn_in_place;
+    let mut out = if turned { turn_poses(from, facing) } else { vec![from] };
+    let n = (dist / STEP_M).ceil().clamp(1.0, MAX_POSES) as usize;
+    for k in 1..=n {
         let s = k as f64 / n as f64;
-        [from[0] + dx * s, from[1] + dy * s, start[2]]
-    }));
+        let (px, py) = (from[0] + dx * s, from[1] + dy * s);
+        out.push([px, py, facing]);
+        if !turned {
+            out.push([px, py, from[2]]);
+        }
+    }
     out
 }
 
-/// Room for a turn in place from `from` to heading `yaw` that the guard refuses there: the
-/// shortest straight move along the heading (backwards first on a tie: what blocks a turn is most
-/// often the object the rover faces), in steps of `STEP_M` up to `most` m, whose way and whose turn
-/// at its end cover no obstacle cell outside `exempt`. The signed distance (negative: backwards),
-/// or None.
+/// Room for a turn in place from `from` to the heading `yaw_at` gives at the turn's place (a fixed
+/// one, or one facing a point) that the guard refuses there: the shortest straight move along the
+/// heading (backwards first on a tie: what blocks a turn is most often the object the rover faces),
+/// in steps of `STEP_M` up to `most` m, whose way and whose turn at its end cover no obstacle cell
+/// outside `exempt`. The signed distance (negative: backwards), or None.
 pub fn room_for_turn(
     fp: &Footprint,
     map: &NavigationMap,
     from: Pose2,
-    yaw: f64,
+    yaw_at: impl Fn([f64; 2]) -> f64,
     most: f64,
     exempt: &HashSet<CellKey>,
 ) -> Option<f64> {
@@ -138,7 +165,8 @@ pub fn room_for_turn(
     (1..=n).flat_map(|k| [-(k as f64) * STEP_M, k as f64 * STEP_M]).find(|&d| {
         let way = drive_poses(from, d.signum() * 0.1, 0.0, d.abs() / 0.1);
         let end = *way.last().expect("a drive has poses");
-        fp.first_hit(map, way, exempt).is_none() && fp.first_hit(map, turn_poses(end, yaw), exempt).is_none()
+        let turn = turn_poses(end, yaw_at([end[0], end[1]]));
+        fp.first_hit(map, way, exempt).is_none() && fp.first_hit(map, turn, exempt).is_none()
     })
 }
 
@@ -159,6 +187,22 @@ mod tests {
     }
 
     const ROVER: Footprint = Footprint { half_length_m: 0.56, half_width_m: 0.56, margin_m: 0.05 };
+
+    #[test]
+    fn an_oblong_footprint_is_long_along_x_and_turns_counter_clockwise_with_the_yaw() {
+        let fp = Footprint { half_length_m: 0.6, half_width_m: 0.3, margin_m: 0.0 };
+        let (map, at) = (map_with(&[[0.45, 0.15]]), |yaw: f64| [0.0, 0.0, yaw.to_radians()]);
+        // Ahead and a little left: within the length, within the width.
+        assert_eq!(fp.obstacles(&map, at(0.0)).len(), 1);
+        // Turned 45 degrees to the left, it is 0.42 m ahead and 0.21 m to the right: covered;
+        // turned to the right, 0.21 m ahead and 0.42 m to the left: not.
+        assert_eq!(fp.obstacles(&map, at(45.0)).len(), 1);
+        assert!(fp.obstacles(&map, at(-45.0)).is_empty());
+        // Abeam at 0.45 m: outside the width until the rover turns its length to it.
+        let abeam = map_with(&[[0.05, 0.45]]);
+        assert!(fp.obstacles(&abeam, at(0.0)).is_empty());
+        assert_eq!(fp.obstacles(&abeam, at(90.0)).len(), 1);
+    }
 
     #[test]
     fn the_footprint_is_a_rectangle_turned_with_the_rover() {
@@ -209,12 +253,18 @@ mod tests {
         let turned = turn_poses(start, -3.0);
         assert!(turned.windows(2).all(|w| (w[1][2] - w[0][2]).abs() <= STEP_RAD + 1e-12));
         assert!((turned.last().unwrap()[2] + 3.0).abs() < 1e-12, "to the right, the shorter way");
-        // A goto far off the heading turns first, then drives the line.
-        let g = goto_poses(start, 0.0, 1.0, 35f64.to_radians());
+        // A goto far off the heading turns first, then drives the line facing the goal.
+        let turn = 35f64.to_radians();
+        let g = goto_poses(start, 0.0, 1.0, turn, 0.15);
         assert!((g.last().unwrap()[1] - 1.0).abs() < 1e-9);
         assert!(
             g.iter().skip_while(|p| p[1] == 0.0).all(|p| (p[2] - std::f64::consts::FRAC_PI_2).abs() < 1e-9)
         );
+        // One 30 degrees off drives at once, swept at both headings; one within tolerance, none.
+        let g = goto_poses(start, 1.0, 30f64.to_radians().tan(), turn, 0.15);
+        assert!(g.iter().any(|p| p[0] > 0.5 && p[2] == 0.0));
+        assert!(g.iter().any(|p| p[0] > 0.5 && (p[2] - 30f64.to_radians()).abs() < 1e-9));
+        assert_eq!(goto_poses(start, -0.1, 0.0, turn, 0.15), vec![start]);
     }
 
     #[test]
@@ -224,16 +274,16 @@ mod tests {
         // corners' circle (0.86 m) of it; never more than asked.
         let ahead = map_with(&[[0.75, 0.05]]);
         let start = [0.0, 0.0, 0.0];
-        let d = room_for_turn(&ROVER, &ahead, start, 1.0, 0.5, &none).expect("room behind");
+        let d = room_for_turn(&ROVER, &ahead, start, |_| 1.0, 0.5, &none).expect("room behind");
         assert!((-0.2..=-0.1).contains(&d), "{d}");
-        assert_eq!(room_for_turn(&ROVER, &ahead, start, 1.0, 0.05, &none), None);
+        assert_eq!(room_for_turn(&ROVER, &ahead, start, |_| 1.0, 0.05, &none), None);
         // With the obstacle behind instead, forward.
         let behind = map_with(&[[-0.75, 0.05]]);
-        let d = room_for_turn(&ROVER, &behind, start, 1.0, 0.5, &none).expect("room ahead");
+        let d = room_for_turn(&ROVER, &behind, start, |_| 1.0, 0.5, &none).expect("room ahead");
         assert!((0.1..=0.2).contains(&d), "{d}");
         // Boxed in front and back: no room within 0.5 m.
         let boxed = map_with(&[[0.75, 0.05], [-0.75, 0.05]]);
-        assert_eq!(room_for_turn(&ROVER, &boxed, start, 1.0, 0.5, &none), None);
+        assert_eq!(room_for_turn(&ROVER, &boxed, start, |_| 1.0, 0.5, &none), None);
     }
 
     #[test]

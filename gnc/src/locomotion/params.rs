@@ -47,8 +47,8 @@ pub struct LocomotionParams {
     pub guard_half_extents_m: [f64; 2],
     /// The gap the guard keeps between that footprint and an obstacle cell's centre, m.
     pub guard_margin_m: f64,
-    /// A turn in place the guard refuses where the rover stands first drives straight (backwards
-    /// if it can) up to this far to make room for it, m (0: refused).
+    /// A turn in place the guard refuses where the rover stands first drives straight, the
+    /// shortest way (backwards on a tie), up to this far to where it is clear, m (0: refused).
     pub guard_room_m: f64,
 }
 

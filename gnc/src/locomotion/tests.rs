@@ -8,8 +8,11 @@ use framework::{AckStatus, ConfigSource, Executor, LockstepExecutor, NoParams, S
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
 use std::sync::{Arc, Mutex};
 
+/// Every twist the locomotor was commanded, in order (a stop: zero).
+type Twists = Arc<Mutex<Vec<BodyTwist>>>;
+
 /// A locomotor that takes every command (the pose is the stub's, not driven).
-struct Wheels(LocomotorModel);
+struct Wheels(LocomotorModel, Twists);
 
 impl Locomotor for Wheels {
     fn device(&self) -> &str {
@@ -18,13 +21,15 @@ impl Locomotor for Wheels {
     fn model(&self) -> &LocomotorModel {
         &self.0
     }
-    fn drive(&mut self, _: &ReservationToken, _: BodyTwist) -> Result<(), DeviceError> {
+    fn drive(&mut self, _: &ReservationToken, t: BodyTwist) -> Result<(), DeviceError> {
+        self.1.lock().unwrap().push(t);
         Ok(())
     }
     fn set_wheel_rates(&mut self, _: &ReservationToken, _: &[f64]) -> Result<(), DeviceError> {
         Ok(())
     }
     fn stop(&mut self, _: &ReservationToken) -> Result<(), DeviceError> {
+        self.1.lock().unwrap().push(BodyTwist::default());
         Ok(())
     }
 }
@@ -104,7 +109,17 @@ impl Module for World {
 
 /// A system of the stub and a guarded Locomotion (`params`: TOML lines), in Run.
 fn system(obstacles: &[[f64; 2]], params: &str) -> (LockstepExecutor, framework::Endpoint, At) {
+    let (ex, ground, at, _) = system_with_twists(obstacles, params);
+    (ex, ground, at)
+}
+
+/// [`system`], and the twists the locomotor is commanded.
+fn system_with_twists(
+    obstacles: &[[f64; 2]],
+    params: &str,
+) -> (LockstepExecutor, framework::Endpoint, At, Twists) {
     let at = At::default();
+    let twists = Twists::default();
     let mut b = SystemBuilder::new();
     b.device("locomotor");
     let world = World { at: at.clone(), obstacles: obstacles.to_vec(), pose: None, map: None };
@@ -112,7 +127,7 @@ fn system(obstacles: &[[f64; 2]], params: &str) -> (LockstepExecutor, framework:
         ConfigSource::inline(name, format!("[framework]\nperiod_s = 0.05\n[params]\n{params}\n"))
     };
     b.add("world", world, cfg("world", ""));
-    let locomotion = Locomotion::new(Box::new(Wheels(model())), Box::new(NoEncoders))
+    let locomotion = Locomotion::new(Box::new(Wheels(model(), twists.clone())), Box::new(NoEncoders))
         .guarded_by(crate::traversability::SLOT);
     b.add("locomotion", locomotion, cfg("locomotion", params));
     b.endpoint("ground");
@@ -123,11 +138,11 @@ fn system(obstacles: &[[f64; 2]], params: &str) -> (LockstepExecutor, framework:
     for _ in 0..3 {
         ex.tick();
     }
-    (ex, ground, at)
+    (ex, ground, at, twists)
 }
 
 /// The shipped footprint and margin.
-const GUARDED: &str = "guard_half_extents_m = [0.56, 0.57]\nguard_margin_m = 0.05";
+const GUARDED: &str = "guard_half_extents_m = [0.56, 0.56]\nguard_margin_m = 0.05";
 
 /// Sends `command` with `args` and ticks `ticks` times: its status then.
 fn send(
@@ -214,7 +229,7 @@ fn a_rover_that_drifts_towards_an_obstacle_is_stopped_and_may_then_leave_it() {
 #[test]
 fn a_turn_refused_where_the_rover_stands_backs_away_first_when_allowed() {
     let params = format!("{GUARDED}\nguard_room_m = 0.5");
-    let (mut ex, ground, at) = system(&[[0.75, 0.05]], &params);
+    let (mut ex, ground, at, twists) = system_with_twists(&[[0.75, 0.05]], &params);
     let id = ground
         .send(Command::new("locomotion", "turn_to").args(serde_json::json!({ "yaw_deg": 60.0 })))
         .unwrap();
@@ -222,11 +237,15 @@ fn a_turn_refused_where_the_rover_stands_backs_away_first_when_allowed() {
         ex.tick();
     }
     assert!(matches!(ground.status(id).unwrap(), AckStatus::Accepted));
-    // It backs away (the stub's pose stands for the rover's motion) ...
+    // It backs away, straight (the stub's pose stands for the rover's motion) ...
+    let last = *twists.lock().unwrap().last().expect("commanded");
+    assert!(last.v < 0.0 && last.omega == 0.0, "{last:?}");
     *at.lock().unwrap() = [-0.15, 0.0, 0.0];
     for _ in 0..4 {
         ex.tick();
     }
+    let last = *twists.lock().unwrap().last().expect("commanded");
+    assert!(last.v.abs() < 0.05 && last.omega > 0.0, "turning to the left: {last:?}");
     // ... then turns, and completes facing 60 degrees, with the room it made.
     *at.lock().unwrap() = [-0.15, 0.0, 60f64.to_radians()];
     for _ in 0..4 {
@@ -240,4 +259,42 @@ fn a_turn_refused_where_the_rover_stands_backs_away_first_when_allowed() {
     let (mut ex, ground, _) = system(&[[0.75, 0.05], [-0.75, 0.05]], &params);
     let refused = send(&mut ex, &ground, "turn_to", serde_json::json!({ "yaw_deg": 60.0 }), 4);
     assert!(reason(&refused).contains("the turn would bring"), "{refused:?}");
+}
+
+#[test]
+fn a_turn_facing_a_point_faces_it_from_where_the_room_it_made_leaves_the_rover() {
+    let params = format!("{GUARDED}\nguard_room_m = 0.5");
+    let (mut ex, ground, at) = system(&[[0.75, 0.05]], &params);
+    // Facing a point 3 m to the left: a 90 degree turn, which the obstacle ahead blocks.
+    let args = serde_json::json!({ "facing": [0.0, 3.0] });
+    let id = ground.send(Command::new("locomotion", "turn_to").args(args)).unwrap();
+    for _ in 0..4 {
+        ex.tick();
+    }
+    *at.lock().unwrap() = [-0.15, 0.0, 0.0];
+    for _ in 0..4 {
+        ex.tick();
+    }
+    // From 0.15 m back the point lies at 87.1 degrees: 90 is outside the 2 degree tolerance ...
+    *at.lock().unwrap() = [-0.15, 0.0, 90f64.to_radians()];
+    for _ in 0..4 {
+        ex.tick();
+    }
+    assert!(matches!(ground.status(id).unwrap(), AckStatus::Accepted));
+    // ... and 87.1 within it.
+    let bearing = 3f64.atan2(0.15);
+    *at.lock().unwrap() = [-0.15, 0.0, bearing];
+    for _ in 0..4 {
+        ex.tick();
+    }
+    let done = ground.status(id).unwrap();
+    assert!(matches!(done, AckStatus::Completed(_)), "{done:?}");
+}
+
+#[test]
+fn a_goto_already_within_tolerance_is_not_swept() {
+    // The goal 0.1 m behind: a 180 degree turn the obstacle ahead would block, were it swept.
+    let (mut ex, ground, _) = system(&[[0.75, 0.05]], GUARDED);
+    let done = send(&mut ex, &ground, "goto", serde_json::json!({ "x": -0.1, "y": 0.0 }), 4);
+    assert!(matches!(done, AckStatus::Completed(_)), "{done:?}");
 }

@@ -53,6 +53,7 @@ use framework::message::{AckStatus, MessageId};
 use framework::module::Request;
 use framework::prelude::*;
 use nalgebra::Point3;
+mod face;
 mod legs;
 mod params;
 mod pursuit;
@@ -426,14 +427,6 @@ impl CoordinatorVisualTracking {
         Ok(None)
     }
 
-    /// Turns the rover to face the target.
-    fn face(&self, ctx: &mut Ctx<'_>) -> Result<Step, String> {
-        let (target, rover, _) = self.positions(ctx)?;
-        let yaw = (target.y - rover[1]).atan2(target.x - rover[0]);
-        let args = serde_json::json!({ "yaw_deg": yaw.to_degrees() });
-        Ok(Step::Face(send(ctx, &self.peers.locomotion, "turn_to", args)?))
-    }
-
     /// Clears locomotion's fault (the step after it turns to face the target).
     fn recover(&self, ctx: &mut Ctx<'_>) -> Result<Step, String> {
         Ok(Step::Recover(send(ctx, &self.peers.locomotion, "recover", serde_json::Value::Null)?))
@@ -519,26 +512,15 @@ impl CoordinatorVisualTracking {
                 _ => {}
             },
             Step::Face(id) => match ctx.ack_status(id) {
-                Some(AckStatus::Completed(_)) => {
-                    let (target, rover, _) = self.positions(ctx)?;
-                    let d = dist(rover, &target);
-                    let track = matches!(job.kind, Kind::Track { .. });
-                    match faced(d, job.kind.boundary(), track, job.refaced, self.params.max_legs) {
-                        Faced::Done => return Ok(Some(Outcome::Completed(self.result(ctx, job)?))),
-                        Faced::Again => {
-                            job.refaced += 1;
-                            ctx.note(format!(
-                                "facing the target, {d:.2} m from it: outside the boundary, locating it again"
-                            ));
-                            job.step = self.locate(ctx, job)?;
-                        }
-                        Faced::Outside(b) => {
-                            return Err(format!(
-                                "stopped {d:.2} m from the target, outside the {b:.2} m boundary"
-                            ));
-                        }
-                    }
+                // A turn that locomotion's obstacle guard refused or stopped (the rover's corners
+                // would sweep the target, or a rock beside it): on from the heading it has.
+                Some(AckStatus::Rejected(r) | AckStatus::Failed(r))
+                    if crate::locomotion::guard::is_guard_reason(&r) =>
+                {
+                    ctx.note(format!("turning to face the target: {r}; going on from this heading"));
+                    return self.faced_here(ctx, job);
                 }
+                Some(AckStatus::Completed(_)) => return self.faced_here(ctx, job),
                 Some(AckStatus::Rejected(r) | AckStatus::Failed(r)) => {
                     if r.contains("stalled") && job.face_retries < FACE_RETRIES {
                         job.face_retries += 1;

@@ -224,7 +224,6 @@ mod tests {
     use super::*;
     use framework::executor::Executor;
     use framework::{ConfigSource, LockstepExecutor, SystemBuilder};
-    use nalgebra::Point3;
     use std::sync::{Arc, Mutex};
 
     /// The scripted drive: (duration s, v m/s, omega rad/s) at constant twist each.
@@ -232,26 +231,7 @@ mod tests {
         [(4.0, 0.3, 0.0), (6.0, 0.25, 0.2), (3.0, 0.0, 0.4), (5.0, 0.3, -0.15), (2.0, 0.0, 0.0)];
 
     fn model() -> LocomotorModel {
-        LocomotorModel {
-            wheels: ["fl", "fr", "rl", "rr"].map(String::from).to_vec(),
-            wheel_positions: vec![
-                Point3::new(0.35, 0.42, -0.3),
-                Point3::new(0.35, -0.42, -0.3),
-                Point3::new(-0.35, 0.42, -0.3),
-                Point3::new(-0.35, -0.42, -0.3),
-            ],
-            wheel_radius: 0.15,
-            track: 0.84,
-            wheelbase: 0.7,
-            max_wheel_rate: 5.0,
-            max_wheel_torque: 40.0,
-            max_speed: 0.5,
-            max_yaw_rate: 1.0,
-            max_slope: 0.4,
-            max_step: 0.2,
-            ground_clearance: 0.25,
-            mass: 160.0,
-        }
+        crate::peer::test_locomotor_model()
     }
 
     /// The twist of the drive at `t`.

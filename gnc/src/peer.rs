@@ -29,3 +29,31 @@ pub(crate) fn tick_until_final(
     }
     ticks
 }
+
+/// A skid-steer locomotor model for module tests: four wheels of 0.15 m radius, 0.35 m ahead and
+/// behind and 0.42 m out.
+#[cfg(test)]
+pub(crate) fn test_locomotor_model() -> framework::hal::LocomotorModel {
+    use framework::hal::LocomotorModel;
+    use nalgebra::Point3;
+    LocomotorModel {
+        wheels: ["fl", "fr", "rl", "rr"].map(String::from).to_vec(),
+        wheel_positions: vec![
+            Point3::new(0.35, 0.42, -0.3),
+            Point3::new(0.35, -0.42, -0.3),
+            Point3::new(-0.35, 0.42, -0.3),
+            Point3::new(-0.35, -0.42, -0.3),
+        ],
+        wheel_radius: 0.15,
+        track: 0.84,
+        wheelbase: 0.7,
+        max_wheel_rate: 5.0,
+        max_wheel_torque: 40.0,
+        max_speed: 0.5,
+        max_yaw_rate: 1.0,
+        max_slope: 0.4,
+        max_step: 0.2,
+        ground_clearance: 0.25,
+        mass: 160.0,
+    }
+}

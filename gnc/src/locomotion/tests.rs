@@ -5,7 +5,7 @@ use super::*;
 use framework::data::{GridGeometry, cost};
 use framework::hal::{DeviceError, EncoderReading, LocomotorModel};
 use framework::{AckStatus, ConfigSource, Executor, LockstepExecutor, NoParams, SystemBuilder};
-use nalgebra::{Isometry3, Matrix6, Point3, Vector3};
+use nalgebra::{Isometry3, Matrix6, Vector3};
 use std::sync::{Arc, Mutex};
 
 /// Every twist the locomotor was commanded, in order (a stop: zero).
@@ -40,29 +40,6 @@ struct NoEncoders;
 impl WheelEncoders for NoEncoders {
     fn read(&mut self) -> Option<EncoderReading> {
         None
-    }
-}
-
-fn model() -> LocomotorModel {
-    LocomotorModel {
-        wheels: ["fl", "fr", "rl", "rr"].map(String::from).to_vec(),
-        wheel_positions: vec![
-            Point3::new(0.4, 0.51, -0.3),
-            Point3::new(0.4, -0.51, -0.3),
-            Point3::new(-0.4, 0.51, -0.3),
-            Point3::new(-0.4, -0.51, -0.3),
-        ],
-        wheel_radius: 0.16,
-        track: 1.02,
-        wheelbase: 0.8,
-        max_wheel_rate: 5.0,
-        max_wheel_torque: 40.0,
-        max_speed: 0.5,
-        max_yaw_rate: 1.0,
-        max_slope: 0.4,
-        max_step: 0.2,
-        ground_clearance: 0.25,
-        mass: 160.0,
     }
 }
 
@@ -127,8 +104,11 @@ fn system_with_twists(
         ConfigSource::inline(name, format!("[framework]\nperiod_s = 0.05\n[params]\n{params}\n"))
     };
     b.add("world", world, cfg("world", ""));
-    let locomotion = Locomotion::new(Box::new(Wheels(model(), twists.clone())), Box::new(NoEncoders))
-        .guarded_by(crate::traversability::SLOT);
+    let locomotion = Locomotion::new(
+        Box::new(Wheels(crate::peer::test_locomotor_model(), twists.clone())),
+        Box::new(NoEncoders),
+    )
+    .guarded_by(crate::traversability::SLOT);
     b.add("locomotion", locomotion, cfg("locomotion", params));
     b.endpoint("ground");
     let mut ex = LockstepExecutor::new(b, Duration::from_millis(50)).unwrap();

@@ -192,9 +192,8 @@ impl Locomotion {
     }
 
     /// Room for a turn in place to `yaw` (rad), or to face `facing`, that the guard refuses where
-    /// the rover stands: the
-    /// straight move (up to `guard_room_m`) after which it is clear, and the cells exempt for the
-    /// whole manoeuvre.
+    /// the rover stands: the straight move (up to `guard_room_m`) after which it is clear, and the
+    /// cells exempt for the whole manoeuvre.
     fn room_for_turn(
         &self,
         ctx: &Ctx<'_>,

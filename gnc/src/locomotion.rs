@@ -181,12 +181,9 @@ impl Locomotion {
         let Some((fp, at, map)) = self.guard_view(ctx) else {
             return Ok(None);
         };
-        let exempt: HashSet<CellKey> = fp.obstacles(&map.value, at).into_iter().map(|(k, _)| k).collect();
+        let exempt = fp.keys_under(&map.value, at);
         match fp.first_hit(&map.value, sweep(at), &exempt) {
-            Some(c) => Err(Outcome::reject(format!(
-                "{what} would bring the rover within {} m of an obstacle of the navigation map at ({:.2}, {:.2})",
-                fp.margin_m, c[0], c[1]
-            ))),
+            Some(c) => Err(Outcome::reject(guard::refusal(what, fp.margin_m, c))),
             None => Ok(Some(exempt)),
         }
     }
@@ -201,7 +198,7 @@ impl Locomotion {
         facing: Option<[f64; 2]>,
     ) -> Option<(Room, HashSet<CellKey>)> {
         let (fp, at, map) = self.guard_view(ctx)?;
-        let exempt: HashSet<CellKey> = fp.obstacles(&map.value, at).into_iter().map(|(k, _)| k).collect();
+        let exempt = fp.keys_under(&map.value, at);
         let yaw_at = |p: [f64; 2]| facing.map_or(yaw, |[x, y]| (y - p[1]).atan2(x - p[0]));
         let d = guard::room_for_turn(&fp, &map.value, at, yaw_at, self.params.guard_room_m, &exempt)?;
         let to = [at[0] + d * at[2].cos(), at[1] + d * at[2].sin()];
@@ -511,10 +508,7 @@ impl Locomotion {
             self.stall_evidence.iter_mut().for_each(|s| *s = 0.0);
             self.finish(ctx, Outcome::fail(reason), "fault")?;
         } else if let Some(c) = self.guard_hit(ctx) {
-            let reason = format!(
-                "stopped: the rover came within {} m of an obstacle of the navigation map at ({:.2}, {:.2})",
-                self.params.guard_margin_m, c[0], c[1]
-            );
+            let reason = guard::stop_reason(self.params.guard_margin_m, c);
             ctx.note(format!("stopping the rover: {reason}"));
             self.finish(ctx, Outcome::fail(reason), "idle")?;
         } else {

@@ -32,6 +32,17 @@ pub fn is_guard_reason(reason: &str) -> bool {
     reason.contains(WORDS)
 }
 
+/// The refusal of a manoeuvre (`what`: "the turn", ...) whose sweep covers the obstacle cell
+/// centred at `cell`.
+pub fn refusal(what: &str, margin_m: f64, cell: [f64; 2]) -> String {
+    format!("{what} would bring the rover within {margin_m} m {WORDS} at ({:.2}, {:.2})", cell[0], cell[1])
+}
+
+/// The reason a manoeuvre was stopped on the obstacle cell centred at `cell`.
+pub fn stop_reason(margin_m: f64, cell: [f64; 2]) -> String {
+    format!("stopped: the rover came within {margin_m} m {WORDS} at ({:.2}, {:.2})", cell[0], cell[1])
+}
+
 /// A cell by its place on the shared lattice (its centre over the resolution, rounded down).
 pub type CellKey = (i64, i64);
 
@@ -68,6 +79,12 @@ impl Footprint {
             .filter(|c| self.covers(pose, c[0], c[1]))
             .map(|c| (key(c, g.resolution_m), c))
             .collect()
+    }
+
+    /// The keys of the obstacle cells the grown footprint at `pose` covers (those exempt for a
+    /// manoeuvre that starts there).
+    pub fn keys_under(&self, map: &NavigationMap, pose: Pose2) -> HashSet<CellKey> {
+        self.obstacles(map, pose).into_iter().map(|(k, _)| k).collect()
     }
 
     /// The first obstacle cell (its centre) the footprint covers at one of `poses`, in order,
@@ -223,7 +240,7 @@ mod tests {
         let under = [0.25, -0.25];
         let map = map_with(&[ahead, under]);
         let start = [0.0, 0.0, 0.0];
-        let exempt: HashSet<CellKey> = ROVER.obstacles(&map, start).into_iter().map(|(k, _)| k).collect();
+        let exempt = ROVER.keys_under(&map, start);
         assert_eq!(exempt.len(), 1, "the cell under the rover");
         // Driving 0.5 m ahead brings the front face (0.61) to 1.11: short of the cell at 1.25.
         let short = drive_poses(start, 0.1, 0.0, 5.0);

@@ -17,7 +17,7 @@
 //! the last one taken standing. A rover standing still costs the renderer and the odometry a
 //! fraction of a driving one.
 //!
-//! The localization pair sees parts of the rover (the stowed arm, a wheel): a keyframe keeps no
+//! The localization pair may see parts of the rover (the arm, a wheel): a keyframe keeps no
 //! point that lies on the robot as the believed mechanism places it with the latest joint states
 //! (`arm/joints`, `ptu/joints`), or those points, moving with the camera, would vote for standing
 //! still.

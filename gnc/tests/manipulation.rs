@@ -13,11 +13,25 @@ fn mechanism() -> MechanismModel {
     MechanismModel::from_urdf_file(urdf).expect("rover urdf")
 }
 
-/// The poses of `scenarios/config/modules/manipulator_control.toml`.
-const STOWED: [f64; 6] = [0.0; 6];
+/// The poses of `scenarios/config/modules/manipulator_control.toml` (`stowed` is read from it).
 const LOOK: [f64; 6] = [0.0, -1.1, 2.45, 0.0, -0.55, 0.0];
 const VIAS: [[f64; 6]; 3] =
     [[0.0, -1.8, 1.6, 0.0, 1.8, 0.0], [1.3, -1.8, 1.6, 0.0, 1.8, 0.0], [2.6, -1.8, 1.6, 0.0, 1.8, 0.0]];
+
+fn repo_file(path: &str) -> toml::Table {
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join(path);
+    std::fs::read_to_string(&p).unwrap().parse().unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+fn numbers(v: &toml::Value) -> Vec<f64> {
+    v.as_array().unwrap().iter().map(|x| x.as_float().unwrap()).collect()
+}
+
+/// The arm's stowed pose as ManipulatorControl has it.
+fn stowed() -> [f64; 6] {
+    let t = repo_file("scenarios/config/modules/manipulator_control.toml");
+    numbers(&t["params"]["poses"]["stowed"]).try_into().unwrap()
+}
 
 fn clearance(m: &MechanismModel, margin: f64) -> Clearance {
     let is_arm = |n: &str| n.starts_with("arm_link_") || n.starts_with("gripper_");
@@ -100,7 +114,7 @@ fn the_configured_poses_are_clear_and_the_tool_reaches_its_work_space_and_the_st
     let arm = ArmKinematics::new(&m, "gripper_tcp").unwrap();
     let c = clearance(&m, 0.015);
     let rest = vec![0.0; m.dof_count()];
-    for q in [STOWED, LOOK].iter().chain(&VIAS) {
+    for q in [stowed(), LOOK].iter().chain(&VIAS) {
         assert_eq!(c.contact(&arm.full(q, &rest), None, true).unwrap(), None, "{q:?}");
     }
     let seeds: Vec<Vec<f64>> = VIAS.iter().map(|v| v.to_vec()).collect();
@@ -222,4 +236,62 @@ fn a_held_canister_is_kept_off_the_body_and_a_pose_into_the_chassis_is_refused()
         .unwrap();
     let hit = c.contact(&arm.full(&low, &rest), Some(&held), true).unwrap();
     assert!(matches!(&hit, Some(Contact::Body { arm, .. }) if arm == "held"), "{hit:?}");
+}
+
+#[test]
+fn the_stowed_arm_is_folded_inside_the_footprint_off_the_ground_and_out_of_the_localization_cameras_view() {
+    let m = mechanism();
+    let arm = ArmKinematics::new(&m, "gripper_tcp").unwrap();
+    let c = clearance(&m, 0.015);
+    let rest = vec![0.0; m.dof_count()];
+    let stowed = stowed();
+    // The same pose for the joint group, and where the canister missions' arm stands at power-on.
+    let group = repo_file("scenarios/config/modules/arm.toml");
+    assert_eq!(numbers(&group["params"]["poses"]["stowed"]), stowed);
+    for scenario in ["scenarios/canister_acquisition.toml", "scenarios/acquire_stow.toml"] {
+        let start = repo_file(scenario)["twin"]["servos"]["start"].as_table().unwrap().clone();
+        for (k, q) in stowed.iter().enumerate() {
+            let at = start.get(&format!("arm_joint_{}", k + 1)).map_or(0.0, |v| v.as_float().unwrap());
+            assert_eq!(at, *q, "{scenario}: arm_joint_{}", k + 1);
+        }
+    }
+    let q = arm.full(&stowed, &rest);
+    assert_eq!(c.contact(&q, None, true).unwrap(), None);
+    // Every corner of the arm's and gripper's boxes: within the wheels' footprint (their faces
+    // 0.56 m from base_link, the arm's mount 0.07 m beyond at the front), 0.3 m over the ground
+    // the wheels stand on (0.38 m below base_link), and over the top edge of the localization
+    // cameras' view (looking 0.5 rad down with a 64 deg vertical field: 3.4 deg up) with 10 deg
+    // to spare.
+    let poses = m.link_poses(&q).unwrap();
+    let cams: Vec<Vector3<f64>> = ["loc_cam_left", "loc_cam_right"]
+        .iter()
+        .map(|n| poses[m.link(n).unwrap()].translation.vector)
+        .collect();
+    for (i, l) in m.links().iter().enumerate() {
+        if !(l.name.starts_with("arm_link_") || l.name.starts_with("gripper_")) {
+            continue;
+        }
+        for b in &l.collision_boxes {
+            let o = gnc::manipulation::clearance::Obb::placed(&poses[i], b);
+            for s in 0..8 {
+                let sign = |bit: usize| if s & bit == 0 { -1.0 } else { 1.0 };
+                let p = o.center
+                    + o.axes * Vector3::new(sign(1) * o.half.x, sign(2) * o.half.y, sign(4) * o.half.z);
+                assert!(p.x <= 0.63 && p.y.abs() <= 0.56, "{} at {p:?}", l.name);
+                assert!(p.z >= -0.38 + 0.3, "{} at {p:?}", l.name);
+                for cam in &cams {
+                    let ahead = p.x - cam.x;
+                    let up = (p.z - cam.z).atan2(ahead).to_degrees();
+                    assert!(ahead <= 0.0 || up >= 3.4 + 10.0, "{} at {p:?}: {up} deg up", l.name);
+                }
+            }
+        }
+    }
+    // Planned to and from the look pose and the via-poses (over the stowage slot among them).
+    let full = |q: &[f64]| arm.full(q, &rest);
+    let vias: Vec<Vec<f64>> = VIAS.iter().map(|v| v.to_vec()).collect();
+    for other in [LOOK].iter().chain(&VIAS) {
+        plan_path(&c, &full, &stowed, other, &vias, None).unwrap();
+        plan_path(&c, &full, other, &stowed, &vias, None).unwrap();
+    }
 }

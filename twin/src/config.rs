@@ -128,6 +128,11 @@ pub struct ServoConfig {
     /// keep-alive) for this long holds its joints where they are and ends its move, s (0: none).
     #[serde(default = "default_servo_deadman")]
     pub deadman_s: f64,
+    /// Where servoed joints stand when the twin starts, by joint name (rad, or m for the
+    /// fingers); the others start at 0 (the shipped default: the arm stretched out ahead). The
+    /// canister missions start the arm folded in its stowed pose.
+    #[serde(default)]
+    pub start: std::collections::BTreeMap<String, f64>,
 }
 
 fn default_servo_deadman() -> f64 {

@@ -201,6 +201,82 @@ fn arm_names(t: &Twin) -> Vec<String> {
 }
 
 #[test]
+fn the_arm_starts_folded_where_the_configuration_puts_it_and_stays_there() {
+    // The canister missions' power-on pose: folded to the right, within the footprint.
+    let folded = [-std::f64::consts::FRAC_PI_2, 0.2, -2.45, 0.0, -1.8, 0.0];
+    let mut c = config();
+    for (k, q) in folded.iter().enumerate().filter(|(_, q)| **q != 0.0) {
+        c.servos.start.insert(format!("arm_joint_{}", k + 1), *q);
+    }
+    for fidelity in [Fidelity::Dynamic, Fidelity::Kinematic] {
+        let at = StartPose { x: 0.0, y: 0.0, yaw: 0.0 };
+        let mut t = Twin::new(flat(0.8), c.clone(), &twin::rover_urdf(), at, fidelity).unwrap();
+        // Before the first step, every link where the mechanism puts it with the arm folded.
+        let mech = t.mechanism().clone();
+        let mut q = vec![0.0; mech.dof_count()];
+        for (k, v) in folded.iter().enumerate() {
+            let name = format!("arm_joint_{}", k + 1);
+            q[mech.dof_names().iter().position(|n| *n == name).unwrap()] = *v;
+        }
+        let poses = mech.link_poses(&q).unwrap();
+        let base = t.link_pose("base_link").unwrap();
+        for (i, l) in mech.links().iter().enumerate() {
+            let off = (t.link_pose(&l.name).unwrap().translation.vector
+                - (base * poses[i]).translation.vector)
+                .norm();
+            assert!(off < 1e-3, "{fidelity:?}: {} {off} m off at the start", l.name);
+        }
+        // Held there: the landing (dropped 1 cm) jolts the joints a little, the servos bring them
+        // back.
+        let mut worst: f64 = 0.0;
+        for _ in 0..30 {
+            t.run_for(S(0.1));
+            for (s, want) in t.joint_states(&arm_names(&t)).iter().zip(folded) {
+                worst = worst.max((s.position - want).abs());
+            }
+        }
+        assert!(worst < 0.15, "{fidelity:?}: a joint {worst} rad from its start");
+        for (s, want) in t.joint_states(&arm_names(&t)).iter().zip(folded) {
+            assert!(
+                (s.position - want).abs() < 0.01,
+                "{fidelity:?}: {} at {} for {want}",
+                s.name,
+                s.position
+            );
+        }
+        assert_eq!(t.self_collisions(), 0, "{fidelity:?}");
+        // Every arm link inside the wheels' footprint (the mount 7 cm ahead of their faces).
+        let base = t.base_pose();
+        for (name, pose) in t.link_poses() {
+            if name.starts_with("arm_") || name.starts_with("gripper_") {
+                let p = (base.inverse() * pose).translation.vector;
+                assert!(p.x <= 0.63 && p.y.abs() <= 0.56, "{fidelity:?}: {name} at {p:?}");
+            }
+        }
+    }
+    // A joint that is not a servo's, a start beyond a limit, or one in the body: refused, named.
+    for (joint, q, words) in [
+        ("wheel_front_left_joint", 0.0, "no servoed joint"),
+        ("arm_joint_2", 2.5, "limits"),
+        ("arm_joint_2", -2.0, "puts"),
+    ] {
+        let mut c = config();
+        c.servos.start.insert(joint.into(), q);
+        let e = Twin::new(
+            flat(0.8),
+            c,
+            &twin::rover_urdf(),
+            StartPose { x: 0.0, y: 0.0, yaw: 0.0 },
+            Fidelity::Dynamic,
+        )
+        .err()
+        .expect("refused")
+        .to_string();
+        assert!(e.contains("servos.start") && e.contains(joint) && e.contains(words), "{e}");
+    }
+}
+
+#[test]
 fn mechanism_forward_kinematics_matches_the_physics_arm_within_one_millimetre() {
     let mut t = rover(flat(0.8), 0.0, 0.0, 0.0, Fidelity::Dynamic);
     t.run_for(S(1.0));

@@ -88,7 +88,52 @@ impl Twin {
             }
             self.groups.insert(group.to_string(), ids);
         }
+        self.place_servos_at_start()
+    }
+
+    /// Puts the servoed joints where the configuration has them start (`servos.start`), their
+    /// servos holding them there.
+    fn place_servos_at_start(&mut self) -> Result<(), TwinError> {
+        let start = self.config.servos.start.clone();
+        for (name, &q) in &start {
+            let bad = |why: String| TwinError::Description(format!("servos.start.{name}: {why}"));
+            let s = self
+                .servos
+                .iter()
+                .position(|sv| self.mech.joints()[self.joints[sv.joint].mech].name == *name)
+                .ok_or_else(|| {
+                    bad("no servoed joint of that name (arm, pan-tilt and gripper joints)".into())
+                })?;
+            let j = &mut self.joints[self.servos[s].joint];
+            if !(q.is_finite() && q >= j.limits.lower && q <= j.limits.upper) {
+                return Err(bad(format!(
+                    "{q} is outside the joint's limits [{}, {}]",
+                    j.limits.lower, j.limits.upper
+                )));
+            }
+            j.q = q;
+            let sv = &mut self.servos[s];
+            (sv.start, sv.goal, sv.setpoint) = (q, q, q);
+        }
         Ok(())
+    }
+
+    /// Refuses a start pose (`servos.start`) that puts the arm side into the body side: full
+    /// dynamics would blow the two apart on the first step.
+    pub(super) fn check_start_pose(&self) -> Result<(), TwinError> {
+        let (Some(shapes), false) = (&self.self_shapes, self.config.servos.start.is_empty()) else {
+            return Ok(());
+        };
+        let poses =
+            self.mech.link_poses(&self.dof_values()).map_err(|e| TwinError::Description(e.to_string()))?;
+        match shapes.first_hit(&poses, &self.mech) {
+            Some((a, b)) => {
+                let at: Vec<String> =
+                    self.config.servos.start.iter().map(|(j, q)| format!("{j} = {q}")).collect();
+                Err(TwinError::Description(format!("servos.start ({}): puts {a} into {b}", at.join(", "))))
+            }
+            None => Ok(()),
+        }
     }
 
     pub(super) fn tag(&mut self, name: String, robot: bool, wheel: bool) -> u128 {
@@ -217,6 +262,23 @@ impl Twin {
             urdf_robot.joints.iter().map(|j| robot.joints[j.urdf_joint_index].name.clone()).collect();
         let handles =
             urdf_robot.insert_using_impulse_joints(&mut ph.bodies, &mut ph.colliders, &mut ph.impulse_joints);
+        // The loader places the links as the joints stand at 0: each link whose pose differs where
+        // the joints start (`servos.start`) is moved there, relative to the base.
+        let q0 = self.dof_values();
+        if q0.iter().any(|&v| v != 0.0) {
+            let zero = vec![0.0; self.mech.dof_count()];
+            let err = |e: framework::mechanism::MechanismError| TwinError::Description(e.to_string());
+            let (at_zero, at_start) =
+                (self.mech.link_poses(&zero).map_err(err)?, self.mech.link_poses(&q0).map_err(err)?);
+            for (name, lh) in link_names.iter().zip(&handles.links) {
+                let li = self.mech.link(name).map_err(err)?;
+                let delta = base_pose * at_start[li] * (base_pose * at_zero[li]).inverse();
+                if let Some(b) = ph.bodies.get_mut(lh.body) {
+                    let moved = delta * pose_from_rapier(b.position());
+                    b.set_position(pose_to_rapier(&moved), true);
+                }
+            }
+        }
 
         // Tag robot colliders with their link names; the arm side collides with the body side
         // (self-collision), each with the world and the canister.
@@ -339,7 +401,7 @@ impl Twin {
             if let Some(j) = ph.impulse_joints.get_mut(h, true) {
                 j.data
                     .set_motor_model(axis, MotorModel::ForceBased)
-                    .set_motor_position(axis, 0.0, k as f32, d as f32)
+                    .set_motor_position(axis, sj.q as f32, k as f32, d as f32)
                     .set_motor_max_force(axis, sj.limits.effort.max(1.0) as f32);
             }
         }

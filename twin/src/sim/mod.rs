@@ -395,6 +395,7 @@ impl Twin {
         };
         twin.build_joints()?;
         twin.self_shapes = Some(selfcollision::SelfShapes::load(urdf, &twin.mech)?);
+        twin.check_start_pose()?;
         twin.occluders = crate::visibility::Occluders::new(&twin.world);
         match fidelity {
             Fidelity::Dynamic => twin.build_dynamic(urdf, start)?,
@@ -597,7 +598,7 @@ impl Twin {
         }
     }
 
-    fn dof_values(&self) -> Vec<f64> {
+    pub(super) fn dof_values(&self) -> Vec<f64> {
         let mut q = vec![0.0; self.mech.dof_count()];
         for sj in &self.joints {
             if let Some(d) = self.mech.joints()[sj.mech].dof {

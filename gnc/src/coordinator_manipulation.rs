@@ -1,9 +1,10 @@
 //! CoordinatorManipulation (seed 000, 8.3 and 8.4): sequences the rover, the wrist camera's marker
 //! tracking and the manipulator for the mission's two manipulation commands.
 //!
-//! - `acquire_canister`: turns the wrist camera on; puts the rover where the arm can reach the
-//!   object (from the head camera's target estimate, `tracking/target`: facing it at the working
-//!   distance); raises the arm to its look pose and has the wrist camera's TrackingMarker locate
+//! - `acquire_canister`: turns the wrist camera on; raises the arm to `travel_pose` (the wrist
+//!   camera looking ahead); puts the rover where the arm can reach the object (from the head
+//!   camera's target estimate, `tracking/target`: facing it at the working distance), going
+//!   instead to where the wrist camera glimpses it on the way, if elsewhere; raises the arm to its look pose and has the wrist camera's TrackingMarker locate
 //!   the object by its markers; if the located object is outside the arm's grasp region, moves the
 //!   rover by what is missing and looks again. When no look pose saw anything of it, the object
 //!   may lie beside or behind the rover (the head camera followed a rock beyond it): the wrist
@@ -90,6 +91,8 @@ impl Kind {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Step {
     CameraOn,
+    /// The arm to the travel pose, before the rover's moves to the working distance.
+    TravelPose,
     /// Turning or driving to the working distance from the target estimate.
     Prepare,
     Look,
@@ -139,8 +142,9 @@ struct Job {
     id: MessageId,
     attempts: u32,
     repositions: u32,
-    /// A reposition for a grasp out of reach is under way and has one more move to send when its
-    /// first completes (a turn to face the object is followed by the drive to the grasp distance).
+    /// A reposition (for a grasp out of reach, or towards a glimpse) is under way and has one more
+    /// move to send when its first completes (a turn to face the object is followed by the drive
+    /// to the grasp distance).
     reach_move_left: bool,
     /// Moves towards the head camera's estimate so far.
     prepares: u32,
@@ -162,7 +166,8 @@ struct Job {
     seen: bool,
     /// The wrist camera's latest glimpse of the object in this job not yet moved towards (its
     /// pose not located to the accuracy asked), looked for every cycle: any image counts, of
-    /// any look pose, and of the drives between them (the stowed wrist camera looks ahead).
+    /// any look pose, and of the drives between them (from the travel pose, the wrist camera
+    /// looks ahead).
     glimpse: Option<ObjectPose>,
     /// The capture time of the image the last glimpse was taken from (none: none yet): an image
     /// glimpses once.
@@ -230,12 +235,7 @@ impl CoordinatorManipulation {
     /// The rover to the working distance from the head camera's estimate of the object (when
     /// there is one), then the look.
     fn prepare(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
-        if job.object_map.is_none() {
-            let track = self.target.as_ref().and_then(|r| ctx.read(r)).map(|t| t.value.clone());
-            job.object_map = track.and_then(|t| t.position_at(ctx.now()));
-            job.head_estimate = job.object_map;
-        }
-        let Some(object) = job.object_map else { return self.look(ctx, job) };
+        let Some(object) = self.head_estimate(ctx, job) else { return self.look(ctx, job) };
         let p = &self.params;
         let (want, tol, bearing) = (p.work_distance_m, p.work_tolerance_m, p.max_bearing_deg.to_radians());
         if job.prepares < MAX_PREPARE_MOVES && self.move_towards(ctx, job, &object, want, tol, bearing)? {
@@ -244,6 +244,17 @@ impl CoordinatorManipulation {
             return Ok(());
         }
         self.look(ctx, job)
+    }
+
+    /// Where the rover goes to look at the object from: where it was seen, else the head camera's
+    /// estimate (read once per job, and kept as the estimate the rover came by).
+    fn head_estimate(&self, ctx: &Ctx<'_>, job: &mut Job) -> Option<Point3<f64>> {
+        if job.object_map.is_none() {
+            let track = self.target.as_ref().and_then(|r| ctx.read(r)).map(|t| t.value.clone());
+            job.object_map = track.and_then(|t| t.position_at(ctx.now()));
+            job.head_estimate = job.object_map;
+        }
+        job.object_map
     }
 
     /// No look pose saw anything of the object: the wrist camera looks all round from the scan
@@ -343,8 +354,8 @@ impl CoordinatorManipulation {
     fn advance(&mut self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<Option<serde_json::Value>, String> {
         // A glimpse in any image since the job began: of any look pose (the newest image alone,
         // at a round's end, may be of another pose that sees nothing), or of a drive (the object
-        // passing through the stowed wrist camera's view; sweep run 8 saw its markers for 20 s
-        // driving to the working distance, then from no look pose).
+        // passing through the wrist camera's view from the travel pose; sweep run 8 saw its
+        // markers for 20 s driving to the working distance, then from no look pose).
         if let Some(o) = self.objects.as_ref().and_then(|o| ctx.read(o))
             && o.value.stamp >= job.started
             && job.glimpse_stamp != Some(o.value.stamp)
@@ -389,7 +400,23 @@ impl CoordinatorManipulation {
             job.round_locates += 1;
         }
         match (job.step, status) {
-            (Step::CameraOn, Ok(_)) | (Step::Prepare, Ok(_)) => self.prepare(ctx, job)?,
+            // A head camera's estimate to drive to: the arm to its travel pose first.
+            (Step::CameraOn, Ok(_))
+                if !self.params.travel_pose.is_empty() && self.head_estimate(ctx, job).is_some() =>
+            {
+                let args = serde_json::json!({ "pose": self.params.travel_pose });
+                job.id = send(ctx, &self.peers.manipulator, "move_named", args)?;
+                job.step = Step::TravelPose;
+            }
+            (Step::TravelPose, Err(r)) => {
+                ctx.note(format!(
+                    "{}: the arm did not take the travel pose '{}' ({r}): moving with it where it is",
+                    job.kind.name(),
+                    self.params.travel_pose
+                ));
+                self.prepare(ctx, job)?;
+            }
+            (Step::CameraOn | Step::TravelPose | Step::Prepare, Ok(_)) => self.prepare(ctx, job)?,
             (Step::ScanPose | Step::Scan, Ok(_)) => self.scan(ctx, job)?,
             (Step::Look, Ok(_)) => {
                 let args = serde_json::json!({
@@ -533,7 +560,9 @@ impl CoordinatorManipulation {
             (Step::Look | Step::Locate, Err(r)) if job.repositions < self.params.max_repositions => {
                 // Not located from any look pose (the last one perhaps not reached: a motion the
                 // arm refuses): if the wrist camera glimpsed the object since the locate began,
-                // turn and drive towards it and look again.
+                // turn and drive towards it and look again. Both moves: a glimpse off the heading
+                // is turned to and then driven to (a turn alone left a glimpse 3 m away as far out
+                // of the look poses' view as before: sweep draws 61 and 69, session 48).
                 let Some(seen) = job.glimpse.take() else {
                     return self.search_back(ctx, job, &r).map(|()| None);
                 };
@@ -549,6 +578,7 @@ impl CoordinatorManipulation {
                 let x = self.params.grasp_x_m;
                 job.look = 0;
                 if self.move_towards(ctx, job, &target, x, 0.1, REPOSITION_BEARING_DEG.to_radians())? {
+                    job.reach_move_left = matches!(job.last_move, Some(Move::Turn { .. }));
                     job.step = Step::Reposition;
                 } else {
                     self.look(ctx, job)?;
@@ -651,7 +681,9 @@ impl CoordinatorManipulation {
             Step::Prepare | Step::Reposition | Step::Scan | Step::Recover { .. } => {
                 Some(&self.peers.locomotion)
             }
-            Step::Look | Step::ScanPose | Step::Grasp | Step::Place => Some(&self.peers.manipulator),
+            Step::TravelPose | Step::Look | Step::ScanPose | Step::Grasp | Step::Place => {
+                Some(&self.peers.manipulator)
+            }
             Step::Locate => Some(&self.peers.markers),
             Step::CameraOn | Step::CameraOff => None,
         };

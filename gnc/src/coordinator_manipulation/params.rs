@@ -45,6 +45,11 @@ pub struct CoordinatorManipulationParams {
     /// A locate from a look pose ends early when the wrist camera has seen nothing of the object
     /// in this long since it began, s (0: it runs its `locate_timeout_s`).
     pub glimpse_timeout_s: f64,
+    /// The manipulator's pose the arm takes before the rover's moves to the working distance, so
+    /// that the wrist camera looks ahead on the way and a glimpse of the object elsewhere than the
+    /// head camera's estimate is gone to ("": the arm stays where it is; folded in its stowed
+    /// pose, the wrist camera looks at the ground beside a front wheel).
+    pub travel_pose: String,
 }
 
 impl Default for CoordinatorManipulationParams {
@@ -66,6 +71,7 @@ impl Default for CoordinatorManipulationParams {
             search_back_m: 0.35,
             scan_pose: "look".into(),
             glimpse_timeout_s: 3.0,
+            travel_pose: String::new(),
         }
     }
 }

@@ -275,7 +275,17 @@ fn a_glimpse_of_the_object_while_driving_is_moved_towards_when_no_look_pose_loca
     // A round from where the rover stood, one after backing up, one after moving towards the
     // glimpse: a round more than without it, and no reject.
     let looks = log.iter().filter(|c| *c == "markers.locate").count();
-    assert_eq!(looks, 3 * CoordinatorManipulationParams::default().look_poses.len(), "{log:?}");
+    let poses = CoordinatorManipulationParams::default().look_poses.len();
+    assert_eq!(looks, 3 * poses, "{log:?}");
+    // The glimpse (1 m ahead, 1 m to the left) turned to, and the move after the turn made
+    // before the next round (the stub's rover never moves: a second turn; a rover that turned
+    // drives on to the grasp distance).
+    let third_round =
+        log.iter().enumerate().filter(|(_, c)| *c == "markers.locate").nth(2 * poses).unwrap().0;
+    let before: Vec<&String> =
+        log[..third_round].iter().rev().take_while(|c| *c != "markers.locate").collect();
+    let moves = before.iter().filter(|c| c.starts_with("locomotion.")).count();
+    assert_eq!(moves, 2, "{before:?}");
 }
 
 #[test]
@@ -291,6 +301,26 @@ fn a_glimpse_on_the_way_to_the_working_distance_is_where_the_rover_goes_instead(
     };
     assert!(turned_first(true));
     assert!(!turned_first(false), "the estimate is straight ahead: no turn");
+}
+
+#[test]
+fn the_arm_takes_its_travel_pose_before_the_rover_drives_to_the_working_distance() {
+    // With a travel pose, the arm moves to it before the rover's first move (and a glimpse on the
+    // way is still gone to); without one, the rover drives with the arm where it is; an arm that
+    // refuses the pose does not keep the rover from driving.
+    let before_drive = |params: &'static str, fails: Option<&'static str>| {
+        let glimpse = Some(Glimpse { after: "drive", at: [1.0, 1.0] });
+        let (_, log, _) =
+            acquire_with(Setup { estimate_m: 3.0, glimpse, params, fails, ..Default::default() });
+        let drive = log.iter().position(|c| c == "locomotion.drive").expect("drove");
+        // The turn to the glimpse, before any look.
+        let first_look = log.iter().position(|c| c == "markers.locate").unwrap_or(log.len());
+        let turned = log[..first_look].iter().any(|c| c == "locomotion.turn_to");
+        (log[..drive].iter().filter(|c| *c == "manipulator.move_named").count(), turned)
+    };
+    assert_eq!(before_drive("travel_pose = \"look\"", None), (1, true));
+    assert_eq!(before_drive("", None), (0, true));
+    assert_eq!(before_drive("travel_pose = \"look\"", Some("move_named")), (1, true));
 }
 
 #[test]

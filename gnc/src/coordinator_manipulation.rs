@@ -135,6 +135,11 @@ impl Moving {
 /// the object elsewhere: the rover goes there instead, m.
 const GLIMPSE_ELSEWHERE_M: f64 = 0.5;
 
+/// A glimpse while a look pose's locate runs, farther than this from `base_link`, lies beyond
+/// every look pose's view (the farthest, `look`, sees 1.05-1.7 m ahead): the rover goes to it at
+/// once rather than trying the other poses first, m.
+const FAR_GLIMPSE_M: f64 = 2.0;
+
 struct Job {
     request: Request,
     kind: Kind,
@@ -371,6 +376,17 @@ impl CoordinatorManipulation {
             let elsewhere = job.object_map.is_none_or(|o| (o - at).xy().norm() > GLIMPSE_ELSEWHERE_M);
             if job.step == Step::Prepare && elsewhere {
                 self.go_to_glimpse(ctx, job, at, "on the way to the working distance")?;
+                return Ok(None);
+            }
+            // From a look pose, beyond where any look pose sees (sweep draw 69: 2.8 m ahead from
+            // the first pose, gone to only after all six, 40 s later).
+            if job.step == Step::Locate
+                && seen.base_from_object.translation.vector.xy().norm() > FAR_GLIMPSE_M
+            {
+                let _ = ctx.send(Command::new(&self.peers.markers, "stop"));
+                job.prepares = 0;
+                job.look = 0;
+                self.go_to_glimpse(ctx, job, at, "from a look pose, beyond every look pose's view")?;
                 return Ok(None);
             }
         }

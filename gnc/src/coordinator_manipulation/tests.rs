@@ -304,6 +304,26 @@ fn a_glimpse_on_the_way_to_the_working_distance_is_where_the_rover_goes_instead(
 }
 
 #[test]
+fn a_glimpse_beyond_every_look_pose_s_view_is_gone_to_at_once() {
+    // The wrist camera glimpses the canister during the first look pose's locate (which would
+    // run its whole timeout): 2.8 m ahead, beyond every look pose's view, the locate is stopped
+    // and the rover drives towards it before the second locate; 1 m ahead, within the views, the
+    // look poses go on in turn with no move of the rover.
+    let moves_before_second_locate = |at: [f64; 2]| {
+        let glimpse = Some(Glimpse { after: "locate", at });
+        let (_, log, _) = acquire_with(Setup { glimpse, locate_hangs: true, ..Default::default() });
+        let locates: Vec<usize> =
+            log.iter().enumerate().filter(|(_, c)| *c == "markers.locate").map(|(k, _)| k).collect();
+        assert!(locates.len() >= 2, "{log:?}");
+        let between = &log[locates[0]..locates[1]];
+        assert!(between.iter().any(|c| c == "markers.stop"), "{between:?}");
+        between.iter().filter(|c| *c == "locomotion.drive" || *c == "locomotion.turn_to").count()
+    };
+    assert!(moves_before_second_locate([2.8, 0.3]) >= 1);
+    assert_eq!(moves_before_second_locate([1.0, 0.0]), 0);
+}
+
+#[test]
 fn the_arm_takes_its_travel_pose_before_the_rover_drives_to_the_working_distance() {
     // With a travel pose, the arm moves to it before the rover's first move (and a glimpse on the
     // way is still gone to); without one, the rover drives with the arm where it is; an arm that

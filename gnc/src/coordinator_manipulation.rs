@@ -4,8 +4,8 @@
 //! - `acquire_canister`: turns the wrist camera on; raises the arm to `travel_pose` (the wrist
 //!   camera looking ahead); puts the rover where the arm can reach the object (from the head
 //!   camera's target estimate, `tracking/target`: facing it at the working distance), going
-//!   instead to where the wrist camera glimpses it on the way, if elsewhere; raises the arm to its look pose and has the wrist camera's TrackingMarker locate
-//!   the object by its markers; if the located object is outside the arm's grasp region, moves the
+//!   instead to where the wrist camera glimpses it on the way, if elsewhere; raises the arm to its
+//!   look pose and has the wrist camera's TrackingMarker locate the object by its markers; if the located object is outside the arm's grasp region, moves the
 //!   rover by what is missing and looks again. When no look pose saw anything of it, the object
 //!   may lie beside or behind the rover (the head camera followed a rock beyond it): the wrist
 //!   camera looks all round from `scan_pose` while the rover turns a full circle in place, and a
@@ -240,7 +240,7 @@ impl CoordinatorManipulation {
     /// The rover to the working distance from the head camera's estimate of the object (when
     /// there is one), then the look.
     fn prepare(&self, ctx: &mut Ctx<'_>, job: &mut Job) -> Result<(), String> {
-        let Some(object) = self.head_estimate(ctx, job) else { return self.look(ctx, job) };
+        let Some(object) = self.object_estimate(ctx, job) else { return self.look(ctx, job) };
         let p = &self.params;
         let (want, tol, bearing) = (p.work_distance_m, p.work_tolerance_m, p.max_bearing_deg.to_radians());
         if job.prepares < MAX_PREPARE_MOVES && self.move_towards(ctx, job, &object, want, tol, bearing)? {
@@ -251,9 +251,10 @@ impl CoordinatorManipulation {
         self.look(ctx, job)
     }
 
-    /// Where the rover goes to look at the object from: where it was seen, else the head camera's
-    /// estimate (read once per job, and kept as the estimate the rover came by).
-    fn head_estimate(&self, ctx: &Ctx<'_>, job: &mut Job) -> Option<Point3<f64>> {
+    /// The object's position the rover goes to look at it from: where the wrist camera saw it,
+    /// else the head camera's estimate (read once per job, and kept in `head_estimate` as the
+    /// estimate the rover came by).
+    fn object_estimate(&self, ctx: &Ctx<'_>, job: &mut Job) -> Option<Point3<f64>> {
         if job.object_map.is_none() {
             let track = self.target.as_ref().and_then(|r| ctx.read(r)).map(|t| t.value.clone());
             job.object_map = track.and_then(|t| t.position_at(ctx.now()));
@@ -418,7 +419,7 @@ impl CoordinatorManipulation {
         match (job.step, status) {
             // A head camera's estimate to drive to: the arm to its travel pose first.
             (Step::CameraOn, Ok(_))
-                if !self.params.travel_pose.is_empty() && self.head_estimate(ctx, job).is_some() =>
+                if !self.params.travel_pose.is_empty() && self.object_estimate(ctx, job).is_some() =>
             {
                 let args = serde_json::json!({ "pose": self.params.travel_pose });
                 job.id = send(ctx, &self.peers.manipulator, "move_named", args)?;

@@ -249,7 +249,13 @@ impl Twin {
                     let a = (v - self.prev_base_vel) / dt;
                     self.prev_base_vel = v;
                     self.specific_force = rot.inverse() * (a - g);
-                    self.angular_rate = rot.inverse() * from_rapier(body.angvel());
+                    // The body's rotation over the step, not its velocity: as for the joints, the
+                    // solver's body velocities carry its contact stabilization, which is no motion
+                    // (integrated, they turned 1-2 degrees per turn in place off the body's).
+                    self.angular_rate = match self.prev_base_rot.replace(rot) {
+                        Some(prev) => (prev.inverse() * rot).scaled_axis() / dt,
+                        None => rot.inverse() * from_rapier(body.angvel()),
+                    };
                 }
                 self.count_collisions();
             }

@@ -287,6 +287,8 @@ pub struct Twin {
     tags: Vec<ColliderTag>,
     base_body: Option<RigidBodyHandle>,
     prev_base_vel: Vector3<f64>,
+    /// The base body's attitude after the previous step (the gyro measures its change).
+    prev_base_rot: Option<UnitQuaternion<f64>>,
     specific_force: Vector3<f64>,
     angular_rate: Vector3<f64>,
     /// The IMU's and the encoders' sampled signals.
@@ -371,6 +373,7 @@ impl Twin {
             tags: Vec::new(),
             base_body: None,
             prev_base_vel: Vector3::zeros(),
+            prev_base_rot: None,
             specific_force: Vector3::new(0.0, 0.0, config.physics.gravity_m_s2),
             angular_rate: Vector3::zeros(),
             proprio: crate::proprio::Proprioception::new(

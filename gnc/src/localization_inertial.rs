@@ -7,13 +7,15 @@
 //! - Roll and pitch are the accelerometer's gravity direction, low-pass filtered; the mean unit
 //!   specific force of the cycle is handed on as a gravity measurement when its magnitude is within
 //!   `accel_gate_m_s2` of gravity's (the rover not accelerating hard).
-//! - The bias is learnt only while the wheels have stood still for a while (the encoders vouch for
+//! - The bias ([`GyroBias`]: a random walk, each still sample a measurement of it) is learnt
+//!   only while the wheels have stood still for a while (the encoders vouch for
 //!   it), and only from gyro samples up to the encoder reading that shows them still: the IMU runs
 //!   ahead of the encoders, and a drive starting in between turns the rover while the wheels still
 //!   read still. Until a bias is known, a standing rover is taken not to turn.
 //!
 //! Published as `localization/inertial` ([`AttitudeEstimate`]), stamped with the newest sample.
 
+use crate::localization::gyro_bias::GyroBias;
 use crate::params::require_positive;
 use framework::angle::wrap;
 use framework::data::AttitudeEstimate;
@@ -46,8 +48,12 @@ pub struct InertialParams {
     pub accel_gate_m_s2: f64,
     /// Wheels turning slower than this are standing still (for bias learning), rad/s.
     pub still_wheel_rate: f64,
-    /// Gain of the gyro bias update per sample (0 disables learning).
-    pub bias_gain: f64,
+    /// Uncertainty of the gyro's turn-on bias, before any standstill (1 sigma per axis), rad/s (0
+    /// disables learning).
+    pub bias_sigma: f64,
+    /// Random walk of the gyro's bias (its instability), rad/s/sqrt(s): how fast what a
+    /// standstill taught is forgotten.
+    pub bias_walk: f64,
     /// The wheels must have stood still this long before the bias is learnt, s.
     pub still_settle_s: f64,
     /// Gyro samples further than this from the bias learnt so far are not learnt from, rad/s.
@@ -66,7 +72,8 @@ impl Default for InertialParams {
             tilt_sigma_rad: 0.01,
             accel_gate_m_s2: 0.3,
             still_wheel_rate: 0.01,
-            bias_gain: 0.02,
+            bias_sigma: 0.005,
+            bias_walk: 3e-5,
             still_settle_s: 2.0,
             bias_gate_rad_s: 0.02,
             silent_after_s: 0.2,
@@ -80,9 +87,8 @@ struct State {
     yaw: f64,
     yaw_var: f64,
     gyro_attitude: UnitQuaternion<f64>,
-    bias: Vector3<f64>,
+    bias: GyroBias,
     bias_learnt: bool,
-    bias_samples: u64,
     last: ImuSample,
     rate: Vector3<f64>,
     gravity: Option<Vector3<f64>>,
@@ -132,9 +138,8 @@ impl LocalizationInertial {
                     yaw,
                     yaw_var: p.initial_yaw_sigma_deg.to_radians().powi(2),
                     gyro_attitude: UnitQuaternion::from_euler_angles(roll, pitch, yaw),
-                    bias: Vector3::zeros(),
+                    bias: GyroBias::new(p.bias_sigma),
                     bias_learnt: false,
-                    bias_samples: 0,
                     last: last.clone(),
                     rate: Vector3::zeros(),
                     gravity: None,
@@ -185,18 +190,19 @@ impl LocalizationInertial {
             // After a gap the first sample stands for no more than a silence's worth of motion
             // (its rate over the whole gap would be a guess; the fusion re-anchors on it anyway).
             let dt = (sample.stamp - s.last.stamp).as_secs_f64().clamp(0.0, p.silent_after_s);
-            let innovation = sample.angular_rate - s.bias;
-            // The gate holds only once the estimate has converged (a few time constants of the
-            // learning): before, a large true bias would be gated out for good.
-            let converged = s.bias_samples as f64 * p.bias_gain > 3.0;
+            let innovation = sample.angular_rate - s.bias.bias;
+            // The gate holds only once the estimate has converged: before, a large true bias
+            // would be gated out for good.
+            let converged = s.bias.samples > 0 && s.bias.sigma() < p.bias_gate_rad_s / 4.0;
             let learn = still_until.is_some_and(|t| sample.stamp <= t)
                 && (!converged || innovation.norm() < p.bias_gate_rad_s);
-            if learn && p.bias_gain > 0.0 {
-                s.bias += p.bias_gain * innovation;
+            s.bias.walk(dt, p.bias_walk);
+            if learn && p.bias_sigma > 0.0 {
+                s.bias.learn(&sample.angular_rate, dt, p.gyro_noise);
                 s.bias_learnt = true;
-                s.bias_samples += 1;
             }
-            let w = if still && !s.bias_learnt { Vector3::zeros() } else { sample.angular_rate - s.bias };
+            let w =
+                if still && !s.bias_learnt { Vector3::zeros() } else { sample.angular_rate - s.bias.bias };
             s.rate = w;
             s.gyro_attitude *= UnitQuaternion::from_scaled_axis(w * dt);
             if let Some((roll, pitch)) = tilt_from_gravity(&sample.specific_force) {
@@ -227,7 +233,7 @@ impl LocalizationInertial {
             gyro_attitude: s.gyro_attitude,
             gyro_noise: self.params.gyro_noise,
             gravity: s.gravity,
-            gyro_bias: s.bias,
+            gyro_bias: s.bias.bias,
             bias_learnt: s.bias_learnt,
             angular_rate: s.rate,
         };
@@ -250,9 +256,7 @@ impl Module for LocalizationInertial {
             "initial_yaw_deg and initial_yaw_sigma_deg",
             &[p.initial_yaw_deg, p.initial_yaw_sigma_deg],
         )?;
-        if !(0.0..=1.0).contains(&p.bias_gain) {
-            return Err(format!("bias_gain must be in [0, 1], got {}", p.bias_gain));
-        }
+        crate::params::require_non_negative(&[("bias_sigma", p.bias_sigma), ("bias_walk", p.bias_walk)])?;
         require_positive(&[
             ("gyro_noise", p.gyro_noise),
             ("tilt_time_constant_s", p.tilt_time_constant_s),

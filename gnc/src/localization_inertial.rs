@@ -16,7 +16,7 @@
 //! Published as `localization/inertial` ([`AttitudeEstimate`]), stamped with the newest sample.
 
 use crate::localization::gyro_bias::GyroBias;
-use crate::params::require_positive;
+use crate::params::{require_non_negative, require_positive};
 use framework::angle::wrap;
 use framework::data::AttitudeEstimate;
 use framework::hal::{Imu, ImuSample, WheelEncoders};
@@ -88,7 +88,6 @@ struct State {
     yaw_var: f64,
     gyro_attitude: UnitQuaternion<f64>,
     bias: GyroBias,
-    bias_learnt: bool,
     last: ImuSample,
     rate: Vector3<f64>,
     gravity: Option<Vector3<f64>>,
@@ -139,7 +138,6 @@ impl LocalizationInertial {
                     yaw_var: p.initial_yaw_sigma_deg.to_radians().powi(2),
                     gyro_attitude: UnitQuaternion::from_euler_angles(roll, pitch, yaw),
                     bias: GyroBias::new(p.bias_sigma),
-                    bias_learnt: false,
                     last: last.clone(),
                     rate: Vector3::zeros(),
                     gravity: None,
@@ -193,16 +191,15 @@ impl LocalizationInertial {
             let innovation = sample.angular_rate - s.bias.bias;
             // The gate holds only once the estimate has converged: before, a large true bias
             // would be gated out for good.
-            let converged = s.bias.samples > 0 && s.bias.sigma() < p.bias_gate_rad_s / 4.0;
+            let converged = s.bias.learnt() && s.bias.sigma() < p.bias_gate_rad_s / 4.0;
             let learn = still_until.is_some_and(|t| sample.stamp <= t)
                 && (!converged || innovation.norm() < p.bias_gate_rad_s);
             s.bias.walk(dt, p.bias_walk);
             if learn && p.bias_sigma > 0.0 {
                 s.bias.learn(&sample.angular_rate, dt, p.gyro_noise);
-                s.bias_learnt = true;
             }
             let w =
-                if still && !s.bias_learnt { Vector3::zeros() } else { sample.angular_rate - s.bias.bias };
+                if still && !s.bias.learnt() { Vector3::zeros() } else { sample.angular_rate - s.bias.bias };
             s.rate = w;
             s.gyro_attitude *= UnitQuaternion::from_scaled_axis(w * dt);
             if let Some((roll, pitch)) = tilt_from_gravity(&sample.specific_force) {
@@ -234,7 +231,7 @@ impl LocalizationInertial {
             gyro_noise: self.params.gyro_noise,
             gravity: s.gravity,
             gyro_bias: s.bias.bias,
-            bias_learnt: s.bias_learnt,
+            bias_learnt: s.bias.learnt(),
             angular_rate: s.rate,
         };
         ctx.write_stamped(w, est, s.last.stamp);
@@ -256,7 +253,7 @@ impl Module for LocalizationInertial {
             "initial_yaw_deg and initial_yaw_sigma_deg",
             &[p.initial_yaw_deg, p.initial_yaw_sigma_deg],
         )?;
-        crate::params::require_non_negative(&[("bias_sigma", p.bias_sigma), ("bias_walk", p.bias_walk)])?;
+        require_non_negative(&[("bias_sigma", p.bias_sigma), ("bias_walk", p.bias_walk)])?;
         require_positive(&[
             ("gyro_noise", p.gyro_noise),
             ("tilt_time_constant_s", p.tilt_time_constant_s),

@@ -741,8 +741,7 @@ fn the_gyro_integrates_to_the_true_rotation_of_a_turn_in_place() {
                 stamp = s.stamp;
             }
             let now = t.lock().base_pose().rotation.euler_angles().2;
-            turned +=
-                (now - yaw + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI;
+            turned += framework::angle::wrap(now - yaw);
             yaw = now;
         }
         let truth = r0.inverse() * t.lock().base_pose().rotation;

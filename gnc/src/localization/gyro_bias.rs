@@ -4,7 +4,7 @@
 //!
 //! While the body stands the estimate is the mean of the samples since it stopped, weighted
 //! against what was known before; over a long standstill it becomes a moving mean over the time
-//! the walk allows (`noise / walk`, about 20 s with the shipped values). It replaced a fixed-gain
+//! the walk allows (`noise / walk`, about 17 s with the shipped values). It replaced a fixed-gain
 //! exponential average (gain 0.02 at 100 Hz: a 0.5 s window) whose estimate stayed 3e-4 rad/s off
 //! the bias however long the rover stood: 3 degrees of heading in 170 s.
 
@@ -26,6 +26,11 @@ impl GyroBias {
     /// Nothing learnt yet: a bias of 0 with the turn-on bias's uncertainty `sigma`, rad/s.
     pub fn new(sigma: f64) -> Self {
         GyroBias { bias: Vector3::zeros(), variance: sigma * sigma, samples: 0 }
+    }
+
+    /// Whether any sample has been learnt from.
+    pub fn learnt(&self) -> bool {
+        self.samples > 0
     }
 
     /// Standard deviation of the estimate per axis, rad/s.

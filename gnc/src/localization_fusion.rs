@@ -133,6 +133,10 @@ pub struct FusionParams {
     /// Visual measurements whose rotation is beyond this squared Mahalanobis distance from the
     /// gyro's are refused (their translation is never gated: the wheels slip).
     pub visual_gate: f64,
+    /// A visual measurement whose rotation is refused has its translation applied alone,
+    /// conditioned on the gyro's rotation and widened by how far the rotation was off, and gated
+    /// at `visual_gate` on its own ([`FilterParams::relative_translation_fallback`]).
+    pub visual_translation_fallback: bool,
     /// Use visual odometry (false: wheels and IMU only).
     pub use_visual: bool,
     /// An IMU whose estimate does not advance for this long is silent: heading from the wheels, s.
@@ -197,6 +201,7 @@ impl Default for FusionParams {
             still_gate: 16.0,
             history_s: 10.0,
             visual_gate: 50.0,
+            visual_translation_fallback: true,
             use_visual: true,
             silent_after_s: 0.2,
             landmarks: Vec::new(),
@@ -216,6 +221,8 @@ pub struct FusionCounts {
     pub applied: u64,
     /// Refused (too old, overlapping, beyond the gate).
     pub refused: u64,
+    /// Of those applied, the ones whose rotation was refused and translation applied alone.
+    pub translation_only: u64,
     /// Landmark fixes applied.
     pub landmarks_applied: u64,
     /// Landmark fixes refused (too old, beyond the gate).
@@ -580,7 +587,18 @@ impl LocalizationDataFusion {
     fn count(&mut self, ctx: &mut Ctx<'_>, r: Result<f64, RelativeError>) {
         match r {
             Ok(d2) if d2.is_nan() => {}
-            Ok(_) => self.counts.applied += 1,
+            Ok(d2) => {
+                self.counts.applied += 1;
+                let n = self.filter.as_ref().map_or(0, PoseFilter::translation_only);
+                if n > self.counts.translation_only {
+                    self.counts.translation_only = n;
+                    if n <= 20 || n.is_power_of_two() {
+                        ctx.note(format!(
+                            "visual odometry measurement's rotation refused, its translation applied alone ({n} so far; the translation's squared Mahalanobis distance {d2:.1})"
+                        ));
+                    }
+                }
+            }
             Err(e) => {
                 self.counts.refused += 1;
                 // Every refusal is worth knowing about, but not at 10 Hz forever.
@@ -708,6 +726,7 @@ fn filter_params(p: &FusionParams) -> FilterParams {
         history_s: p.history_s,
         gravity_sigma: p.gravity_sigma,
         relative_gate: p.visual_gate,
+        relative_translation_fallback: p.visual_translation_fallback,
         landmark_gate: p.landmark_gate,
         tilt_random_walk: p.tilt_random_walk,
         gyro_bias_sigma: p.gyro_bias_sigma,

@@ -357,3 +357,61 @@ fn the_consider_update_is_the_joseph_form_with_the_considered_gains_zeroed() {
     assert!((dx - ks * y).abs().max() < 1e-12);
     assert_eq!(dx.fixed_rows::<2>(MOUNT).into_owned(), Vector2::zeros());
 }
+
+/// Over a stall (the wheels overstating the motion twofold), a keyframe whose rotation is off
+/// beyond the gate still measures the translation: with the fallback it is applied alone and the
+/// position follows it, the heading stays the gyro's; without, the whole keyframe is refused and
+/// the position is the wheels'. A translation that is off too is refused either way.
+#[test]
+fn a_refused_rotation_leaves_its_translation_applied_alone_with_the_fallback() {
+    let poses = truth(100);
+    let mut g = Gauss(7);
+    let mut inc = increments(&poses, &mut g, 0.001, 0.0005, 0.01);
+    for i in &mut inc[40..50] {
+        i.translation *= 2.0;
+        i.translation_covariance = Matrix3::identity() * 0.02 * 0.02;
+    }
+    let truth_delta = poses[40].inverse() * poses[50];
+    let turned = UnitQuaternion::from_scaled_axis(Vector3::new(0.03, 0.0, 0.0));
+    let keyframe = |delta: Isometry3<f64>| RelativePose {
+        from: stamp(40),
+        to: stamp(50),
+        delta,
+        covariance: Matrix6::identity() * 1e-6,
+    };
+    let off = keyframe(Isometry3::from_parts(truth_delta.translation, truth_delta.rotation * turned));
+    let error_at_50 = |fallback: bool, m: RelativePose| {
+        let mut f = PoseFilter::new(
+            stamp(0),
+            poses[0],
+            Matrix6::identity() * 1e-6,
+            FilterParams { relative_translation_fallback: fallback, ..params() },
+        );
+        for i in &inc {
+            f.predict(i.clone());
+        }
+        let wheels = f.state_at(stamp(50)).expect("kept").pose;
+        let r = f.relative(m);
+        let s = f.state_at(stamp(50)).expect("kept").pose;
+        let position = (s.translation.vector - poses[50].translation.vector).norm();
+        let wheels_position = (wheels.translation.vector - poses[50].translation.vector).norm();
+        let heading_moved = (s.rotation * wheels.rotation.inverse()).angle();
+        (r, position, wheels_position, heading_moved, f.translation_only())
+    };
+    let (r, position, wheels, heading_moved, n) = error_at_50(true, off.clone());
+    assert!(r.is_ok(), "{r:?}");
+    assert_eq!(n, 1);
+    assert!(wheels > 0.03, "the wheels overstate the motion: {wheels} m");
+    assert!(position < 0.1 * wheels, "the translation followed: {position} m against the wheels' {wheels} m");
+    assert!(heading_moved < 1e-3, "the rotation was not applied: moved {heading_moved} rad");
+    let (r, position, wheels, _, n) = error_at_50(false, off);
+    assert!(matches!(r, Err(RelativeError::Gated(_))), "{r:?}");
+    assert_eq!((n, position), (0, wheels));
+    let far = Isometry3::from_parts(
+        Translation3::from(truth_delta.translation.vector + Vector3::new(0.0, 1.0, 0.0)),
+        truth_delta.rotation * turned,
+    );
+    let (r, _, _, _, n) = error_at_50(true, keyframe(far));
+    assert!(matches!(r, Err(RelativeError::Gated(_))), "{r:?}");
+    assert_eq!(n, 0);
+}

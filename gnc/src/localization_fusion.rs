@@ -131,11 +131,11 @@ pub struct FusionParams {
     /// How long the filter keeps its steps for late measurements, s.
     pub history_s: f64,
     /// Visual measurements whose rotation is beyond this squared Mahalanobis distance from the
-    /// gyro's are refused (their translation is never gated: the wheels slip).
+    /// gyro's are refused (a whole measurement is gated on its rotation alone: the wheels slip).
     pub visual_gate: f64,
     /// A visual measurement whose rotation is refused has its translation applied alone,
-    /// conditioned on the gyro's rotation and widened by how far the rotation was off, and gated
-    /// at `visual_gate` on its own ([`FilterParams::relative_translation_fallback`]).
+    /// decorrelated from its rotation's error and widened by how far the rotation was off, and
+    /// gated at `visual_gate` on its own ([`FilterParams::relative_translation_fallback`]).
     pub visual_translation_fallback: bool,
     /// Use visual odometry (false: wheels and IMU only).
     pub use_visual: bool,
@@ -589,14 +589,13 @@ impl LocalizationDataFusion {
             Ok(d2) if d2.is_nan() => {}
             Ok(d2) => {
                 self.counts.applied += 1;
-                let n = self.filter.as_ref().map_or(0, PoseFilter::translation_only);
-                if n > self.counts.translation_only {
-                    self.counts.translation_only = n;
-                    if n <= 20 || n.is_power_of_two() {
-                        ctx.note(format!(
-                            "visual odometry measurement's rotation refused, its translation applied alone ({n} so far; the translation's squared Mahalanobis distance {d2:.1})"
-                        ));
-                    }
+                let n = self.filter.as_mut().map_or(0, PoseFilter::take_translation_only);
+                self.counts.translation_only += n;
+                let total = self.counts.translation_only;
+                if n > 0 && (total <= 20 || (total + 1 - n..=total).any(u64::is_power_of_two)) {
+                    ctx.note(format!(
+                        "visual odometry measurement's rotation refused, its translation applied alone ({total} so far; squared Mahalanobis distance {d2:.1})"
+                    ));
                 }
             }
             Err(e) => {

@@ -47,8 +47,8 @@
 //!   Log(Exp(ν |t_D| e_z) R_D^T R_a^T R_b)), by stochastic cloning: the pose at t_a is cloned
 //!   into an augmented state, the increments from t_a to t_b re-propagated with it, and the update
 //!   made at t_b. Gated on the rotation (against the gyro's); a refused rotation's translation is
-//!   still applied alone when `relative_translation_fallback` is on, conditioned on the filter's
-//!   rotation through the measurement's correlations, its covariance widened by the rotation's
+//!   still applied alone when `relative_translation_fallback` is on, decorrelated from the
+//!   rotation's error through the measurement's covariance, its noise widened by the rotation's
 //!   squared distance per degree of freedom and gated on its own: a keyframe whose rotation went
 //!   wrong over a stall still says the body did not move while the wheels spun.
 //! - The relative measurements' mount tilt ε (roll and pitch of their source's mounting that its
@@ -95,11 +95,12 @@ pub struct FilterParams {
     /// refused (or, with `relative_translation_fallback`, their translation alone applied).
     pub relative_gate: f64,
     /// A relative measurement whose rotation is refused still measures how far the body moved:
-    /// its translation is applied alone, conditioned on the filter's rotation (the measured
-    /// rotation's error taken out through their correlation) and its covariance widened by how
-    /// many times the rotation's understated its error (the squared distance per degree of
-    /// freedom), itself gated at `relative_gate`. Refused whole otherwise: over a stall the
-    /// wheels then measure a motion the body never made.
+    /// its translation is applied alone, decorrelated from the measured rotation (the part of
+    /// its error that the rotation's error explains taken out through the measurement's
+    /// covariance), its noise widened by the rotation's squared distance per degree of freedom
+    /// (how many times its disagreement exceeds what the covariances allow), and gated at
+    /// `relative_gate` on its own. Refused whole otherwise: over a stall the wheels then measure
+    /// a motion the body never made.
     pub relative_translation_fallback: bool,
     /// Landmark fixes whose squared Mahalanobis distance (4 dof) exceeds this are refused.
     pub landmark_gate: f64,
@@ -306,7 +307,7 @@ pub struct PoseFilter {
     last_relative_end: Option<Time>,
     /// Relative measurements ending after the newest step, waiting for it.
     pending: Vec<RelativePose>,
-    /// Relative measurements of which the translation alone was applied.
+    /// Relative measurements of which the translation alone was applied, since last taken.
     translation_only: u64,
 }
 
@@ -584,9 +585,9 @@ impl Augmented {
     /// it is of second order) and the yaw drift.
     /// `considered`: the mount tilt's states ([`CONSIDERED_BY_RELATIVE`]), or none when it is
     /// taken as calibrated.
-    /// Returns the squared Mahalanobis distance and whether the translation alone was applied
-    /// (`fallback`: see [`FilterParams::relative_translation_fallback`]), or the refused
-    /// rotation's distance.
+    /// Returns the squared Mahalanobis distance (6 dof; 3 for a translation applied alone) and
+    /// whether the translation alone was applied (`fallback`: see
+    /// [`FilterParams::relative_translation_fallback`]), or, refused, the rotation's distance.
     fn relative(
         &mut self,
         m: &RelativePose,
@@ -595,19 +596,21 @@ impl Augmented {
         considered: &[usize],
     ) -> Result<(f64, bool), f64> {
         let (y, h) = self.relative_model(m);
-        // Gated on the rotation only: the gyro that predicted it is reliable, while the wheels that
-        // predicted the translation slip by more than any Gaussian says (a spinning wheel, a
-        // stall) exactly when vision matters most.
+        // The whole measurement is gated on its rotation only: the gyro that predicted it is
+        // reliable, while the wheels that predicted the translation slip by more than any
+        // Gaussian says (a spinning wheel, a stall) exactly when vision matters most.
         let rotation_d2 = match self.update(&y, &h, &m.covariance, Some((3, gate)), considered) {
             Ok(d2) => return Ok((d2, false)),
             Err(d2) if fallback && d2.is_finite() => d2,
             Err(d2) => return Err(d2),
         };
-        // The rotation's error (measured minus predicted, the gyro's prediction taken as right)
-        // moves the translation's by C_tr C_rr^-1 of it; what is left of the translation's noise
-        // is its conditional covariance, widened by the rotation's squared distance per degree of
-        // freedom. Measured on the slipping slope's refused keyframes: their sideways error went
-        // from 4-5 cm to 0.2-0.9 cm.
+        // The measured translation less G = C_tr C_rr^-1 times the measured rotation, a
+        // measurement of the state's t - G r whose noise is the translation's conditional one
+        // (C_tt - G C_tr^T), independent of the rotation's error however large: the part of the
+        // translation's error that goes with the rotation's (a lever arm) is taken out. Widened
+        // by the rotation's squared distance per degree of freedom. On the slipping slope's
+        // refused keyframes (their rotations 2.6-3.5 degrees off): sideways 0.2-0.9 cm off
+        // against 4-5 cm for the raw translation.
         let c = &m.covariance;
         let c_rr = c.fixed_view::<3, 3>(3, 3).into_owned();
         let c_tr = c.fixed_view::<3, 3>(0, 3).into_owned();
@@ -615,7 +618,7 @@ impl Augmented {
         let g = c_tr * c_rr_inv;
         let y_t = y.fixed_rows::<3>(0) - g * y.fixed_rows::<3>(3);
         let n = (c.fixed_view::<3, 3>(0, 0) - g * c_tr.transpose()) * (rotation_d2 / 3.0);
-        let h_t = h.fixed_rows::<3>(0).into_owned();
+        let h_t = h.fixed_rows::<3>(0) - g * h.fixed_rows::<3>(3);
         match self.update(&y_t, &h_t, &n, Some((0, gate)), considered) {
             Ok(d2) => Ok((d2, true)),
             Err(_) => Err(rotation_d2),
@@ -842,9 +845,9 @@ impl PoseFilter {
     }
 
     /// How many relative measurements had their translation alone applied, their rotation
-    /// refused ([`FilterParams::relative_translation_fallback`]).
-    pub fn translation_only(&self) -> u64 {
-        self.translation_only
+    /// refused ([`FilterParams::relative_translation_fallback`]), since the last call.
+    pub fn take_translation_only(&mut self) -> u64 {
+        std::mem::take(&mut self.translation_only)
     }
 
     /// A landmark sighting carried by the filter's motion from its capture time to the newest

@@ -361,7 +361,10 @@ fn the_consider_update_is_the_joseph_form_with_the_considered_gains_zeroed() {
 /// Over a stall (the wheels overstating the motion twofold), a keyframe whose rotation is off
 /// beyond the gate still measures the translation: with the fallback it is applied alone and the
 /// position follows it, the heading stays the gyro's; without, the whole keyframe is refused and
-/// the position is the wheels'. A translation that is off too is refused either way.
+/// the position is the wheels'. A translation that is off too is refused either way, the state
+/// untouched. With a lever arm in the keyframe's covariance (its translation's error going with
+/// its rotation's, as a camera's points ahead of the body make it), the part of the translation's
+/// error that the rotation's explains is taken out.
 #[test]
 fn a_refused_rotation_leaves_its_translation_applied_alone_with_the_fallback() {
     let poses = truth(100);
@@ -372,14 +375,17 @@ fn a_refused_rotation_leaves_its_translation_applied_alone_with_the_fallback() {
         i.translation_covariance = Matrix3::identity() * 0.02 * 0.02;
     }
     let truth_delta = poses[40].inverse() * poses[50];
-    let turned = UnitQuaternion::from_scaled_axis(Vector3::new(0.03, 0.0, 0.0));
-    let keyframe = |delta: Isometry3<f64>| RelativePose {
+    let theta = Vector3::new(0.03, 0.0, 0.0);
+    let turned = truth_delta.rotation * UnitQuaternion::from_scaled_axis(theta);
+    let keyframe = |translation: Vector3<f64>, covariance: Matrix6<f64>| RelativePose {
         from: stamp(40),
         to: stamp(50),
-        delta,
-        covariance: Matrix6::identity() * 1e-6,
+        delta: Isometry3::from_parts(
+            Translation3::from(truth_delta.translation.vector + translation),
+            turned,
+        ),
+        covariance,
     };
-    let off = keyframe(Isometry3::from_parts(truth_delta.translation, truth_delta.rotation * turned));
     let error_at_50 = |fallback: bool, m: RelativePose| {
         let mut f = PoseFilter::new(
             stamp(0),
@@ -395,23 +401,35 @@ fn a_refused_rotation_leaves_its_translation_applied_alone_with_the_fallback() {
         let s = f.state_at(stamp(50)).expect("kept").pose;
         let position = (s.translation.vector - poses[50].translation.vector).norm();
         let wheels_position = (wheels.translation.vector - poses[50].translation.vector).norm();
+        let moved = (s.translation.vector - wheels.translation.vector).norm();
         let heading_moved = (s.rotation * wheels.rotation.inverse()).angle();
-        (r, position, wheels_position, heading_moved, f.translation_only())
+        (r, position, wheels_position, moved, heading_moved, f.take_translation_only())
     };
-    let (r, position, wheels, heading_moved, n) = error_at_50(true, off.clone());
+    let white = Matrix6::identity() * 1e-6;
+    let (r, position, wheels, _, heading_moved, n) = error_at_50(true, keyframe(Vector3::zeros(), white));
     assert!(r.is_ok(), "{r:?}");
     assert_eq!(n, 1);
     assert!(wheels > 0.03, "the wheels overstate the motion: {wheels} m");
     assert!(position < 0.1 * wheels, "the translation followed: {position} m against the wheels' {wheels} m");
     assert!(heading_moved < 1e-3, "the rotation was not applied: moved {heading_moved} rad");
-    let (r, position, wheels, _, n) = error_at_50(false, off);
-    assert!(matches!(r, Err(RelativeError::Gated(_))), "{r:?}");
-    assert_eq!((n, position), (0, wheels));
-    let far = Isometry3::from_parts(
-        Translation3::from(truth_delta.translation.vector + Vector3::new(0.0, 1.0, 0.0)),
-        truth_delta.rotation * turned,
-    );
-    let (r, _, _, _, n) = error_at_50(true, keyframe(far));
+    let (r, position, wheels, moved, _, n) = error_at_50(false, keyframe(Vector3::zeros(), white));
     assert!(matches!(r, Err(RelativeError::Gated(_))), "{r:?}");
     assert_eq!(n, 0);
+    assert!(moved < 1e-9 && (position - wheels).abs() < 1e-9, "refused: the wheels' position stays");
+    let (r, _, _, moved, heading_moved, n) = error_at_50(true, keyframe(Vector3::new(0.0, 1.0, 0.0), white));
+    assert!(matches!(r, Err(RelativeError::Gated(_))), "{r:?}");
+    assert_eq!(n, 0);
+    assert!(moved < 1e-9 && heading_moved < 1e-9, "refused: the state is untouched");
+    // A lever arm of 1 m along z: the translation's error is the rotation's times it, as the
+    // covariance J diag(1e-6) J^T says (J = [[I, -[l]x], [0, I]]).
+    let lever = Vector3::new(0.0, 0.0, 1.0);
+    let mut j = Matrix6::identity();
+    j.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-lever.cross_matrix()));
+    let correlated = j * white * j.transpose();
+    let induced = -lever.cross_matrix() * theta;
+    assert!(induced.norm() > 0.025, "the rotation's error moves the translation by {induced}");
+    let (r, position, wheels, _, _, n) = error_at_50(true, keyframe(induced, correlated));
+    assert!(r.is_ok(), "{r:?}");
+    assert_eq!(n, 1);
+    assert!(position < 0.1 * wheels, "decorrelated: {position} m against the wheels' {wheels} m");
 }
